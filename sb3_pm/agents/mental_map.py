@@ -1,0 +1,145 @@
+"""Mental maps (METHOD.md "Mental map M_i", paper §III.B), one per agent, in pure NumPy.
+
+A mental map is an agent's fixed-size memory of the whole graph built only from what that agent
+has observed itself. The class is batched over agents because the environment updates every map
+each step; each row is still one agent's private memory and no row ever reads another.
+
+Node features, one row per node (``FEATURES`` gives the column order):
+
+========  ==============================================================
+u         last observed uncertainty (0 until observed)
+age       steps since the node was last observed (grows from 0 at episode start)
+target    target flag (0 until observed)
+occupied  another agent was on the node when last observed
+self      the node is the agent's own position
+========  ==============================================================
+
+Known adjacency: with ``graph_knowledge="discovered"`` (the paper's), an edge is added the first
+time it is observed. An agent observes the edges incident to the nodes strictly inside its
+observation ball (within ``obs_radius - 1`` hops), so with radius 1 it learns the edges at its own
+node. With ``"known"`` the whole topology is given up front. Node features reset every episode;
+discovered edges persist for the map's lifetime, since the graph is static.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+FEATURES = ("u", "age", "target", "occupied", "self")
+U, AGE, TARGET, OCCUPIED, SELF = range(len(FEATURES))
+GRAPH_KNOWLEDGE = ("discovered", "known")
+
+
+class MentalMaps:
+    """The mental maps of ``n_agents`` agents on an ``n_nodes``-node graph.
+
+    :param n_agents: number of maps.
+    :param adjacency: ``(N, N)`` bool true adjacency; the maps read from it only rows that their
+        agent observes (or all of it with ``graph_knowledge="known"``).
+    :param graph_knowledge: ``"discovered"`` or ``"known"``.
+    """
+
+    def __init__(self, n_agents: int, adjacency: np.ndarray, graph_knowledge: str = "discovered") -> None:
+        if graph_knowledge not in GRAPH_KNOWLEDGE:
+            raise ValueError(f"graph_knowledge must be one of {GRAPH_KNOWLEDGE}, got {graph_knowledge!r}")
+        self.n_agents = n_agents
+        self.n_nodes = adjacency.shape[0]
+        self.graph_knowledge = graph_knowledge
+        self._true_adjacency = np.asarray(adjacency, dtype=bool)
+        # One contiguous ``(n_agents, N)`` float32 array per feature: the per-step updates run on
+        # contiguous memory, and :attr:`features` stacks them only when an observation is made.
+        self.channels = np.zeros((len(FEATURES), n_agents, self.n_nodes), dtype=np.float32)
+        #: ``(n_agents, N, N)`` bool known adjacency.
+        self.adjacency = np.zeros((n_agents, self.n_nodes, self.n_nodes), dtype=bool)
+        #: ``(n_agents, N)`` bool: nodes whose incident edges the agent has observed.
+        self.explored = np.zeros((n_agents, self.n_nodes), dtype=bool)
+        #: ``(n_agents,)`` running sum, this episode, of the map's uncertainties (reward term ``change``).
+        self.episode_uncertainty_sum = np.zeros(n_agents, dtype=np.float64)
+        self._adjacency_int8: list[np.ndarray | None] = [None] * n_agents
+        self._rows = np.arange(n_agents)
+        self._all_explored = False
+        # Staging block for the four channels overwritten on observation (U, AGE, TARGET, OCCUPIED
+        # are adjacent), so one masked copy updates them all; AGE's source is always 0.
+        self._observed_values = np.zeros((OCCUPIED + 1, n_agents, self.n_nodes), dtype=np.float32)
+        if graph_knowledge == "known":
+            self.adjacency[:] = self._true_adjacency
+            self.explored[:] = True
+            self._all_explored = True
+
+    def forget_edges(self) -> None:
+        """Start the known adjacency over (a new agent lifetime); no-op in ``"known"`` mode."""
+        if self.graph_knowledge == "discovered":
+            self.adjacency[:] = False
+            self.explored[:] = False
+            self._all_explored = False
+            self._adjacency_int8 = [None] * self.n_agents
+
+    @property
+    def features(self) -> np.ndarray:
+        """``(n_agents, N, F)`` float32 node features, a fresh array (columns in :data:`FEATURES` order)."""
+        return self.channels.transpose(1, 2, 0).copy()
+
+    def reset_features(self) -> None:
+        """Start a new episode: clear node features (edges are kept)."""
+        self.channels[:] = 0.0
+        self.episode_uncertainty_sum[:] = 0.0
+
+    def update(
+        self,
+        positions: np.ndarray,
+        observed: np.ndarray,
+        uncertainty: np.ndarray,
+        targets: np.ndarray,
+        counts: np.ndarray,
+        edge_nodes: np.ndarray,
+        advance_age: bool = True,
+    ) -> None:
+        """Fold one step of local observations into every map.
+
+        :param positions: ``(n_agents,)`` int node of each agent.
+        :param observed: ``(n_agents, N)`` bool, nodes each agent observes now.
+        :param uncertainty: ``(N,)`` true uncertainties; only observed entries are read.
+        :param targets: ``(N,)`` true target flags; only observed entries are read.
+        :param counts: ``(N,)`` agents per node; each map sees others' presence on observed nodes.
+        :param edge_nodes: ``(n_agents, N)`` bool, nodes whose incident edges each agent observes now.
+        :param advance_age: False for the very first observation of an episode.
+        """
+        c = self.channels
+        self_onehot = c[SELF]
+        self_onehot.fill(0.0)
+        self_onehot[self._rows, positions] = 1.0
+        if advance_age:
+            c[AGE] += 1.0
+        staged = self._observed_values
+        staged[U] = uncertainty
+        staged[TARGET] = targets
+        np.greater(counts, self_onehot, out=staged[OCCUPIED])  # others there: count minus self > 0
+        c[: OCCUPIED + 1] = np.where(observed, staged, c[: OCCUPIED + 1])  # faster than a masked copyto here
+        self.episode_uncertainty_sum += c[U].sum(axis=1)
+        if not self._all_explored:
+            self._discover_edges(edge_nodes)
+
+    def _discover_edges(self, edge_nodes: np.ndarray) -> None:
+        new = edge_nodes & ~self.explored
+        if not new.any():  # the common case once a neighbourhood has been seen
+            return
+        for agent in np.flatnonzero(new.any(axis=1)):
+            rows = np.flatnonzero(new[agent])
+            self.adjacency[agent, rows, :] |= self._true_adjacency[rows, :]
+            self.adjacency[agent, :, rows] |= self._true_adjacency[rows, :]
+            self.explored[agent, rows] = True
+            self._adjacency_int8[agent] = None
+        self._all_explored = bool(self.explored.all())
+
+    def adjacency_observation(self, agent: int) -> np.ndarray:
+        """``(N, N)`` int8 read-only known adjacency of ``agent``.
+
+        The array is rebuilt only when the map gains an edge, and never written afterwards, so a
+        caller may keep it as long as it likes without copying.
+        """
+        cached = self._adjacency_int8[agent]
+        if cached is None:
+            cached = self.adjacency[agent].astype(np.int8)
+            cached.setflags(write=False)
+            self._adjacency_int8[agent] = cached
+        return cached

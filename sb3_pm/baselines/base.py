@@ -1,0 +1,44 @@
+"""The one team interface shared by baselines and learned teams.
+
+The evaluation harness drives every team the same way::
+
+    team.reset(env, seed=...)            # once per episode, after env.reset()
+    actions = team.predict(observations, deterministic=True)
+
+``observations`` maps agent names to that agent's own observation (a mental map by default).
+A *decentralized* team must compute each agent's action from that agent's observation alone;
+an *omniscient* team (``omniscient = True``) may also read the true state through
+``env.unwrapped`` (``uncertainty``, ``positions``, ``graph``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any
+
+import numpy as np
+
+Observation = dict[str, Any]
+
+
+class Team(ABC):
+    """A policy for a whole team of agents.
+
+    :cvar name: the name used in reports and on the command line.
+    :cvar omniscient: True if the team reads the true state through the env.
+    """
+
+    name: str = "team"
+    omniscient: bool = False
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Start an episode on ``env`` (already reset). Seeds the team's own randomness."""
+        self.env = env
+        self.rng = np.random.default_rng(seed)
+
+    @abstractmethod
+    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+        """One destination node per agent in ``observations``."""
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(name={self.name!r})"

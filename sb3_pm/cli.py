@@ -1,0 +1,60 @@
+"""The ``sb3-pm`` command line: ``sb3-pm <command> --help`` for each command.
+
+Each command lives in its own module under :mod:`sb3_pm.commands` and provides
+``register(subparsers)``; it sets ``func`` on its parser. Errors a user can fix (a bad graph, a
+missing file, a malformed config) print one line and exit with status 2, not a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from sb3_pm.version import __version__
+
+#: Command modules, in help order. A module that is not there yet is skipped.
+COMMAND_MODULES = ("evaluate", "compare", "train", "reproduce", "render")
+
+
+class UsageError(Exception):
+    """A problem with the user's input; the CLI prints its message and exits with status 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="sb3-pm", description="Decentralized, safety-aware multi-agent RL for persistent monitoring on graphs."
+    )
+    parser.add_argument("--version", action="version", version=f"sb3-pm {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"sb3_pm.commands.{name}")
+        except ModuleNotFoundError as error:
+            if error.name == f"sb3_pm.commands.{name}":
+                continue
+            raise
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from sb3_pm.graphs import GraphError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, GraphError, FileNotFoundError, FileExistsError, ValueError) as error:
+        print(f"sb3-pm {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"sb3-pm {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,120 @@
+"""Persistent-monitoring dynamics in pure NumPy (METHOD.md "Dynamics"; the paper's eq. 1 with a cap).
+
+The core knows nothing of PettingZoo, observations or rewards: it holds the true state (agent
+positions and node uncertainties) and advances it one simultaneous move at a time. Everything is
+vectorized over agents and targets; nothing here touches networkx.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sb3_pm.graphs import GraphSpec
+
+
+class IllegalActionError(ValueError):
+    """An agent asked to move to a node outside its reachable set."""
+
+
+@dataclass
+class StepOutcome:
+    """What one simultaneous move did; all arrays are fresh (safe to keep).
+
+    :ivar counts: ``(N,)`` int, how many agents stand on each node after the move.
+    :ivar presence: ``(N,)`` bool, ``counts > 0``.
+    :ivar u_before: ``(n_agents,)`` int, the uncertainty each agent found at its new node before the
+        update (what its presence acted on).
+    :ivar u_after: ``(n_agents,)`` int, the uncertainty at each agent's node after the update.
+    :ivar collided: ``(n_agents,)`` bool, the agent shares its node with another agent.
+    :ivar illegal: ``(n_agents,)`` bool, the agent's request was illegal and replaced by staying.
+    """
+
+    counts: np.ndarray
+    presence: np.ndarray
+    u_before: np.ndarray
+    u_after: np.ndarray
+    collided: np.ndarray
+    illegal: np.ndarray
+
+
+class MonitoringCore:
+    """The true state of one persistent-monitoring episode.
+
+    :param graph: the graph to monitor.
+    :param n_agents: team size, ``1 <= n_agents <= N``.
+    :param u_max: the uncertainty cap.
+    """
+
+    def __init__(self, graph: GraphSpec, n_agents: int, u_max: int = 100) -> None:
+        if n_agents < 1:
+            raise ValueError(f"n_agents must be at least 1, got {n_agents}")
+        if n_agents > graph.n_nodes:
+            raise ValueError(f"more agents ({n_agents}) than nodes ({graph.n_nodes}) in graph {graph.name!r}")
+        if u_max < 1:
+            raise ValueError(f"u_max must be a positive integer, got {u_max}")
+        self.graph = graph
+        self.n_agents = n_agents
+        self.u_max = int(u_max)
+        self._reachable = graph.reachable
+        self._target_idx = graph.target_indices
+        self.positions = np.zeros(n_agents, dtype=np.int64)
+        self.uncertainty = np.zeros(graph.n_nodes, dtype=np.int64)
+
+    def reset(self, positions: np.ndarray, uncertainty: np.ndarray | None = None) -> None:
+        """Place the agents and set the initial uncertainties (zeros by default; non-targets stay 0)."""
+        positions = np.asarray(positions, dtype=np.int64)
+        if positions.shape != (self.n_agents,):
+            raise ValueError(f"expected {self.n_agents} initial positions, got {positions.tolist()}")
+        if ((positions < 0) | (positions >= self.graph.n_nodes)).any():
+            raise ValueError(f"initial positions {positions.tolist()} are not all nodes of 0..{self.graph.n_nodes - 1}")
+        self.positions = positions.copy()
+        self.uncertainty = np.zeros(self.graph.n_nodes, dtype=np.int64)
+        if uncertainty is not None:
+            values = np.asarray(uncertainty, dtype=np.int64)
+            if values.shape != (self.graph.n_nodes,) or (values < 0).any() or (values > self.u_max).any():
+                raise ValueError(f"initial uncertainty must be {self.graph.n_nodes} integers in [0, {self.u_max}]")
+            self.uncertainty[self._target_idx] = values[self._target_idx]
+
+    def reachable_from(self, agent: int) -> np.ndarray:
+        """Node indices agent ``agent`` may move to now (its node and its neighbours)."""
+        return np.flatnonzero(self._reachable[self.positions[agent]])
+
+    def step(self, destinations: np.ndarray, illegal: str = "raise", agent_names: list[str] | None = None) -> StepOutcome:
+        """Move every agent at once, then update uncertainties (eq. 1 and the cap).
+
+        :param destinations: ``(n_agents,)`` node indices.
+        :param illegal: ``"raise"`` raises :class:`IllegalActionError` for a move outside the reachable
+            set; ``"stay"`` keeps such an agent in place and flags it in the outcome.
+        :param agent_names: names used in error messages.
+        """
+        destinations = np.asarray(destinations, dtype=np.int64)
+        clipped = np.minimum(np.maximum(destinations, 0), self.graph.n_nodes - 1)  # ufuncs: cheaper than clip
+        legal = self._reachable[self.positions, clipped] & (clipped == destinations)
+        if not legal.all():
+            if illegal == "raise":
+                agent = int(np.flatnonzero(~legal)[0])
+                name = agent_names[agent] if agent_names else f"agent {agent}"
+                raise IllegalActionError(
+                    f"{name} on node {int(self.positions[agent])} cannot move to node {int(destinations[agent])}; "
+                    f"its reachable set is {self.reachable_from(agent).tolist()}"
+                )
+            destinations = np.where(legal, destinations, self.positions)
+        self.positions = destinations
+        counts = np.bincount(destinations, minlength=self.graph.n_nodes)
+        presence = counts > 0
+        u_before = self.uncertainty[destinations]
+        targets = self._target_idx
+        u = self.uncertainty[targets]
+        # eq. 1 with the cap: a visited target drops by one (u + 1 - 2p, u > 0) or stays at zero
+        # (u + 1 - p, u == 0); an unvisited one grows by one up to u_max.
+        self.uncertainty[targets] = np.where(presence[targets], np.maximum(u - 1, 0), np.minimum(u + 1, self.u_max))
+        return StepOutcome(
+            counts=counts,
+            presence=presence,
+            u_before=u_before,
+            u_after=self.uncertainty[destinations],
+            collided=counts[destinations] > 1,
+            illegal=~legal,
+        )

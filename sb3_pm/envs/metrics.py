@@ -1,0 +1,72 @@
+"""Episode metrics (METHOD.md "Metrics"), streamed one step at a time.
+
+Step ``k`` (``k = 0..K-1``) is measured after its move and uncertainty update:
+
+``avg_uncertainty``     (1/K) sum_k sum_{targets} u_{m,k}
+``max_neglect``         over targets, the longest run of consecutive steps with no agent on the
+                        target (K for a target never visited during the episode)
+``collisions``          agent-steps on which an agent shared its node with another
+``peak_uncertainty``    the largest target u seen
+``saturated_fraction``  fraction of steps on which some target sat at the cap u_max
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+METRIC_NAMES = ("avg_uncertainty", "max_neglect", "collisions", "peak_uncertainty", "saturated_fraction")
+
+
+class EpisodeMetrics:
+    """Accumulates one episode's metrics; vectorized over targets.
+
+    :param target_indices: ``(T,)`` target node indices.
+    :param u_max: the cap, for ``saturated_fraction``.
+    :param max_steps: episode length K, to preallocate the uncertainty trace.
+    """
+
+    def __init__(self, target_indices: np.ndarray, u_max: int, max_steps: int) -> None:
+        self.target_indices = np.asarray(target_indices)
+        self.u_max = u_max
+        #: ``(K,)`` summed target uncertainty after each step (only the first ``steps`` are valid).
+        self.trace = np.zeros(max_steps, dtype=np.float64)
+        self.reset()
+
+    def reset(self) -> None:
+        n_targets = len(self.target_indices)
+        self.steps = 0
+        self.collisions = 0
+        self.peak = 0
+        self.saturated_steps = 0
+        self._run = np.zeros(n_targets, dtype=np.int64)
+        self._longest = np.zeros(n_targets, dtype=np.int64)
+
+    def update(self, uncertainty: np.ndarray, presence: np.ndarray, n_collided: int) -> None:
+        """Record step ``k``: ``(N,)`` uncertainties and ``(N,)`` bool presence after the move."""
+        u = uncertainty[self.target_indices]
+        self._run += 1
+        self._run[presence[self.target_indices]] = 0
+        np.maximum(self._longest, self._run, out=self._longest)
+        if self.steps < len(self.trace):
+            self.trace[self.steps] = u.sum()
+        self.steps += 1
+        self.collisions += int(n_collided)
+        highest = int(u.max())
+        self.peak = max(self.peak, highest)
+        self.saturated_steps += highest >= self.u_max
+
+    def summary(self) -> dict[str, float]:
+        """The metrics so far (``{}``-like zeros before the first step)."""
+        steps = max(self.steps, 1)
+        return {
+            "avg_uncertainty": float(self.trace[: self.steps].sum() / steps),
+            "max_neglect": float(self._longest.max()) if len(self._longest) else 0.0,
+            "collisions": float(self.collisions),
+            "peak_uncertainty": float(self.peak),
+            "saturated_fraction": float(self.saturated_steps / steps),
+            "steps": float(self.steps),
+        }
+
+    def uncertainty_trace(self) -> np.ndarray:
+        """``(steps,)`` summed target uncertainty after each step so far (a copy)."""
+        return self.trace[: self.steps].copy()

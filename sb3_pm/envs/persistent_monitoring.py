@@ -1,0 +1,297 @@
+"""PettingZoo ``ParallelEnv`` adapter around :class:`~sb3_pm.envs.core.MonitoringCore`.
+
+The documentation of arguments and spaces lives in :mod:`sb3_pm.envs.persistent_monitoring_v0`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from sb3_pm.agents.mental_map import FEATURES, MentalMaps
+from sb3_pm.envs.core import MonitoringCore
+from sb3_pm.envs.metrics import EpisodeMetrics
+from sb3_pm.envs.rewards import RewardComputer, resolve_reward
+from sb3_pm.graphs import GraphLike, resolve_graph
+
+OBSERVATION_MODES = ("map", "local")
+INITIAL_UNCERTAINTY = ("zero", "random")
+ILLEGAL_ACTION_MODES = ("raise", "stay")
+
+
+class PersistentMonitoringEnv(ParallelEnv):
+    """Agents patrol a graph to keep the uncertainty of its target nodes low."""
+
+    metadata = {
+        "name": "persistent_monitoring_v0",
+        "render_modes": ["human", "rgb_array", "ansi"],
+        "is_parallelizable": True,
+        "render_fps": 4,
+    }
+
+    def __init__(
+        self,
+        graph: GraphLike = "paper-50",
+        n_agents: int = 4,
+        max_cycles: int = 500,
+        u_max: int = 100,
+        obs_radius: int = 1,
+        initial_positions: Sequence[int] | None = None,
+        initial_uncertainty: str = "zero",
+        reward: str | Mapping[str, float] = "paper",
+        observation: str = "map",
+        graph_knowledge: str = "discovered",
+        illegal_action: str = "raise",
+        render_mode: str | None = None,
+    ) -> None:
+        super().__init__()
+        self.graph = resolve_graph(graph)
+        if max_cycles < 1:
+            raise ValueError(f"max_cycles must be at least 1, got {max_cycles}")
+        if obs_radius < 0:
+            raise ValueError(f"obs_radius must be >= 0, got {obs_radius}")
+        for value, allowed, label in (
+            (observation, OBSERVATION_MODES, "observation"),
+            (initial_uncertainty, INITIAL_UNCERTAINTY, "initial_uncertainty"),
+            (illegal_action, ILLEGAL_ACTION_MODES, "illegal_action"),
+        ):
+            if value not in allowed:
+                raise ValueError(f"{label} must be one of {allowed}, got {value!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.core = MonitoringCore(self.graph, n_agents, u_max)
+        n_nodes = self.graph.n_nodes
+        if initial_positions is not None:
+            initial_positions = [int(p) for p in initial_positions]
+            if len(initial_positions) != n_agents or not all(0 <= p < n_nodes for p in initial_positions):
+                raise ValueError(
+                    f"initial_positions must list {n_agents} nodes in 0..{n_nodes - 1}, got {initial_positions}"
+                )
+        self.n_agents = n_agents
+        self.max_cycles = int(max_cycles)
+        self.u_max = int(u_max)
+        self.obs_radius = int(obs_radius)
+        self.initial_positions = initial_positions
+        self.initial_uncertainty = initial_uncertainty
+        self.reward_weights = resolve_reward(reward)
+        self.observation_mode = observation
+        self.graph_knowledge = graph_knowledge
+        self.illegal_action = illegal_action
+        self.render_mode = render_mode
+
+        self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
+        self.agents: list[str] = []
+        self.agent_name_mapping = {name: i for i, name in enumerate(self.possible_agents)}
+
+        hops = self.graph.hop_distances
+        self._observes = hops <= self.obs_radius  # (N, N): node j is seen from node i
+        self._edge_nodes = hops <= self.obs_radius - 1  # incident edges of these are seen
+        self._reachable_i8 = self.graph.reachable.astype(np.int8)
+        self._targets = self.graph.targets
+        self.maps = MentalMaps(n_agents, self.graph.adjacency, graph_knowledge)
+        self.rewards_computer = RewardComputer(self.reward_weights, n_agents, self.u_max)
+        self.metrics = EpisodeMetrics(self.graph.target_indices, self.u_max, self.max_cycles)
+        self._rng = np.random.default_rng()
+        self._step_count = 0
+        self._dwell = np.zeros(n_agents, dtype=np.int64)
+        self._last_outcome_counts = np.zeros(n_nodes, dtype=np.int64)
+        self._renderer: Any = None
+
+        self._observation_space = self._build_observation_space()
+        self._action_space = spaces.Discrete(n_nodes)
+
+    # --------------------------------------------------------------- spaces
+    def _build_observation_space(self) -> spaces.Dict:
+        n = self.graph.n_nodes
+        mask = spaces.Box(0, 1, shape=(n,), dtype=np.int8)
+        if self.observation_mode == "map":
+            high = np.ones((n, len(FEATURES)), dtype=np.float32)
+            high[:, FEATURES.index("u")] = self.u_max
+            high[:, FEATURES.index("age")] = self.max_cycles
+            return spaces.Dict(
+                {
+                    "nodes": spaces.Box(0.0, high, dtype=np.float32),
+                    "adjacency": spaces.Box(0, 1, shape=(n, n), dtype=np.int8),
+                    "position": spaces.Discrete(n),
+                    "dwell": spaces.Box(0.0, float(self.max_cycles), shape=(1,), dtype=np.float32),
+                    "action_mask": mask,
+                }
+            )
+        return spaces.Dict(
+            {
+                "position": spaces.Discrete(n),
+                "observed": mask,
+                "uncertainty": spaces.Box(0.0, float(self.u_max), shape=(n,), dtype=np.float32),
+                "target": mask,
+                "occupied": mask,
+                "edges": spaces.Box(0, 1, shape=(n, n), dtype=np.int8),
+                "action_mask": mask,
+            }
+        )
+
+    def observation_space(self, agent: str) -> spaces.Dict:
+        return self._observation_space
+
+    def action_space(self, agent: str) -> spaces.Discrete:
+        return self._action_space
+
+    # ------------------------------------------------------------ true state
+    @property
+    def uncertainty(self) -> np.ndarray:
+        """``(N,)`` int true uncertainties (a copy), for tests and omniscient baselines."""
+        return self.core.uncertainty.copy()
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(n_agents,)`` int node of each agent, in ``possible_agents`` order (a copy)."""
+        return self.core.positions.copy()
+
+    @property
+    def step_count(self) -> int:
+        return self._step_count
+
+    # ------------------------------------------------------------------ API
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        options = options or {}
+        n_nodes = self.graph.n_nodes
+        positions = options.get("initial_positions", self.initial_positions)
+        if positions is None:
+            positions = self._rng.choice(n_nodes, size=self.n_agents, replace=False)
+        initial_u = None
+        if self.initial_uncertainty == "random":
+            initial_u = self._rng.integers(0, self.u_max, size=n_nodes, endpoint=True)
+        self.core.reset(np.asarray(positions), initial_u)
+        self.agents = list(self.possible_agents)
+        self._step_count = 0
+        self._dwell[:] = 0
+        self.maps.reset_features()
+        self.rewards_computer.reset()
+        self.metrics.reset()
+        counts = np.bincount(self.core.positions, minlength=n_nodes)
+        self._observe(counts, advance_age=False)
+        infos: dict[str, dict] = {agent: {} for agent in self.agents}
+        return self._observations(), infos
+
+    def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode; call reset() first")
+        missing = [agent for agent in self.agents if agent not in actions]
+        if missing:
+            raise ValueError(f"no action given for {missing}")
+        destinations = np.fromiter((actions[agent] for agent in self.possible_agents), dtype=np.int64, count=self.n_agents)
+        previous = self.core.positions
+        outcome = self.core.step(destinations, self.illegal_action, self.possible_agents)
+        self._step_count += 1
+        self._dwell = np.where(outcome.illegal | (self.core.positions == previous), self._dwell + 1, 0)
+        self._observe(outcome.counts, advance_age=True)
+        self.metrics.update(self.core.uncertainty, outcome.presence, int(outcome.collided.sum()))
+        last = self._step_count >= self.max_cycles
+        on_target = self._targets[self.core.positions]
+        reward_values, _ = self.rewards_computer.step(outcome, on_target, last, self.maps.episode_uncertainty_sum)
+
+        observations = self._observations()
+        rewards = {agent: float(reward_values[i]) for i, agent in enumerate(self.possible_agents)}
+        terminations = {agent: False for agent in self.possible_agents}
+        truncations = {agent: last for agent in self.possible_agents}
+        infos: dict[str, dict] = {agent: {} for agent in self.possible_agents}
+        if outcome.illegal.any():
+            for i in np.flatnonzero(outcome.illegal):
+                infos[self.possible_agents[i]]["illegal_action"] = int(destinations[i])
+        if last:
+            summary = self.metrics.summary()
+            for agent in self.possible_agents:
+                infos[agent]["metrics"] = dict(summary)
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    def episode_metrics(self) -> dict[str, float]:
+        """The metrics of the episode so far (complete once it has been truncated)."""
+        return self.metrics.summary()
+
+    def uncertainty_trace(self) -> np.ndarray:
+        """``(steps,)`` summed target uncertainty after each step of the current episode."""
+        return self.metrics.uncertainty_trace()
+
+    # -------------------------------------------------------- observations
+    def _observe(self, counts: np.ndarray, advance_age: bool) -> None:
+        positions = self.core.positions
+        self._observed = self._observes[positions]  # (n_agents, N) bool
+        self._last_outcome_counts = counts
+        self.maps.update(
+            positions,
+            self._observed,
+            self.core.uncertainty,
+            self._targets,
+            counts,
+            self._edge_nodes[positions],
+            advance_age=advance_age,
+        )
+
+    def _observations(self) -> dict[str, dict[str, Any]]:
+        positions = self.core.positions
+        masks = self._reachable_i8[positions]  # fresh (n_agents, N); rows handed out as views
+        if self.observation_mode == "map":
+            nodes = self.maps.features  # a fresh array; rows handed out as views
+            dwell = self._dwell.astype(np.float32)[:, None]
+            return {
+                agent: {
+                    "nodes": nodes[i],
+                    "adjacency": self.maps.adjacency_observation(i),
+                    "position": int(positions[i]),
+                    "dwell": dwell[i],
+                    "action_mask": masks[i],
+                }
+                for i, agent in enumerate(self.possible_agents)
+            }
+        return {agent: self._local_observation(i, masks[i]) for i, agent in enumerate(self.possible_agents)}
+
+    def _local_observation(self, i: int, mask: np.ndarray) -> dict[str, Any]:
+        """The raw observation of agent ``i`` (no memory): its ball of radius ``obs_radius``."""
+        observed = self._observed[i]
+        position = int(self.core.positions[i])
+        others = self._last_outcome_counts.copy()
+        others[position] -= 1
+        edge_nodes = self._edge_nodes[position]
+        edges = self.graph.adjacency & (edge_nodes[:, None] | edge_nodes[None, :])
+        return {
+            "position": position,
+            "observed": observed.astype(np.int8),
+            "uncertainty": np.where(observed, self.core.uncertainty, 0).astype(np.float32),
+            "target": (observed & self._targets).astype(np.int8),
+            "occupied": (observed & (others > 0)).astype(np.int8),
+            "edges": edges.astype(np.int8),
+            "action_mask": mask,
+        }
+
+    # ------------------------------------------------------------ rendering
+    def render(self) -> Any:
+        if self.render_mode is None:
+            raise ValueError("render() needs a render_mode: pass render_mode='rgb_array', 'human' or 'ansi'")
+        from sb3_pm.envs import rendering
+
+        if self.render_mode == "ansi":
+            return rendering.render_ansi(self)
+        if self._renderer is None:
+            self._renderer = rendering.GraphRenderer(self.graph, self.u_max)
+        frame = self._renderer.draw(self.core.uncertainty, self.core.positions, self._step_count)
+        if self.render_mode == "human":
+            self._renderer.show()
+            return None
+        return frame
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    @property
+    def unwrapped(self) -> PersistentMonitoringEnv:
+        return self

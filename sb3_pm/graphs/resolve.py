@@ -1,0 +1,39 @@
+"""Turn a user-facing graph string (a preset name or a ``.graphml`` path) into a :class:`GraphSpec`.
+
+The environment, the CLI and the YAML configs all go through :func:`resolve_graph`, so the three
+accept exactly the same strings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sb3_pm.graphs.generators import PRESETS, preset
+from sb3_pm.graphs.io import load_graphml
+from sb3_pm.graphs.spec import GraphError, GraphSpec
+
+GraphLike = str | Path | GraphSpec
+
+
+def resolve_graph(graph: GraphLike) -> GraphSpec:
+    """Return ``graph`` itself if it is a spec, a preset by name, or the GraphML file at a path.
+
+    :raises GraphError: for a string that is neither a preset nor a ``.graphml`` path.
+    :raises FileNotFoundError: for a ``.graphml`` path that does not exist.
+    """
+    if isinstance(graph, GraphSpec):
+        return graph
+    text = str(graph)
+    if text in PRESETS:
+        return preset(text)
+    if text.lower().endswith((".graphml", ".xml")) or isinstance(graph, Path):
+        return load_graphml(text)
+    raise GraphError(f"unknown graph {text!r}: use a preset ({', '.join(sorted(PRESETS))}) or a .graphml path")
+
+
+def graph_label(graph: GraphLike) -> str:
+    """A short name for reports: the preset name or the file's stem."""
+    if isinstance(graph, GraphSpec):
+        return graph.name
+    text = str(graph)
+    return text if text in PRESETS else Path(text).stem
