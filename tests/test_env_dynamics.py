@@ -1,0 +1,156 @@
+"""Hand-computed dynamics (METHOD.md eq. 1, the cap, collisions) and illegal actions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sb3_pm.envs import IllegalActionError, persistent_monitoring_v0
+from tests.conftest import path_graph
+
+
+def make(graph, n_agents, positions, **kwargs):
+    env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=n_agents, initial_positions=positions, **kwargs)
+    env.reset(seed=0)
+    return env
+
+
+def act(env, *destinations):
+    return env.step({agent: d for agent, d in zip(env.possible_agents, destinations)})
+
+
+class TestEquationOne:
+    def test_unvisited_target_grows_by_one_from_zero(self) -> None:
+        env = make(path_graph(3, [2]), 1, [0])
+        act(env, 0)
+        assert env.unwrapped.uncertainty.tolist() == [0, 0, 1]
+        act(env, 0)
+        assert env.unwrapped.uncertainty.tolist() == [0, 0, 2]
+
+    def test_visited_positive_target_drops_by_one(self) -> None:
+        env = make(path_graph(3, [2]), 1, [0])
+        act(env, 1)  # u2: 0 -> 1
+        act(env, 1)  # u2: 1 -> 2
+        act(env, 2)  # arrive: 2 + 1 - 2 = 1
+        assert env.unwrapped.uncertainty[2] == 1
+        act(env, 2)  # 1 + 1 - 2 = 0
+        assert env.unwrapped.uncertainty[2] == 0
+
+    def test_visited_zero_target_stays_zero(self) -> None:
+        env = make(path_graph(3, [1]), 1, [1])
+        for _ in range(3):
+            act(env, 1)  # u = 0, p = 1: 0 + 1 - 1 = 0
+            assert env.unwrapped.uncertainty[1] == 0
+
+    def test_non_targets_stay_zero(self) -> None:
+        env = make(path_graph(4, [3]), 1, [0])
+        for _ in range(5):
+            act(env, 0)
+        assert env.unwrapped.uncertainty[:3].tolist() == [0, 0, 0]
+
+    def test_cap(self) -> None:
+        env = make(path_graph(3, [2]), 1, [0], u_max=3)
+        for _ in range(6):
+            act(env, 0)
+        assert env.unwrapped.uncertainty[2] == 3
+        act(env, 1)
+        act(env, 2)  # at the cap, a visit still lowers u by one
+        assert env.unwrapped.uncertainty[2] == 2
+
+    def test_two_agents_on_a_target_lower_it_once(self) -> None:
+        env = make(path_graph(3, [1]), 2, [0, 2])
+        act(env, 0, 2)  # u1 = 1
+        act(env, 0, 2)  # u1 = 2
+        _, rewards, *_ = act(env, 1, 1)
+        assert env.unwrapped.uncertainty[1] == 1  # presence is 0/1: 2 + 1 - 2
+        assert env.episode_metrics()["collisions"] == 2  # two agent-steps in collision
+
+    def test_simultaneous_moves_swap(self) -> None:
+        env = make(path_graph(2, [0]), 2, [0, 1])
+        act(env, 1, 0)
+        assert env.unwrapped.positions.tolist() == [1, 0]
+
+
+class TestIllegalActions:
+    def test_raises_value_error_naming_agent_node_and_reachable_set(self) -> None:
+        env = make(path_graph(4, [3]), 2, [0, 3])
+        with pytest.raises(ValueError, match=r"agent_0 on node 0 cannot move to node 2; its reachable set is \[0, 1\]"):
+            act(env, 2, 3)
+        assert issubclass(IllegalActionError, ValueError)
+
+    def test_out_of_range(self) -> None:
+        env = make(path_graph(3, [2]), 1, [0])
+        with pytest.raises(ValueError, match="cannot move to node 7"):
+            act(env, 7)
+        with pytest.raises(ValueError, match="cannot move to node -1"):
+            act(env, -1)
+
+    def test_stay_mode_reports_in_infos(self) -> None:
+        env = make(path_graph(4, [3]), 1, [0], illegal_action="stay")
+        *_, infos = act(env, 3)
+        assert env.unwrapped.positions.tolist() == [0]
+        assert infos["agent_0"]["illegal_action"] == 3
+
+    def test_missing_action(self) -> None:
+        env = make(path_graph(3, [2]), 2, [0, 1])
+        with pytest.raises(ValueError, match="no action given for"):
+            env.step({"agent_0": 0})
+
+
+class TestEpisodes:
+    def test_truncation_not_termination(self) -> None:
+        env = make(path_graph(3, [2]), 1, [0], max_cycles=3)
+        for k in range(3):
+            _, _, terminations, truncations, infos = act(env, 0)
+            assert terminations == {"agent_0": False}
+            assert truncations == {"agent_0": k == 2}
+        assert env.agents == []
+        assert infos["agent_0"]["metrics"]["steps"] == 3
+        with pytest.raises(RuntimeError, match="reset"):
+            act(env, 0)
+
+    def test_metrics_by_hand(self) -> None:
+        # Path 0-1-2, target 2, one agent: stays on 0 twice, then 1, then 2, then 2.
+        env = make(path_graph(3, [2]), 1, [0], max_cycles=5)
+        for destination in (0, 0, 1, 2, 2):
+            *_, infos = act(env, destination)
+        # u2 after each step: 1, 2, 3, 2, 1 -> mean 9/5; unvisited run 0..2 is 3 steps long.
+        metrics = infos["agent_0"]["metrics"]
+        assert metrics["avg_uncertainty"] == pytest.approx(9 / 5)
+        assert metrics["max_neglect"] == 3
+        assert metrics["peak_uncertainty"] == 3
+        assert metrics["collisions"] == 0
+        np.testing.assert_array_equal(env.uncertainty_trace(), [1, 2, 3, 2, 1])
+
+    def test_never_visited_target_neglected_whole_episode(self) -> None:
+        env = make(path_graph(3, [2]), 1, [0], max_cycles=4, u_max=2)
+        for _ in range(4):
+            *_, infos = act(env, 0)
+        assert infos["agent_0"]["metrics"]["max_neglect"] == 4
+        assert infos["agent_0"]["metrics"]["saturated_fraction"] == pytest.approx(3 / 4)
+
+
+class TestBadConfiguration:
+    def test_more_agents_than_nodes(self) -> None:
+        with pytest.raises(ValueError, match=r"more agents \(4\) than nodes \(3\)"):
+            persistent_monitoring_v0.parallel_env(graph=path_graph(3, [1]), n_agents=4)
+
+    def test_bad_initial_positions(self) -> None:
+        with pytest.raises(ValueError, match="initial_positions"):
+            persistent_monitoring_v0.parallel_env(graph=path_graph(3, [1]), n_agents=2, initial_positions=[0, 9])
+
+    @pytest.mark.parametrize(
+        ("kwargs", "message"),
+        [
+            ({"observation": "full"}, "observation must be one of"),
+            ({"graph_knowledge": "psychic"}, "graph_knowledge must be one of"),
+            ({"reward": "nice"}, "unknown reward preset"),
+            ({"reward": {"bonus": 1.0}}, "unknown reward terms"),
+            ({"max_cycles": 0}, "max_cycles"),
+            ({"render_mode": "video"}, "render_mode"),
+            ({"graph": "no-such-graph"}, "unknown graph"),
+        ],
+    )
+    def test_clear_errors(self, kwargs, message) -> None:
+        with pytest.raises(ValueError, match=message):
+            persistent_monitoring_v0.parallel_env(**{"graph": path_graph(4, [3]), "n_agents": 1, **kwargs})

@@ -1,0 +1,92 @@
+"""Mental maps: stale values, ages, occupancy, edge discovery and the two knowledge modes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sb3_pm.agents.mental_map import AGE, FEATURES, OCCUPIED, SELF, TARGET, U, MentalMaps
+from sb3_pm.envs import persistent_monitoring_v0
+from tests.conftest import path_graph
+
+
+def env_on_path(positions, **kwargs):
+    # 0 - 1 - 2 - 3 - 4, targets 0 and 4
+    env = persistent_monitoring_v0.parallel_env(graph=path_graph(5, [0, 4]), n_agents=len(positions), initial_positions=positions, **kwargs)
+    observations, _ = env.reset(seed=0)
+    return env, observations
+
+
+def test_feature_order_is_documented() -> None:
+    assert FEATURES == ("u", "age", "target", "occupied", "self")
+
+
+def test_initial_observation_sees_the_neighbourhood_only() -> None:
+    env, obs = env_on_path([1])
+    nodes = obs["agent_0"]["nodes"]
+    assert nodes[:, TARGET].tolist() == [1, 0, 0, 0, 0]  # target 4 not seen yet
+    assert nodes[:, SELF].tolist() == [0, 1, 0, 0, 0]
+    assert nodes[:, AGE].tolist() == [0, 0, 0, 0, 0]
+
+
+def test_stale_values_and_ages() -> None:
+    env, obs = env_on_path([4])
+    for _ in range(3):  # stay on target 4; target 0 grows unseen
+        obs, *_ = env.step({"agent_0": 4})
+    nodes = obs["agent_0"]["nodes"]
+    assert env.unwrapped.uncertainty[0] == 3
+    assert nodes[0, U] == 0 and nodes[0, AGE] == 3  # never observed: stale 0, age counts from the start
+    for destination in (3, 2, 1):
+        obs, *_ = env.step({"agent_0": destination})
+    nodes = obs["agent_0"]["nodes"]
+    assert nodes[0, U] == 6 and nodes[0, AGE] == 0 and nodes[0, TARGET] == 1  # observed from node 1
+    assert nodes[4, AGE] == 2 and nodes[4, TARGET] == 1  # last seen from node 3, two steps ago
+    assert nodes[4, U] == 1  # seen from node 3 the step the agent left it: 0 + 1 - 0
+    for _ in range(2):
+        obs, *_ = env.step({"agent_0": 1})
+    assert env.unwrapped.uncertainty[4] == 5
+    assert obs["agent_0"]["nodes"][4, U] == 1 and obs["agent_0"]["nodes"][4, AGE] == 4  # stale value kept
+
+
+def test_occupancy_of_others_only() -> None:
+    env, obs = env_on_path([1, 2])
+    assert obs["agent_0"]["nodes"][:, OCCUPIED].tolist() == [0, 0, 1, 0, 0]
+    assert obs["agent_1"]["nodes"][:, OCCUPIED].tolist() == [0, 1, 0, 0, 0]
+    obs, *_ = env.step({"agent_0": 2, "agent_1": 2})
+    assert obs["agent_0"]["nodes"][2, OCCUPIED] == 1  # shares node 2 with agent_1
+    assert obs["agent_0"]["nodes"][1, OCCUPIED] == 0  # node 1 seen empty now
+
+
+def test_edges_are_discovered_and_persist_across_episodes() -> None:
+    env, obs = env_on_path([0])
+    known = obs["agent_0"]["adjacency"]
+    assert known.sum() == 2 and known[0, 1] == known[1, 0] == 1  # radius 1: edges at its own node
+    for destination in (1, 2):
+        obs, *_ = env.step({"agent_0": destination})
+    assert obs["agent_0"]["adjacency"].sum() == 6  # edges 0-1, 1-2, 2-3
+    obs, _ = env.reset(seed=1, options={"initial_positions": [4]})
+    known = obs["agent_0"]["adjacency"]
+    assert known[2, 3] == 1 and known[3, 4] == 1 and known.sum() == 8  # kept, plus 3-4 seen now
+    assert obs["agent_0"]["nodes"][0, TARGET] == 0  # node features were reset
+
+
+def test_known_mode_gives_the_whole_topology() -> None:
+    graph = path_graph(5, [0, 4])
+    env, obs = env_on_path([0], graph_knowledge="known")
+    np.testing.assert_array_equal(obs["agent_0"]["adjacency"], graph.adjacency.astype(np.int8))
+
+
+def test_radius_two_sees_further_and_learns_edges_inside_the_ball() -> None:
+    env, obs = env_on_path([2], obs_radius=2)
+    nodes = obs["agent_0"]["nodes"]
+    assert nodes[:, TARGET].tolist() == [1, 0, 0, 0, 1]
+    # Nodes within radius - 1 = 1 hop (1, 2, 3) have their incident edges observed: all 4 edges.
+    assert obs["agent_0"]["adjacency"].sum() == 8
+
+
+def test_maps_are_private() -> None:
+    maps = MentalMaps(2, path_graph(3, [2]).adjacency)
+    observed = np.array([[True, True, False], [False, False, False]])
+    maps.update(np.array([0, 2]), observed, np.array([5, 6, 7]), np.array([0, 0, 1]), np.array([1, 0, 1]),
+                np.array([[True, False, False], [False, False, False]]))
+    assert maps.features[1, :, U].tolist() == [0, 0, 0]
+    assert maps.adjacency[1].sum() == 0 and maps.adjacency[0].sum() == 2
