@@ -1,5 +1,24 @@
-"""Non-learning teams (METHOD.md "Baselines"), all behind the :class:`Team` interface."""
+"""Non-learning teams (METHOD.md "Baselines"), all behind the :class:`Team` interface.
+
+``make_team("grazing")`` builds one by name; :data:`BASELINES` lists them.
+"""
 
 from sb3_pm.baselines.base import Team
+from sb3_pm.baselines.grazing import GrazingTeam
+from sb3_pm.baselines.local_greedy import LocalGreedyTeam
+from sb3_pm.baselines.random_walk import RandomTeam
+from sb3_pm.baselines.registry import BASELINES, make_team
+from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
+from sb3_pm.baselines.tour_patrol import TourPatrolTeam, approximate_tour
 
-__all__ = ["Team"]
+__all__ = [
+    "BASELINES",
+    "GrazingTeam",
+    "LocalGreedyTeam",
+    "RandomTeam",
+    "SitOnNodesTeam",
+    "Team",
+    "TourPatrolTeam",
+    "approximate_tour",
+    "make_team",
+]

@@ -1,0 +1,46 @@
+"""Small helpers shared by the baselines (not part of the public API)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from sb3_pm.graphs import GraphSpec
+
+
+def agent_positions(observations: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], np.ndarray]:
+    """The agents of ``observations`` (in the order given) and each one's own ``position``."""
+    agents = list(observations)
+    positions = np.fromiter((int(observations[a]["position"]) for a in agents), dtype=np.int64, count=len(agents))
+    return agents, positions
+
+
+def env_graph(env: Any) -> GraphSpec:
+    """The graph of ``env`` (the topology is static problem data, not hidden state)."""
+    return env.unwrapped.graph
+
+
+def nearest_first(candidates: np.ndarray, distances: np.ndarray, keys: np.ndarray | None = None) -> np.ndarray:
+    """``candidates`` sorted by descending ``keys`` (if given), then ascending distance, then index.
+
+    ``np.lexsort`` sorts by its *last* key first, so the keys are passed in reverse priority.
+    Ties are broken deterministically, which keeps every baseline reproducible without an rng.
+    """
+    order_keys: list[np.ndarray] = [candidates, distances[candidates]]
+    if keys is not None:
+        order_keys.append(-keys[candidates])
+    return candidates[np.lexsort(order_keys)]
+
+
+def step_towards(next_hop: np.ndarray, positions: np.ndarray, goals: Sequence[int] | np.ndarray) -> np.ndarray:
+    """One move along a shortest path for every agent (``next_hop[i, i] == i``, so goal reached = stay)."""
+    return next_hop[positions, np.asarray(goals, dtype=np.int64)]
+
+
+def own_uncertainty(observation: Any, node: int) -> float:
+    """The ``u`` an agent observes on ``node`` in its own observation (``map`` or ``local`` mode)."""
+    if "nodes" in observation:
+        return float(observation["nodes"][node, 0])  # column 0 is ``u`` (mental_map.FEATURES)
+    return float(observation["uncertainty"][node])

@@ -1,0 +1,113 @@
+"""``local_greedy``: the decentralized analogue of grazing (METHOD.md "Baselines").
+
+Each agent acts on its **own** observation only (its mental map, ``observation="map"``):
+``obs["nodes"]`` (``[u, age, target, occupied, self]`` per node), ``obs["adjacency"]`` (the edges
+it knows), ``obs["position"]`` and ``obs["action_mask"]``. It never reads the environment's state.
+
+Rule, per agent and step:
+
+1. On a known target whose observed ``u`` is positive: dwell (its own node is always observed
+   this step, so that ``u`` is fresh).
+2. Else estimate every known target's uncertainty as ``min(u_last + age, u_max)``: ``u`` grows
+   by at most one per unobserved step. Targets seen occupied by another agent *this step*
+   (``age == 0``) are skipped, since that agent is serving them. Head for the highest estimate
+   (ties: nearest in known hops, then lowest index), one step along a shortest path over the
+   known adjacency. A target the agent cannot reach in its known graph is ignored.
+3. If it knows no reachable target: explore, heading for the reachable node observed longest
+   ago (never-observed nodes first), nearest first.
+
+Nodes the agent has never observed have target flag 0, so they are never taken for targets.
+Shortest paths: one all-pairs BFS (``scipy.sparse.csgraph``) per agent, cached and recomputed
+only when that agent's known adjacency changes (the environment hands out the same read-only
+array object until then). ``u_max`` is a problem parameter read once at :meth:`reset`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
+
+from sb3_pm.agents.mental_map import AGE, OCCUPIED, TARGET, U
+from sb3_pm.baselines._common import nearest_first
+from sb3_pm.baselines.base import Observation, Team
+
+UNREACHABLE = np.iinfo(np.int32).max
+
+
+class _KnownGraph:
+    """All-pairs hop distances over one agent's known adjacency, for the array object it was built from."""
+
+    def __init__(self, adjacency: np.ndarray) -> None:
+        self.source = adjacency
+        self.adjacency = np.asarray(adjacency, dtype=bool)
+        dist = shortest_path(csr_matrix(self.adjacency), directed=False, unweighted=True)
+        self.dist = np.where(np.isinf(dist), UNREACHABLE, dist).astype(np.int64)
+
+    def step_towards(self, position: int, goal: int) -> int:
+        """The lowest-index known neighbour of ``position`` one hop closer to ``goal``."""
+        if goal == position:
+            return position
+        neighbours = np.flatnonzero(self.adjacency[position])
+        closer = neighbours[self.dist[neighbours, goal] == self.dist[position, goal] - 1]
+        return int(closer[0])
+
+
+class LocalGreedyTeam(Team):
+    """Greedy on each agent's own mental map; decentralized.
+
+    :param u_max: the uncertainty cap used in the estimate; ``None`` reads the env's parameter.
+    """
+
+    name = "local_greedy"
+    omniscient = False
+
+    def __init__(self, u_max: float | None = None) -> None:
+        self.u_max_override = u_max
+        self._known: dict[str, _KnownGraph] = {}
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        super().reset(env, seed)
+        # A problem parameter, not state; the known-adjacency caches survive episodes because
+        # discovered edges do too.
+        self.u_max = float(self.u_max_override if self.u_max_override is not None else env.unwrapped.u_max)
+
+    def known_graph(self, agent: str, adjacency: np.ndarray) -> _KnownGraph:
+        """The cached BFS for ``agent``, rebuilt only if its adjacency array changed."""
+        cached = self._known.get(agent)
+        if cached is None or (cached.source is not adjacency and not np.array_equal(cached.source, adjacency)):
+            cached = _KnownGraph(adjacency)
+            self._known[agent] = cached
+        return cached
+
+    def act(self, agent: str, obs: Observation) -> int:
+        """One agent's destination from its own observation."""
+        if "nodes" not in obs:
+            raise ValueError("local_greedy needs mental-map observations: create the env with observation='map'")
+        nodes = np.asarray(obs["nodes"])
+        position = int(obs["position"])
+        u, age, is_target, occupied = nodes[:, U], nodes[:, AGE], nodes[:, TARGET] > 0.5, nodes[:, OCCUPIED] > 0.5
+        if is_target[position] and u[position] > 0:
+            return position
+        known = self.known_graph(agent, obs["adjacency"])
+        distance = known.dist[position]
+        reachable = distance < UNREACHABLE
+        candidates = np.flatnonzero(is_target & reachable & ~(occupied & (age == 0)))
+        candidates = candidates[candidates != position]
+        if len(candidates):
+            estimate = np.minimum(u + age, self.u_max)
+            goal = int(nearest_first(candidates, distance, estimate)[0])
+        else:
+            frontier = np.flatnonzero(reachable)
+            frontier = frontier[frontier != position]
+            if len(frontier) == 0:
+                return position
+            goal = int(nearest_first(frontier, distance, age)[0])
+        move = known.step_towards(position, goal)
+        mask = obs["action_mask"]
+        return move if mask[move] else position  # the known graph is a subgraph of the true one
+
+    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+        return {agent: self.act(agent, obs) for agent, obs in observations.items()}

@@ -1,0 +1,118 @@
+"""``tour_patrol``: agents spread along one closed tour of the targets (METHOD.md "Baselines").
+
+The tour is an approximate travelling-salesman tour of the targets on hop distances: a
+nearest-neighbour tour from the lowest-index target, improved by 2-opt until no reversal
+shortens it. It depends on the graph only, so it is computed once per graph and cached.
+
+At the first :meth:`predict` of an episode the agents are spread evenly: the tour is cut into
+``n_agents`` equally spaced slots (slot ``j`` at tour position ``floor(j * T / n)``), and agents
+are matched to slots minimizing the total hop distance (``scipy.optimize.linear_sum_assignment``).
+Then every agent walks the tour in the same direction: shortest path to its next tour target,
+dwell there while the ``u`` it observes on its own node is positive, then move on to the next
+one. The dwell test reads the agent's own observation, not the true state; positions come from
+the observations too, so the team is not ``omniscient`` (the spreading step is one coordinated
+assignment before the episode, as in ``sit_on_nodes``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from sb3_pm.baselines._common import agent_positions, env_graph, own_uncertainty
+from sb3_pm.baselines.base import Observation, Team
+from sb3_pm.graphs import GraphSpec
+
+
+def tour_length(tour: np.ndarray, distances: np.ndarray) -> int:
+    """Hop length of the closed tour."""
+    return int(distances[tour, np.roll(tour, -1)].sum())
+
+
+def approximate_tour(nodes: np.ndarray, distances: np.ndarray) -> np.ndarray:
+    """A closed tour through ``nodes``: nearest neighbour, then 2-opt to a local optimum.
+
+    :param nodes: ``(T,)`` node indices to visit.
+    :param distances: ``(N, N)`` hop distances.
+    :return: ``(T,)`` the nodes in tour order, starting with ``nodes[0]``.
+    """
+    nodes = np.asarray(nodes, dtype=np.int64)
+    t = len(nodes)
+    if t <= 3:
+        return nodes.copy()
+    d = distances[np.ix_(nodes, nodes)].astype(np.int64)
+    order = [0]
+    unvisited = np.ones(t, dtype=bool)
+    unvisited[0] = False
+    for _ in range(t - 1):
+        row = np.where(unvisited, d[order[-1]], np.iinfo(np.int64).max)
+        nxt = int(row.argmin())  # ties: lowest index
+        order.append(nxt)
+        unvisited[nxt] = False
+    tour = np.array(order)
+    improved = True
+    while improved:
+        improved = False
+        for i in range(t - 1):
+            # Gain of reversing tour[i+1..j] for every j at once: replace edges (a,b),(c,e) by (a,c),(b,e).
+            a, b = tour[i], tour[i + 1]
+            js = np.arange(i + 2, t if i > 0 else t - 1)
+            if len(js) == 0:
+                continue
+            c, e = tour[js], tour[(js + 1) % t]
+            gain = d[a, b] + d[c, e] - d[a, c] - d[b, e]
+            best = int(gain.argmax())
+            if gain[best] > 0:
+                j = int(js[best])
+                tour[i + 1 : j + 1] = tour[i + 1 : j + 1][::-1].copy()
+                improved = True
+    return nodes[tour]
+
+
+class TourPatrolTeam(Team):
+    """Agents evenly spaced on one target tour, all walking it the same way."""
+
+    name = "tour_patrol"
+    omniscient = False
+
+    def __init__(self) -> None:
+        self._tours: dict[str, np.ndarray] = {}
+
+    def tour_for(self, graph: GraphSpec) -> np.ndarray:
+        """The cached tour of ``graph``'s targets."""
+        key = graph.fingerprint
+        if key not in self._tours:
+            self._tours[key] = approximate_tour(graph.target_indices, graph.hop_distances)
+        return self._tours[key]
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        super().reset(env, seed)
+        self.graph = env_graph(env)
+        self.tour = self.tour_for(self.graph)
+        self.pointer: dict[str, int] | None = None  # index into the tour of each agent's next target
+
+    def spread(self, agents: list[str], positions: np.ndarray) -> dict[str, int]:
+        """Match agents to evenly spaced tour slots, minimizing the total hop distance."""
+        t, n = len(self.tour), len(agents)
+        slots = (np.arange(n) * t) // n
+        cost = self.graph.hop_distances[np.ix_(positions, self.tour[slots])]
+        rows, cols = linear_sum_assignment(cost)
+        return {agents[r]: int(slots[c]) for r, c in zip(rows, cols)}
+
+    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+        agents, positions = agent_positions(observations)
+        if self.pointer is None:
+            self.pointer = self.spread(agents, positions)
+        actions: dict[str, int] = {}
+        for agent, position in zip(agents, positions):
+            goal = int(self.tour[self.pointer[agent]])
+            if position == goal:
+                if own_uncertainty(observations[agent], position) > 0:
+                    actions[agent] = int(position)  # dwell until the target is clean
+                    continue
+                self.pointer[agent] = (self.pointer[agent] + 1) % len(self.tour)
+                goal = int(self.tour[self.pointer[agent]])
+            actions[agent] = int(self.graph.next_hop[position, goal])
+        return actions
