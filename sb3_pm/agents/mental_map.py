@@ -61,6 +61,9 @@ class MentalMaps:
         # Staging block for the four channels overwritten on observation (U, AGE, TARGET, OCCUPIED
         # are adjacent), so one masked copy updates them all; AGE's source is always 0.
         self._observed_values = np.zeros((OCCUPIED + 1, n_agents, self.n_nodes), dtype=np.float32)
+        self._targets_staged = False
+        #: Keep :attr:`episode_uncertainty_sum` up to date (only the ``change`` reward needs it).
+        self.track_uncertainty_sum = True
         if graph_knowledge == "known":
             self.adjacency[:] = self._true_adjacency
             self.explored[:] = True
@@ -110,12 +113,15 @@ class MentalMaps:
         self_onehot[self._rows, positions] = 1.0
         if advance_age:
             c[AGE] += 1.0
-        staged = self._observed_values
+        staged = self._observed_values  # AGE's row stays 0; TARGET's row is constant for a graph
         staged[U] = uncertainty
-        staged[TARGET] = targets
+        if not self._targets_staged:
+            staged[TARGET] = targets
+            self._targets_staged = True
         np.greater(counts, self_onehot, out=staged[OCCUPIED])  # others there: count minus self > 0
         c[: OCCUPIED + 1] = np.where(observed, staged, c[: OCCUPIED + 1])  # faster than a masked copyto here
-        self.episode_uncertainty_sum += c[U].sum(axis=1)
+        if self.track_uncertainty_sum:
+            self.episode_uncertainty_sum += c[U].sum(axis=1)
         if not self._all_explored:
             self._discover_edges(edge_nodes)
 

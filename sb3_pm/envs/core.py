@@ -29,6 +29,7 @@ class StepOutcome:
     :ivar u_after: ``(n_agents,)`` int, the uncertainty at each agent's node after the update.
     :ivar collided: ``(n_agents,)`` bool, the agent shares its node with another agent.
     :ivar illegal: ``(n_agents,)`` bool, the agent's request was illegal and replaced by staying.
+    :ivar any_illegal: ``illegal.any()``, precomputed.
     """
 
     counts: np.ndarray
@@ -37,6 +38,7 @@ class StepOutcome:
     u_after: np.ndarray
     collided: np.ndarray
     illegal: np.ndarray
+    any_illegal: bool
 
 
 class MonitoringCore:
@@ -92,7 +94,8 @@ class MonitoringCore:
         destinations = np.asarray(destinations, dtype=np.int64)
         clipped = np.minimum(np.maximum(destinations, 0), self.graph.n_nodes - 1)  # ufuncs: cheaper than clip
         legal = self._reachable[self.positions, clipped] & (clipped == destinations)
-        if not legal.all():
+        all_legal = bool(legal.all())
+        if not all_legal:
             if illegal == "raise":
                 agent = int(np.flatnonzero(~legal)[0])
                 name = agent_names[agent] if agent_names else f"agent {agent}"
@@ -117,4 +120,5 @@ class MonitoringCore:
             u_after=self.uncertainty[destinations],
             collided=counts[destinations] > 1,
             illegal=~legal,
+            any_illegal=not all_legal,
         )

@@ -93,6 +93,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._reachable_i8 = self.graph.reachable.astype(np.int8)
         self._targets = self.graph.targets
         self.maps = MentalMaps(n_agents, self.graph.adjacency, graph_knowledge)
+        self.maps.track_uncertainty_sum = "change" in self.reward_weights
         self.rewards_computer = RewardComputer(self.reward_weights, n_agents, self.u_max)
         self.metrics = EpisodeMetrics(self.graph.target_indices, self.u_max, self.max_cycles)
         self._rng = np.random.default_rng()
@@ -184,11 +185,12 @@ class PersistentMonitoringEnv(ParallelEnv):
         missing = [agent for agent in self.agents if agent not in actions]
         if missing:
             raise ValueError(f"no action given for {missing}")
-        destinations = np.fromiter((actions[agent] for agent in self.possible_agents), dtype=np.int64, count=self.n_agents)
+        destinations = np.array([actions[agent] for agent in self.possible_agents], dtype=np.int64)
         previous = self.core.positions
         outcome = self.core.step(destinations, self.illegal_action, self.possible_agents)
         self._step_count += 1
-        self._dwell = np.where(outcome.illegal | (self.core.positions == previous), self._dwell + 1, 0)
+        self._dwell += 1
+        self._dwell[self.core.positions != previous] = 0
         self._observe(outcome.counts, advance_age=True)
         self.metrics.update(self.core.uncertainty, outcome.presence, int(outcome.collided.sum()))
         last = self._step_count >= self.max_cycles
@@ -200,7 +202,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         terminations = {agent: False for agent in self.possible_agents}
         truncations = {agent: last for agent in self.possible_agents}
         infos: dict[str, dict] = {agent: {} for agent in self.possible_agents}
-        if outcome.illegal.any():
+        if outcome.any_illegal:
             for i in np.flatnonzero(outcome.illegal):
                 infos[self.possible_agents[i]]["illegal_action"] = int(destinations[i])
         if last:
