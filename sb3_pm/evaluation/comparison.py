@@ -1,0 +1,120 @@
+"""The evaluation grid behind ``sb3-pm compare``: policies x graphs x seeds x episodes.
+
+Seed ``s`` of the grid evaluates episodes with env seeds ``s * SEED_STRIDE + e``, so different
+grid seeds never share an episode (for up to ``SEED_STRIDE`` episodes).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sb3_pm.baselines.base import Team
+from sb3_pm.evaluation.harness import EvaluationResult, evaluate
+from sb3_pm.evaluation.plots import plot_table, plot_uncertainty
+from sb3_pm.evaluation.reports import anova_text, csv_table, latex_table, markdown_table
+from sb3_pm.evaluation.statistics import TABLE_METRICS, AnovaResult, Summary, anova, summarize
+
+SEED_STRIDE = 1000
+
+
+@dataclass
+class Comparison:
+    """All results of a grid, by policy label, plus the derived table and ANOVAs."""
+
+    results: dict[str, list[EvaluationResult]] = field(default_factory=dict)
+    config: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def table(self) -> dict[str, dict[str, Summary]]:
+        return summarize(self.results)
+
+    @property
+    def anovas(self) -> list[AnovaResult]:
+        return [anova(self.results, metric) for metric in TABLE_METRICS]
+
+    def write(self, out: str | Path) -> list[Path]:
+        """Write ``table.md``, ``table.csv``, ``table.tex``, ``anova.txt``, ``results.json``,
+        ``uncertainty.png`` and ``table.png`` into ``out`` (created if needed)."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        table = self.table
+        written = []
+        for name, text in (
+            ("table.md", markdown_table(table)),
+            ("table.csv", csv_table(table)),
+            ("table.tex", latex_table(table, caption="Average uncertainty and neglect time")),
+            ("anova.txt", anova_text(self.anovas)),
+        ):
+            (out / name).write_text(text)
+            written.append(out / name)
+        payload = {
+            "config": self.config,
+            "table": {p: {m: vars(s) for m, s in row.items()} for p, row in table.items()},
+            "anova": [vars(a) | {"groups": list(a.groups)} for a in self.anovas],
+            "results": {p: [r.to_dict() for r in rs] for p, rs in self.results.items()},
+        }
+        (out / "results.json").write_text(json.dumps(payload, indent=2, allow_nan=True))
+        written.append(out / "results.json")
+        written.append(plot_uncertainty(self.results, out / "uncertainty.png"))
+        written.append(plot_table(table, out / "table.png"))
+        return written
+
+
+def compare(
+    teams: Mapping[str, Callable[[], Team]],
+    graphs: Sequence[str],
+    seeds: Sequence[int] = (0,),
+    episodes: int = 10,
+    n_agents: int = 4,
+    max_cycles: int = 500,
+    env_kwargs: Mapping[str, Any] | None = None,
+    progress: bool | None = False,
+) -> Comparison:
+    """Evaluate every team on every graph for every seed.
+
+    :param teams: label -> factory of a fresh team (a fresh team per graph and seed keeps runs independent).
+    :param graphs: preset names or ``.graphml`` paths.
+    :param seeds: grid seeds (see the module docstring for the env seeds they give).
+    """
+    if not teams:
+        raise ValueError("compare needs at least one policy")
+    if not graphs:
+        raise ValueError("compare needs at least one graph")
+    if episodes < 1:
+        raise ValueError(f"episodes must be at least 1, got {episodes}")
+    if episodes > SEED_STRIDE:
+        raise ValueError(f"at most {SEED_STRIDE} episodes per seed, got {episodes}")
+    comparison = Comparison(
+        config={
+            "policies": list(teams),
+            "graphs": [str(g) for g in graphs],
+            "seeds": list(seeds),
+            "episodes": episodes,
+            "n_agents": n_agents,
+            "max_cycles": max_cycles,
+            "env_kwargs": dict(env_kwargs or {}),
+            "seed_stride": SEED_STRIDE,
+        }
+    )
+    for label, factory in teams.items():
+        runs = comparison.results.setdefault(label, [])
+        for graph in graphs:
+            for seed in seeds:
+                runs.append(
+                    evaluate(
+                        factory(),
+                        graph,
+                        n_agents=n_agents,
+                        episodes=episodes,
+                        seed=seed * SEED_STRIDE,
+                        max_cycles=max_cycles,
+                        env_kwargs=env_kwargs,
+                        progress=progress,
+                        policy_name=label,
+                    )
+                )
+    return comparison

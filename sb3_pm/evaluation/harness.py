@@ -1,0 +1,191 @@
+"""Running a team for a number of episodes and keeping the per-episode records.
+
+Seeding (reproducible, documented in the README): episode ``e`` of ``evaluate(..., seed=s)``
+resets the environment with seed ``s + e`` (start positions and, if enabled, initial
+uncertainties) and the team with :func:`team_seed` of that env seed, so a team's randomness never
+shares a stream with the environment's.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sb3_pm.baselines.base import Team
+from sb3_pm.graphs import GraphLike, graph_label, resolve_graph
+
+#: Mixed into the team's seed so that it differs from the env's seed for the same episode.
+_TEAM_SEED_TAG = 0x7EA
+
+
+def team_seed(env_seed: int) -> int:
+    """The team's seed for an episode whose env seed is ``env_seed``."""
+    return int(np.random.SeedSequence([int(env_seed), _TEAM_SEED_TAG]).generate_state(1)[0])
+
+
+@dataclass
+class EpisodeRecord:
+    """One evaluated episode.
+
+    :ivar episode: index within its :func:`evaluate` call.
+    :ivar seed: the env's reset seed.
+    :ivar team_seed: the team's reset seed.
+    :ivar metrics: the env's metrics dict (``avg_uncertainty``, ``max_neglect``, ...).
+    :ivar trace: ``(K,)`` summed target uncertainty after each step.
+    """
+
+    episode: int
+    seed: int
+    team_seed: int
+    metrics: dict[str, float]
+    trace: np.ndarray = field(repr=False)
+
+    def to_dict(self) -> dict[str, float | int]:
+        """A flat JSON-ready dict: the metrics plus ``episode``, ``seed`` and ``team_seed``."""
+        return {"episode": self.episode, "seed": self.seed, "team_seed": self.team_seed, **self.metrics}
+
+
+@dataclass
+class EvaluationResult:
+    """The episodes of one team on one graph, with their aggregates.
+
+    :ivar policy: the team's name.
+    :ivar graph: the graph's label (preset name or file stem).
+    :ivar config: how the run was made (agents, steps, episodes, seed, env kwargs).
+    """
+
+    policy: str
+    graph: str
+    config: dict[str, Any]
+    episodes: list[EpisodeRecord]
+
+    @property
+    def metric_names(self) -> list[str]:
+        """Metric keys, in the env's order."""
+        if not self.episodes:
+            return []
+        return list(self.episodes[0].metrics)
+
+    def values(self, metric: str) -> np.ndarray:
+        """``(episodes,)`` values of one metric."""
+        return np.array([record.metrics[metric] for record in self.episodes], dtype=float)
+
+    @property
+    def mean(self) -> dict[str, float]:
+        """Mean of each metric over the episodes."""
+        return {name: float(self.values(name).mean()) for name in self.metric_names}
+
+    @property
+    def std(self) -> dict[str, float]:
+        """Sample standard deviation (``ddof=1``; 0 for a single episode) of each metric."""
+        return {name: _sample_sd(self.values(name)) for name in self.metric_names}
+
+    @property
+    def traces(self) -> np.ndarray:
+        """``(episodes, K)`` summed target uncertainty per step."""
+        return np.stack([record.trace for record in self.episodes])
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"episodes": [...], "mean": {...}, "std": {...}, "config": {...}}`` (the ``--json`` schema)."""
+        return {
+            "episodes": [record.to_dict() for record in self.episodes],
+            "mean": self.mean,
+            "std": self.std,
+            "config": dict(self.config),
+        }
+
+
+def _sample_sd(values: np.ndarray) -> float:
+    return float(values.std(ddof=1)) if len(values) > 1 else 0.0
+
+
+def evaluate(
+    team: Team,
+    graph: GraphLike,
+    n_agents: int = 4,
+    episodes: int = 10,
+    seed: int = 0,
+    max_cycles: int = 500,
+    env_kwargs: Mapping[str, Any] | None = None,
+    progress: bool | None = False,
+    policy_name: str | None = None,
+) -> EvaluationResult:
+    """Run ``team`` for ``episodes`` full episodes on ``graph`` and collect their metrics.
+
+    :param team: any :class:`~sb3_pm.baselines.base.Team` (a baseline or a trained team).
+    :param graph: a preset name, a ``.graphml`` path or a :class:`~sb3_pm.graphs.GraphSpec`.
+    :param n_agents: team size.
+    :param episodes: number of episodes, at least 1.
+    :param seed: episode ``e`` uses env seed ``seed + e`` (see the module docstring).
+    :param max_cycles: episode length K.
+    :param env_kwargs: further arguments of the environment (``obs_radius``, ``u_max``, ...).
+    :param progress: show a tqdm bar on stderr; ``None`` shows it only on a terminal.
+    :param policy_name: the label in reports; defaults to ``team.name``.
+    :raises ValueError: for ``episodes < 1`` or bad environment arguments.
+    """
+    from sb3_pm.envs import persistent_monitoring_v0
+
+    if episodes < 1:
+        raise ValueError(f"episodes must be at least 1, got {episodes}")
+    spec = resolve_graph(graph)
+    kwargs = dict(env_kwargs or {})
+    env = persistent_monitoring_v0.parallel_env(graph=spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs)
+    records: list[EpisodeRecord] = []
+    bar = _progress_bar(episodes * max_cycles, progress, f"{policy_name or team.name} on {graph_label(graph)}")
+    try:
+        for episode in range(episodes):
+            env_seed = seed + episode
+            records.append(run_episode(team, env, env_seed, bar))
+            records[-1].episode = episode
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+    config = {
+        "policy": policy_name or team.name,
+        "graph": graph_label(graph),
+        "n_agents": n_agents,
+        "max_cycles": max_cycles,
+        "episodes": episodes,
+        "seed": seed,
+        "env_kwargs": kwargs,
+    }
+    return EvaluationResult(policy=config["policy"], graph=config["graph"], config=config, episodes=records)
+
+
+def run_episode(team: Team, env: Any, env_seed: int, bar: Any = None, frames: list | None = None) -> EpisodeRecord:
+    """Play one episode of ``env`` with ``team``; append rendered frames to ``frames`` if given."""
+    observations, _ = env.reset(seed=env_seed)
+    t_seed = team_seed(env_seed)
+    team.reset(env, seed=t_seed)
+    if frames is not None:
+        frames.append(env.render())
+    infos: dict[str, dict] = {}
+    steps = 0
+    while env.agents:
+        actions = team.predict(observations, deterministic=True)
+        observations, _, _, _, infos = env.step(actions)
+        steps += 1
+        if frames is not None:
+            frames.append(env.render())
+        if bar is not None and steps % 50 == 0:
+            bar.update(50)
+    if bar is not None:
+        bar.update(steps % 50)
+    metrics = next(iter(infos.values()))["metrics"] if infos else env.unwrapped.episode_metrics()
+    return EpisodeRecord(
+        episode=0, seed=int(env_seed), team_seed=t_seed, metrics=dict(metrics), trace=env.unwrapped.uncertainty_trace()
+    )
+
+
+def _progress_bar(total: int, progress: bool | None, description: str) -> Any:
+    if progress is False:
+        return None
+    from tqdm.auto import tqdm
+
+    # disable=None: tqdm hides itself when stderr is not a terminal.
+    return tqdm(total=total, desc=description, unit="step", file=sys.stderr, disable=None if progress is None else False, leave=False)

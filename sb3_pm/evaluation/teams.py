@@ -1,0 +1,61 @@
+"""Turning a ``--policy`` string into a team: a baseline name or a saved trained team directory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from sb3_pm.baselines import BASELINES, make_team
+from sb3_pm.baselines.base import Team
+
+
+class PolicyError(ValueError):
+    """A ``--policy`` that names no baseline and no loadable trained team."""
+
+
+def resolve_team(policy: str | Path, **kwargs: Any) -> Team:
+    """A team for ``policy``.
+
+    :param policy: a baseline name (a key of :data:`~sb3_pm.baselines.BASELINES`) or the path of a
+        directory holding a saved trained team (loaded with ``IndependentPPO.load``).
+    :param kwargs: constructor arguments for a baseline; ignored for a trained team.
+    :raises PolicyError: an unknown name, or a directory that cannot be loaded.
+    :raises FileNotFoundError: a path-like policy that does not exist.
+    """
+    text = str(policy)
+    if text in BASELINES:
+        return make_team(text, **kwargs)
+    path = Path(text).expanduser()
+    if path.is_dir():
+        return load_trained_team(path)
+    if path.exists():
+        raise PolicyError(f"policy {text!r} is a file; a trained team is a directory written by its save()")
+    if "/" in text or "\\" in text or text.startswith("."):
+        raise FileNotFoundError(f"trained team directory not found: {text}")
+    raise PolicyError(f"unknown policy {text!r}: use a baseline ({', '.join(BASELINES)}) or a trained team directory")
+
+
+def load_trained_team(path: Path) -> Team:
+    """``IndependentPPO.load(path)``, imported lazily so that baselines never need torch."""
+    try:
+        from sb3_pm.agents.team import IndependentPPO
+    except ImportError as error:
+        raise PolicyError(
+            f"cannot load the trained team in {path}: sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
+        ) from error
+    try:
+        team = IndependentPPO.load(path)
+    except (FileNotFoundError, ValueError) as error:
+        raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
+    if not getattr(team, "name", None) or team.name == "team":
+        try:
+            team.name = path.name
+        except AttributeError:
+            pass
+    return team
+
+
+def policy_label(policy: str | Path, team: Team) -> str:
+    """The report label: the baseline's name, or the trained team's directory name."""
+    text = str(policy)
+    return text if text in BASELINES else Path(text).name or text
