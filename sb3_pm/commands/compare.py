@@ -1,0 +1,69 @@
+"""``sb3-pm compare``: evaluate several policies on several graphs and seeds; write tables and plots."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from sb3_pm.commands.evaluate import check_counts
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "compare",
+        help="compare policies over graphs x seeds x episodes",
+        description=(
+            "Evaluate every policy on every graph and seed, then write table.md/.csv/.tex, anova.txt, "
+            "results.json, uncertainty.png and table.png into --out."
+        ),
+    )
+    parser.add_argument("--policies", nargs="+", required=True, help="baseline names and/or trained team directories")
+    parser.add_argument("--graphs", nargs="+", default=["paper-50"], help="presets or .graphml paths")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0], help="grid seeds; seed s uses env seeds s*1000+e")
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per policy, graph and seed (default 10)")
+    parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")
+    parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+    parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_pm.cli import UsageError
+    from sb3_pm.evaluation import compare, markdown_table, policy_label, resolve_team
+    from sb3_pm.graphs import resolve_graph
+
+    check_counts(args)
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out} exists and is not a directory")
+    if args.out.is_dir() and any(args.out.iterdir()) and not args.overwrite:
+        raise FileExistsError(f"--out {args.out} is not empty; pass --overwrite to write into it")
+    if len(set(args.policies)) != len(args.policies):
+        raise UsageError(f"--policies lists a policy twice: {args.policies}")
+    for graph in args.graphs:
+        resolve_graph(graph)  # every graph checked before the long part starts
+    teams = {}
+    for policy in args.policies:
+        team = resolve_team(policy)  # checks the name/directory now
+        label = policy_label(policy, team)
+        if label in teams:
+            raise UsageError(f"two policies share the label {label!r}")
+        teams[label] = lambda policy=policy: resolve_team(policy)
+    comparison = compare(
+        teams,
+        args.graphs,
+        seeds=args.seeds,
+        episodes=args.episodes,
+        n_agents=args.agents,
+        max_cycles=args.steps,
+        progress=False if args.no_progress else None,
+    )
+    comparison.config["command"] = "sb3-pm " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    written = comparison.write(args.out)
+    print(markdown_table(comparison.table), end="")
+    print(f"wrote {len(written)} files to {args.out}", file=sys.stderr)
+    return 0

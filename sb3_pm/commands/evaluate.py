@@ -1,0 +1,96 @@
+"""``sb3-pm evaluate``: run one policy on one graph and print its aggregate metrics."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+#: Runs with at least this many steps in all show a progress bar (on a terminal).
+PROGRESS_MIN_STEPS = 5000
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "evaluate",
+        help="evaluate a baseline or a trained team",
+        description="Run a policy for several episodes and print the mean and SD of every metric.",
+    )
+    parser.add_argument("--policy", required=True, help="a baseline name or a saved trained team directory")
+    parser.add_argument("--graph", default="paper-50", help="a preset (paper-50/100/200) or a .graphml path")
+    parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
+    parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")
+    parser.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="episode e uses env seed SEED + e (default 0)")
+    parser.add_argument("--json", type=Path, metavar="FILE", help="write episodes, mean, std and config as JSON")
+    parser.add_argument("--gif", type=Path, metavar="FILE", help="save the first episode as an animated GIF")
+    parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+    parser.set_defaults(func=run)
+
+
+def check_counts(args: argparse.Namespace) -> None:
+    """Reject non-positive sizes with one clear line before any work starts."""
+    from sb3_pm.cli import UsageError
+
+    for flag in ("agents", "steps", "episodes"):
+        value = getattr(args, flag)
+        if value is not None and value < 1:
+            raise UsageError(f"--{flag} must be at least 1, got {value}")
+
+
+def print_summary(result: Any, stream: Any = None) -> None:
+    """The aggregate table: one row per metric, mean and SD over the episodes."""
+    stream = stream or sys.stdout
+    mean, std = result.mean, result.std
+    title = f"{result.policy} on {result.graph}: {len(result.episodes)} episodes x {result.config['max_cycles']} steps"
+    try:
+        from rich.console import Console
+        from rich.table import Table
+    except ImportError:  # rich is optional; plain text says the same
+        print(title, file=stream)
+        for name in mean:
+            print(f"  {name:<20} {mean[name]:>12.3f} ± {std[name]:.3f}", file=stream)
+        return
+    print(title, file=stream)
+    table = Table()
+    table.add_column("metric")
+    table.add_column("mean", justify="right")
+    table.add_column("sd", justify="right")
+    for name in mean:
+        table.add_row(name, f"{mean[name]:.3f}", f"{std[name]:.3f}")
+    Console(file=stream, width=100).print(table)
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
+    from sb3_pm.graphs import resolve_graph
+
+    check_counts(args)
+    graph = resolve_graph(args.graph)  # fail on a bad graph before loading a model
+    for path in (args.json, args.gif):
+        if path is not None and not path.parent.exists():
+            raise FileNotFoundError(f"output directory does not exist: {path.parent}")
+    team = resolve_team(args.policy)
+    label = policy_label(args.policy, team)
+    long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
+    result = evaluate(
+        team,
+        graph,
+        n_agents=args.agents,
+        episodes=args.episodes,
+        seed=args.seed,
+        max_cycles=args.steps,
+        progress=None if long_run and not args.no_progress else False,
+        policy_name=label,
+    )
+    result.config["graph"] = str(args.graph)
+    print_summary(result)
+    if args.json is not None:
+        args.json.write_text(json.dumps(result.to_dict(), indent=2))
+        print(f"wrote {args.json}", file=sys.stderr)
+    if args.gif is not None:
+        record_gif(resolve_team(args.policy), graph, args.gif, n_agents=args.agents, seed=args.seed, max_cycles=args.steps)
+        print(f"wrote {args.gif}", file=sys.stderr)
+    return 0
