@@ -1,0 +1,104 @@
+"""Callbacks for sb3_pm learners.
+
+:class:`EstimatorCallback` trains a :class:`~sb3_pm.policies.DCBFActorCriticPolicy`'s state
+estimator (METHOD.md "Estimator loss", paper eq. 3) on each rollout's own transitions, with the
+estimator's own optimizer. :class:`~sb3_pm.ppo_dcbf.DCBFPPO` attaches it automatically, so a plain
+``model.learn()`` needs no glue.
+
+When the fit happens (``update_at``):
+
+* ``"after_train"`` (default): the pairs are taken from the buffer at ``on_rollout_end`` but the
+  estimator is fitted only after PPO's ``train()`` on that same rollout (at the next
+  ``on_rollout_start``, or ``on_training_end`` for the last rollout). ``û`` is an *input* of the
+  actor, so changing the estimator between collection and ``train()`` would change the policy
+  that PPO's ratio compares against the stored log-probabilities; fitting afterwards keeps the
+  first-epoch ratio at exactly 1, as PPO assumes. Every rollout is still used exactly once.
+* ``"rollout_end"``: fit at ``on_rollout_end`` (before ``train()``), the literal reading of the
+  paper. The DCBF masks are unaffected either way (they are stored), but PPO's ratio is then
+  slightly off-policy at the first epoch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_pm.policies.estimator import transition_pairs
+
+UPDATE_AT = ("after_train", "rollout_end")
+
+
+class EstimatorCallback(BaseCallback):
+    """Fit the policy's state estimator on each rollout's ``(M_{k-1}, M_k)`` pairs; log ``estimator/loss``.
+
+    Hyperparameters (``estimator_epochs``, ``estimator_batch_size``, ``estimator_target``) are read
+    from the policy, so that they travel with its saved kwargs.
+
+    :param update_at: ``"after_train"`` (default) or ``"rollout_end"``, see the module docstring.
+    :param verbose: verbosity level.
+    """
+
+    def __init__(self, update_at: str = "after_train", verbose: int = 0) -> None:
+        super().__init__(verbose)
+        if update_at not in UPDATE_AT:
+            raise ValueError(f"update_at must be one of {UPDATE_AT}, got {update_at!r}")
+        self.update_at = update_at
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None
+        #: Mean loss of the last fit's final epoch (``nan`` before the first fit).
+        self.last_loss = float("nan")
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        buffer = self.model.rollout_buffer
+        pairs = transition_pairs(
+            buffer.observations["nodes"],  # type: ignore[index, call-overload]
+            buffer.episode_starts,
+            np.asarray(self.model._last_obs["nodes"]),  # type: ignore[index, call-overload]
+            np.asarray(self.model._last_episode_starts),
+        )
+        if self.update_at == "rollout_end":
+            self.fit(*pairs)
+        else:
+            self._pending = pairs  # boolean indexing copied them: the next rollout cannot overwrite them
+
+    def _on_rollout_start(self) -> None:
+        self._fit_pending()
+
+    def _on_training_end(self) -> None:
+        self._fit_pending()
+
+    def _fit_pending(self) -> None:
+        if self._pending is not None:
+            pairs, self._pending = self._pending, None
+            self.fit(*pairs)
+
+    def fit(self, previous: np.ndarray, current: np.ndarray) -> float:
+        """Fit the estimator on pairs of maps ``(P, N, F)``; returns the last epoch's mean loss."""
+        policy = self.model.policy
+        estimator, optimizer = policy.estimator, policy.estimator_optimizer
+        if estimator is None or optimizer is None or len(previous) == 0:
+            return self.last_loss
+        device = policy.device
+        prev_t = th.as_tensor(previous, dtype=th.float32, device=device)
+        curr_t = th.as_tensor(current, dtype=th.float32, device=device)
+        batch_size = max(1, int(policy.estimator_batch_size))
+        losses: list[float] = []
+        for _ in range(int(policy.estimator_epochs)):
+            losses = []
+            order = th.randperm(len(prev_t), device=device)  # SB3's seeded torch RNG: reproducible
+            for start in range(0, len(order), batch_size):
+                idx = order[start : start + batch_size]
+                loss = estimator.loss(prev_t[idx], curr_t[idx], policy.estimator_target)
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+                losses.append(loss.item())
+        # Leave no gradient behind: PPO clips the norm over all policy parameters.
+        optimizer.zero_grad(set_to_none=True)
+        self.last_loss = float(np.mean(losses))
+        self.logger.record("estimator/loss", self.last_loss)
+        self.logger.record("estimator/pairs", len(prev_t))
+        return self.last_loss

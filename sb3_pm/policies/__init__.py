@@ -1,0 +1,18 @@
+"""Networks of one learning agent: GAT encoder, state estimator, DCBF filter and the DCBF policy."""
+
+from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask, dcbf_mask_from_map
+from sb3_pm.policies.estimator import StateEstimator, transition_pairs
+from sb3_pm.policies.extractor import GATFeaturesExtractor, GraphAttention, GraphTransformer
+from sb3_pm.policies.policy import DCBFActorCriticPolicy
+
+__all__ = [
+    "DCBFActorCriticPolicy",
+    "DCBFConfig",
+    "GATFeaturesExtractor",
+    "GraphAttention",
+    "GraphTransformer",
+    "StateEstimator",
+    "dcbf_mask",
+    "dcbf_mask_from_map",
+    "transition_pairs",
+]

@@ -1,0 +1,139 @@
+"""The discrete control-barrier-function (DCBF) safety filter (METHOD.md "DCBF safety filter", paper §III.E).
+
+The filter turns the predicted next-step uncertainties ``û`` and the agent's own mental map into a
+boolean mask over destination nodes; the actor's categorical distribution is then restricted to
+that mask (sb3-contrib's masked categorical). It is vectorized over a batch and has no learnable
+parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
+
+1. feasibility: only ``R``;
+2. ``h = (1 - η) · max_m û_m`` over *all* nodes;
+3. safe set ``S = {m ∈ R : û_m ≥ h}``;
+4. if ``S`` is empty: the nodes of ``R`` with the largest ``û`` (ties kept, so sampling breaks them
+   at random);
+5. freeze: ``S = {φ}`` while the agent stands on a known target, has stayed there fewer than
+   ``freeze_steps`` steps (``dwell``, 0 on arrival) and observes ``u > 0`` there; it ends early
+   once it observes ``u = 0``. Because ``dwell`` restarts at 0 on arrival, a freeze starts on every
+   arrival at a target, including the agent's start node;
+6. ``avoid_collisions``: drop from ``S`` the nodes observed *this step* (``age == 0``) to hold
+   another agent, unless that empties ``S``;
+7. activation threshold ``γ``: rules 2-6 apply only where ``max_m û_m ≥ γ``; elsewhere the mask is
+   ``R`` (default ``γ = 0``: always, as in the paper's experiments).
+
+Decisions where METHOD.md is silent: γ gates the whole filter including the freeze (the freeze is
+rule 5 of the filter); rule 6 also applies to the frozen ``{φ}`` but can never empty it. A final
+guard makes every row non-empty even for malformed input (falls back to ``R``, then to all nodes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch as th
+
+from sb3_pm.agents.mental_map import AGE, OCCUPIED, TARGET, U
+
+
+@dataclass(frozen=True)
+class DCBFConfig:
+    """Settings of the filter.
+
+    :param eta: the margin ``η`` of rule 2, in ``[0, 1]``.
+    :param freeze_steps: length of the freeze of rule 5 (0 disables it).
+    :param avoid_collisions: apply rule 6.
+    :param gamma_threshold: the activation threshold ``γ`` of rule 7, in units of ``u``.
+    """
+
+    eta: float = 0.1
+    freeze_steps: int = 10
+    avoid_collisions: bool = False
+    gamma_threshold: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.eta <= 1.0:
+            raise ValueError(f"eta must be in [0, 1], got {self.eta}")
+        if self.freeze_steps < 0:
+            raise ValueError(f"freeze_steps must be >= 0, got {self.freeze_steps}")
+
+
+def _non_empty(mask: th.Tensor, fallback: th.Tensor) -> th.Tensor:
+    """``mask`` where its row has a True entry, else ``fallback`` (rows of ``(B, N)`` bool)."""
+    return th.where(mask.any(-1, keepdim=True), mask, fallback)
+
+
+def dcbf_mask(
+    u_hat: th.Tensor,
+    reachable: th.Tensor,
+    position: th.Tensor,
+    on_target: th.Tensor,
+    u_here: th.Tensor,
+    dwell: th.Tensor,
+    occupied_now: th.Tensor,
+    config: DCBFConfig = DCBFConfig(),
+) -> th.Tensor:
+    """Apply rules 1-7 to a batch.
+
+    :param u_hat: predicted (or last observed) uncertainty per node.
+    :param reachable: the reachable set ``R`` (bool).
+    :param position: the agent's node ``φ`` (long).
+    :param on_target: the agent's node is a known target (bool).
+    :param u_here: the uncertainty the agent observes at its node now.
+    :param dwell: steps the agent has stayed on its node (0 on arrival).
+    :param occupied_now: nodes observed this step to hold another agent (bool).
+    :param config: the filter's settings.
+    :return: the mask ``S`` (bool), never all-false.
+
+    Shapes:
+        - u_hat, reachable, occupied_now: ``(B, N)``
+        - position, on_target, u_here, dwell: ``(B,)``
+        - output: ``(B, N)`` bool
+    """
+    reachable = reachable.bool()
+    very_low = th.finfo(u_hat.dtype).min
+    u_max_all = u_hat.amax(-1, keepdim=True)  # (B, 1), rule 2 is over all nodes
+    h = (1.0 - config.eta) * u_max_all
+    safe = reachable & (u_hat >= h)  # rule 3
+    # Rule 4: best reachable nodes, ties kept.
+    u_reachable = u_hat.masked_fill(~reachable, very_low)
+    best = reachable & (u_reachable >= u_reachable.amax(-1, keepdim=True))
+    safe = _non_empty(safe, best)
+    # Rule 5: freeze on a target until dwell reaches freeze_steps or u is observed at 0.
+    own = th.nn.functional.one_hot(position.long(), u_hat.shape[-1]).bool()
+    frozen = on_target.bool() & (dwell < config.freeze_steps) & (u_here > 0)
+    safe = th.where(frozen[:, None], own, safe)
+    if config.avoid_collisions:  # rule 6
+        safe = _non_empty(safe & ~occupied_now.bool(), safe)
+    # Rule 7: the filter is active only where max û >= γ.
+    active = u_max_all >= config.gamma_threshold
+    mask = th.where(active, safe, reachable)
+    return _non_empty(_non_empty(mask, reachable), th.ones_like(mask))
+
+
+def dcbf_mask_from_map(
+    observations: dict[str, th.Tensor],
+    u_hat: th.Tensor,
+    config: DCBFConfig = DCBFConfig(),
+) -> th.Tensor:
+    """:func:`dcbf_mask` on SB3-preprocessed mental-map observations.
+
+    ``position`` arrives one-hot (SB3 preprocessing of ``Discrete``) and node features are raw
+    (unnormalized), as the env emits them.
+
+    Shapes:
+        - observations: ``nodes`` ``(B, N, 5)``, ``position`` ``(B, N)``, ``dwell`` ``(B, 1)``,
+          ``action_mask`` ``(B, N)``; u_hat: ``(B, N)``
+        - output: ``(B, N)`` bool
+    """
+    nodes = observations["nodes"]
+    position = observations["position"].argmax(-1)
+    rows = th.arange(nodes.shape[0], device=nodes.device)
+    here = nodes[rows, position]  # (B, 5): the own node's features
+    return dcbf_mask(
+        u_hat,
+        observations["action_mask"] > 0.5,
+        position,
+        here[:, TARGET] > 0.5,
+        here[:, U],
+        observations["dwell"].reshape(-1),
+        (nodes[..., OCCUPIED] > 0.5) & (nodes[..., AGE] == 0),
+        config,
+    )

@@ -1,0 +1,105 @@
+"""The state estimator (METHOD.md "Network of one agent" and "Estimator loss", paper eq. 3).
+
+An MLP that predicts, from an agent's mental map ``M_{k-1}``, the uncertainty of every node at the
+next step, ``û`` (the u channel of ``M_k``). Design decisions (METHOD.md leaves them open):
+
+* **Per node, weights shared across nodes.** Each node's prediction reads only that node's row
+  ``[u/u_max, age/max_cycles, target, occupied, self]``; the same MLP serves every node, so it has
+  the same size on any graph and can generalize across nodes. A node's next ``u`` depends mostly on
+  its own row (last seen value, how stale it is, whether the agent is on it), which is what this
+  captures.
+* **Targets only.** The output is multiplied by the map's target flag: a node not known to be a
+  target has ``u = 0`` in the map and in the world, so predicting anything else can only hurt.
+* **Scale.** The network works in units of ``u / u_max``; :meth:`StateEstimator.forward` returns
+  ``û`` in units of ``u`` (clamped to ``[0, u_max]``), and the loss is the MSE in ``u / u_max``
+  units so that its scale does not depend on ``u_max``.
+* **Targets of the loss** (option ``estimator_target``): ``"map"`` (the paper's: every node of
+  ``M_k``) or ``"observed"`` (only the nodes with ``age == 0`` in ``M_k``, the agent's actual
+  measurements; on the other nodes the map is stale and ``"map"`` teaches the identity).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch as th
+from torch import nn
+
+from sb3_pm.agents.mental_map import AGE, TARGET, U
+
+ESTIMATOR_TARGETS = ("map", "observed")
+
+
+class StateEstimator(nn.Module):
+    """Per-node MLP ``M_{k-1} -> û_k``.
+
+    :param n_features: node feature columns of the map (5).
+    :param u_max: the cap on ``u`` (the nodes space's high of column ``u``).
+    :param inv_high: ``(N, n_features)`` reciprocal highs used to normalize the map.
+    :param hidden: hidden layer sizes.
+
+    Shapes:
+        - nodes: ``(B, N, n_features)`` raw map features
+        - output: ``(B, N)`` predicted ``u`` (``forward``) or ``u / u_max`` (``forward_normalized``)
+    """
+
+    def __init__(self, n_features: int, u_max: float, inv_high: th.Tensor, hidden: Sequence[int] = (64, 64)) -> None:
+        super().__init__()
+        self.n_features, self.u_max, self.hidden = n_features, float(u_max), tuple(hidden)
+        self.register_buffer("inv_high", inv_high.clone().float())
+        layers: list[nn.Module] = []
+        size = n_features
+        for width in self.hidden:
+            layers += [nn.Linear(size, width), nn.ReLU()]
+            size = width
+        layers.append(nn.Linear(size, 1))
+        self.net = nn.Sequential(*layers)
+
+    def forward_normalized(self, nodes: th.Tensor) -> th.Tensor:
+        """``û / u_max`` before clamping (what the loss is computed on)."""
+        out = self.net(nodes * self.inv_high).squeeze(-1)
+        return out * nodes[..., TARGET]
+
+    def forward(self, nodes: th.Tensor) -> th.Tensor:
+        return self.forward_normalized(nodes).clamp(0.0, 1.0) * self.u_max
+
+    def loss(self, previous: th.Tensor, current: th.Tensor, target: str = "map") -> th.Tensor:
+        """MSE (in ``u / u_max`` units) between ``û(M_{k-1})`` and the u channel of ``M_k``.
+
+        :param previous: maps ``M_{k-1}``, ``(B, N, F)``.
+        :param current: maps ``M_k``, ``(B, N, F)``.
+        :param target: ``"map"`` (all nodes) or ``"observed"`` (nodes with ``age == 0`` in ``M_k``).
+        """
+        if target not in ESTIMATOR_TARGETS:
+            raise ValueError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {target!r}")
+        error = (self.forward_normalized(previous) - current[..., U] / self.u_max) ** 2
+        if target == "map":
+            return error.mean()
+        weight = (current[..., AGE] == 0).to(error.dtype)
+        return (error * weight).sum() / weight.sum().clamp(min=1.0)
+
+
+def transition_pairs(
+    nodes: np.ndarray,
+    episode_starts: np.ndarray,
+    last_nodes: np.ndarray | None = None,
+    last_episode_starts: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Consecutive map pairs ``(M_{k-1}, M_k)`` of one rollout, never across an episode boundary.
+
+    Rows ``t-1`` and ``t`` of the same env form a pair unless ``episode_starts[t]`` is set (row
+    ``t`` is then the first map of a new episode). ``last_nodes`` (the observation after the last
+    row, SB3's ``_last_obs``) adds one more pair per env where ``last_episode_starts`` is 0.
+
+    :param nodes: ``(T, n_envs, N, F)`` buffer observations.
+    :param episode_starts: ``(T, n_envs)``.
+    :return: ``previous`` and ``current``, each ``(P, N, F)``.
+    """
+    if last_nodes is not None:
+        if last_episode_starts is None:
+            raise ValueError("last_episode_starts is required with last_nodes")
+        nodes = np.concatenate((nodes, last_nodes[None]), axis=0)
+        episode_starts = np.concatenate((episode_starts, np.asarray(last_episode_starts, dtype=np.float32)[None]))
+    valid = episode_starts[1:] == 0  # (T-1, n_envs)
+    return nodes[:-1][valid], nodes[1:][valid]

@@ -1,0 +1,323 @@
+"""The DCBF actor-critic policy of one agent (METHOD.md "Network of one agent", "DCBF safety filter").
+
+Architecture, for a batch of ``B`` mental maps on ``N`` nodes:
+
+* :class:`~sb3_pm.policies.extractor.GATFeaturesExtractor` -> node embeddings ``H`` ``(B, N, h)``;
+* :class:`~sb3_pm.policies.estimator.StateEstimator` -> ``û`` ``(B, N)``, **detached** (computed
+  under ``no_grad``), so PPO's loss never moves it; it has its own optimizer
+  (:attr:`DCBFActorCriticPolicy.estimator_optimizer`) and the policy optimizer excludes it;
+* actor: one MLP applied to every node with shared weights, input ``[H_m, û_m / u_max, H_φ]``
+  -> one logit per node (``H_φ``, the own node's embedding, tells every node where the agent is;
+  without it a shared per-node head could not express "move relative to me");
+* critic: ``[mean_m [H_m, û_m / u_max], H_φ]`` -> MLP -> value;
+* DCBF mask (:mod:`sb3_pm.policies.dcbf`) from ``û`` (or, with ``use_estimator=False``, the map's
+  last observed ``u``), applied to the categorical distribution.
+
+Where masks come from: :meth:`DCBFActorCriticPolicy.forward_with_masks` returns the DCBF mask it
+sampled with, which :class:`~sb3_pm.ppo_dcbf.DCBFPPO` stores in the rollout buffer; ``train()``
+passes the stored masks back to :meth:`evaluate_actions`. Every entry point that receives no mask
+(``forward``, ``get_distribution``, ``predict``) computes the DCBF mask itself, so deployment is
+filtered exactly like training; a mask given by the caller is intersected with it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from sb3_contrib.common.maskable.distributions import MaskableDistribution
+from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+from stable_baselines3.common.preprocessing import preprocess_obs
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+
+from sb3_pm.agents.mental_map import FEATURES, U
+from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask_from_map
+from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
+from sb3_pm.policies.extractor import GATFeaturesExtractor
+
+MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
+
+
+def _mlp(in_dim: int, hidden: list[int], activation: type[nn.Module]) -> tuple[nn.Sequential, int]:
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(in_dim, width), activation()]
+        in_dim = width
+    return nn.Sequential(*layers), in_dim
+
+
+class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
+    """Masked actor-critic over a mental map, with a GAT encoder, a state estimator and a DCBF filter.
+
+    :param observation_space: the map observation ``Dict`` of :mod:`sb3_pm.envs.persistent_monitoring_v0`.
+    :param action_space: ``Discrete(N)``.
+    :param lr_schedule: learning-rate schedule of the actor-critic optimizer.
+    :param net_arch: hidden sizes of the heads, ``dict(pi=[...], vf=[...])`` or one list for both
+        (default ``dict(pi=[64, 64], vf=[64, 64])``).
+    :param activation_fn: activation of the heads.
+    :param ortho_init: orthogonal initialization of the heads (the GAT keeps PyG's glorot init).
+    :param features_extractor_class: the graph encoder (default :class:`GATFeaturesExtractor`).
+    :param features_extractor_kwargs: extra encoder kwargs; the explicit kwargs below win.
+    :param use_dcbf: apply the DCBF filter (off: the mask is the reachable set).
+    :param use_estimator: build the state estimator (off: no ``û`` input to the heads, and the
+        filter uses the map's last observed ``u``).
+    :param avoid_collisions: DCBF rule 6.
+    :param extra_attention: one more single-head GAT layer and a graph-transformer layer.
+    :param estimator_target: ``"map"`` or ``"observed"`` (see :mod:`sb3_pm.policies.estimator`).
+    :param freeze_steps: DCBF rule 5 (0 disables the freeze).
+    :param eta: DCBF margin ``η``.
+    :param gamma_threshold: DCBF activation threshold ``γ``.
+    :param laplacian: ``"rows"``, ``"eigen"`` or ``"none"``.
+    :param gat_heads: heads per GAT layer.
+    :param hidden_dim: node embedding size ``h``.
+    :param gat_layers: number of multi-head GAT layers.
+    :param gat_backend: ``"auto"``, ``"dense"`` or ``"sparse"``.
+    :param estimator_hidden: hidden sizes of the estimator MLP.
+    :param estimator_lr: Adam learning rate of the estimator.
+    :param estimator_epochs: passes over each rollout's pairs when fitting the estimator.
+    :param estimator_batch_size: minibatch size (pairs) when fitting the estimator.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        net_arch: list[int] | dict[str, list[int]] | None = None,
+        activation_fn: type[nn.Module] = nn.Tanh,
+        ortho_init: bool = True,
+        features_extractor_class: type[GATFeaturesExtractor] = GATFeaturesExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        share_features_extractor: bool = True,
+        normalize_images: bool = True,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+        use_dcbf: bool = True,
+        use_estimator: bool = True,
+        avoid_collisions: bool = False,
+        extra_attention: bool = False,
+        estimator_target: str = "map",
+        freeze_steps: int = 10,
+        eta: float = 0.1,
+        gamma_threshold: float = 0.0,
+        laplacian: str = "rows",
+        gat_heads: int = 4,
+        hidden_dim: int = 32,
+        gat_layers: int = 2,
+        gat_backend: str = "auto",
+        estimator_hidden: list[int] | tuple[int, ...] = (64, 64),
+        estimator_lr: float = 1e-3,
+        estimator_epochs: int = 5,
+        estimator_batch_size: int = 256,
+    ) -> None:
+        if not isinstance(observation_space, spaces.Dict) or any(k not in observation_space.spaces for k in MAP_KEYS):
+            raise ValueError(f"DCBFActorCriticPolicy needs the mental-map Dict observation with keys {MAP_KEYS}")
+        if not isinstance(action_space, spaces.Discrete):
+            raise ValueError(f"DCBFActorCriticPolicy needs a Discrete action space, got {action_space}")
+        if not share_features_extractor:
+            raise ValueError("DCBFActorCriticPolicy shares its graph encoder between actor and critic")
+        if estimator_target not in ESTIMATOR_TARGETS:
+            raise ValueError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {estimator_target!r}")
+        # Plain attributes are set before nn.Module.__init__ (allowed for non-tensors) because the
+        # parent constructor calls our _build, which reads them.
+        self.use_dcbf, self.use_estimator = bool(use_dcbf), bool(use_estimator)
+        self.avoid_collisions, self.extra_attention = bool(avoid_collisions), bool(extra_attention)
+        self.estimator_target = estimator_target
+        self.dcbf_config = DCBFConfig(eta, int(freeze_steps), bool(avoid_collisions), float(gamma_threshold))
+        self.estimator_hidden = [int(w) for w in estimator_hidden]
+        self.estimator_lr, self.estimator_epochs = float(estimator_lr), int(estimator_epochs)
+        self.estimator_batch_size = int(estimator_batch_size)
+        self._encoder_kwargs = dict(
+            laplacian=laplacian,
+            gat_heads=gat_heads,
+            hidden_dim=hidden_dim,
+            gat_layers=gat_layers,
+            extra_attention=extra_attention,
+            backend=gat_backend,
+        )
+        features_extractor_kwargs = {**(features_extractor_kwargs or {}), **self._encoder_kwargs}
+        if net_arch is None:
+            net_arch = dict(pi=[64, 64], vf=[64, 64])
+        super().__init__(
+            observation_space,
+            action_space,
+            lr_schedule,
+            net_arch=net_arch,
+            activation_fn=activation_fn,
+            ortho_init=ortho_init,
+            features_extractor_class=features_extractor_class,
+            features_extractor_kwargs=features_extractor_kwargs,
+            share_features_extractor=True,
+            normalize_images=normalize_images,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+        )
+
+    # ----------------------------------------------------------------- build
+    def _build(self, lr_schedule: Schedule) -> None:
+        """Build the estimator first, then the heads, then two optimizers over disjoint parameters."""
+        nodes_space = self.observation_space["nodes"]  # type: ignore[index]
+        self.n_nodes = int(nodes_space.shape[0])
+        self.u_max = float(nodes_space.high[:, U].max())
+        extractor: GATFeaturesExtractor = self.features_extractor  # type: ignore[assignment]
+        hidden = extractor.hidden_dim
+        self.estimator: StateEstimator | None = None
+        if self.use_estimator:
+            self.estimator = StateEstimator(len(FEATURES), self.u_max, extractor.inv_high, self.estimator_hidden)
+        u_dim = 1 if self.use_estimator else 0
+        if isinstance(self.net_arch, dict):
+            pi_arch, vf_arch = list(self.net_arch.get("pi", [])), list(self.net_arch.get("vf", []))
+        else:
+            pi_arch = vf_arch = list(self.net_arch)
+        self.actor_body, pi_out = _mlp(hidden + u_dim + hidden, pi_arch, self.activation_fn)
+        self.action_net = nn.Linear(pi_out, 1)  # one logit per node, weights shared across nodes
+        self.critic_body, vf_out = _mlp(hidden + u_dim + hidden, vf_arch, self.activation_fn)
+        self.value_net = nn.Linear(vf_out, 1)
+        if self.ortho_init:
+            for module, gain in ((self.actor_body, np.sqrt(2)), (self.critic_body, np.sqrt(2)), (self.action_net, 0.01), (self.value_net, 1.0)):
+                module.apply(lambda m, g=gain: self.init_weights(m, gain=g))
+        # The estimator is trained only by its own optimizer (EstimatorCallback); PPO's optimizer
+        # must never hold its parameters, or PPO's steps would move it (weight decay, momentum).
+        self.optimizer = self.optimizer_class(self.actor_critic_parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)  # type: ignore[call-arg]
+        self.estimator_optimizer: th.optim.Optimizer | None = None
+        if self.estimator is not None:
+            self.estimator_optimizer = th.optim.Adam(self.estimator.parameters(), lr=self.estimator_lr)
+
+    def actor_critic_parameters(self) -> list[nn.Parameter]:
+        """Every parameter except the estimator's (what the PPO optimizer holds)."""
+        excluded = {id(p) for p in self.estimator.parameters()} if self.estimator is not None else set()
+        return [p for p in self.parameters() if id(p) not in excluded]
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            use_dcbf=self.use_dcbf,
+            use_estimator=self.use_estimator,
+            avoid_collisions=self.avoid_collisions,
+            extra_attention=self.extra_attention,
+            estimator_target=self.estimator_target,
+            freeze_steps=self.dcbf_config.freeze_steps,
+            eta=self.dcbf_config.eta,
+            gamma_threshold=self.dcbf_config.gamma_threshold,
+            laplacian=self._encoder_kwargs["laplacian"],
+            gat_heads=self._encoder_kwargs["gat_heads"],
+            hidden_dim=self._encoder_kwargs["hidden_dim"],
+            gat_layers=self._encoder_kwargs["gat_layers"],
+            gat_backend=self._encoder_kwargs["backend"],
+            estimator_hidden=self.estimator_hidden,
+            estimator_lr=self.estimator_lr,
+            estimator_epochs=self.estimator_epochs,
+            estimator_batch_size=self.estimator_batch_size,
+        )
+        return data
+
+    # ------------------------------------------------------------- pieces
+    def _preprocess(self, obs: PyTorchObs) -> dict[str, th.Tensor]:
+        pre: dict[str, th.Tensor] = preprocess_obs(obs, self.observation_space, normalize_images=self.normalize_images)  # type: ignore[assignment]
+        # A Discrete entry sampled from a rollout buffer is stored as (B, 1), so its one-hot is
+        # (B, 1, N); fresh observations give (B, N). Bring both to (B, N).
+        batch = pre["nodes"].shape[0]
+        return {**pre, "position": pre["position"].reshape(batch, -1), "dwell": pre["dwell"].reshape(batch, 1)}
+
+    def uncertainty(self, pre: dict[str, th.Tensor]) -> th.Tensor:
+        """``û`` ``(B, N)`` in units of ``u``: the estimator's (detached), or the map's last observed ``u``."""
+        if self.estimator is None:
+            return pre["nodes"][..., U]
+        with th.no_grad():  # detached: neither PPO's loss nor its optimizer touch the estimator
+            return self.estimator(pre["nodes"])
+
+    def _masks(self, pre: dict[str, th.Tensor], u_hat: th.Tensor, given: th.Tensor | np.ndarray | None) -> th.Tensor:
+        """The DCBF mask (or the reachable set), intersected with a caller's mask if any."""
+        if self.use_dcbf:
+            mask = dcbf_mask_from_map(pre, u_hat, self.dcbf_config)
+        else:
+            mask = pre["action_mask"] > 0.5
+        if given is not None:
+            given_t = th.as_tensor(given, device=mask.device).reshape(mask.shape).bool()
+            both = mask & given_t
+            mask = th.where(both.any(-1, keepdim=True), both, mask)
+        return mask
+
+    def compute_masks(self, obs: PyTorchObs) -> th.Tensor:
+        """The DCBF mask for raw (unpreprocessed) tensor observations, ``(B, N)`` bool."""
+        pre = self._preprocess(obs)
+        with th.no_grad():
+            return self._masks(pre, self.uncertainty(pre), None)
+
+    def _heads(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """Per-node logits ``(B, N)`` and values ``(B, 1)``."""
+        extractor: GATFeaturesExtractor = self.features_extractor  # type: ignore[assignment]
+        embeddings = extractor.node_embeddings(pre)  # (B, N, h)
+        batch = embeddings.shape[0]
+        position = pre["position"].argmax(-1)
+        own = embeddings[th.arange(batch, device=embeddings.device), position]  # (B, h)
+        if self.use_estimator:
+            embeddings = th.cat((embeddings, (u_hat / self.u_max).unsqueeze(-1)), dim=-1)
+        own_expanded = own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
+        logits = self.action_net(self.actor_body(th.cat((embeddings, own_expanded), dim=-1))).squeeze(-1)
+        pooled = th.cat((embeddings.mean(1), own), dim=-1)
+        values = self.value_net(self.critic_body(pooled))
+        return logits, values
+
+    def _distribution(self, logits: th.Tensor, masks: th.Tensor) -> MaskableDistribution:
+        distribution = self.action_dist.proba_distribution(action_logits=logits)
+        distribution.apply_masking(masks)
+        return distribution
+
+    # ------------------------------------------------------- SB3 interface
+    def forward_with_masks(
+        self, obs: PyTorchObs, deterministic: bool = False
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
+        """Sample actions under the DCBF mask and return that mask too.
+
+        :return: actions ``(B,)``, values ``(B, 1)``, log-probabilities ``(B,)`` and masks ``(B, N)`` bool.
+        """
+        pre = self._preprocess(obs)
+        u_hat = self.uncertainty(pre)
+        masks = self._masks(pre, u_hat, None)
+        logits, values = self._heads(pre, u_hat)
+        distribution = self._distribution(logits, masks)
+        actions = distribution.get_actions(deterministic=deterministic)
+        return actions, values, distribution.log_prob(actions), masks
+
+    def forward(  # type: ignore[override]
+        self, obs: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        pre = self._preprocess(obs)
+        u_hat = self.uncertainty(pre)
+        logits, values = self._heads(pre, u_hat)
+        distribution = self._distribution(logits, self._masks(pre, u_hat, action_masks))
+        actions = distribution.get_actions(deterministic=deterministic)
+        return actions, values, distribution.log_prob(actions)
+
+    def evaluate_actions(  # type: ignore[override]
+        self, obs: PyTorchObs, actions: th.Tensor, action_masks: th.Tensor | None = None
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
+        """Values, log-probabilities and entropies; with ``action_masks`` (PPO's stored masks) they are used as is."""
+        pre = self._preprocess(obs)
+        u_hat = self.uncertainty(pre)
+        logits, values = self._heads(pre, u_hat)
+        if action_masks is None:
+            masks = self._masks(pre, u_hat, None)
+        else:  # the stored mask, unchanged: recomputing it would corrupt PPO's ratio
+            masks = th.as_tensor(action_masks, device=logits.device).reshape(logits.shape).bool()
+        distribution = self._distribution(logits, masks)
+        return values, distribution.log_prob(actions), distribution.entropy()
+
+    def get_distribution(self, obs: PyTorchObs, action_masks: np.ndarray | None = None) -> MaskableDistribution:
+        pre = self._preprocess(obs)
+        u_hat = self.uncertainty(pre)
+        logits, _ = self._heads(pre, u_hat)
+        return self._distribution(logits, self._masks(pre, u_hat, action_masks))
+
+    def predict_values(self, obs: PyTorchObs) -> th.Tensor:
+        pre = self._preprocess(obs)
+        return self._heads(pre, self.uncertainty(pre))[1]
+
+    def _predict(  # type: ignore[override]
+        self, observation: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None
+    ) -> th.Tensor:
+        return self.get_distribution(observation, action_masks).get_actions(deterministic=deterministic)

@@ -1,0 +1,181 @@
+"""PPO whose action masks come from the policy's DCBF filter (METHOD.md "DCBF safety filter").
+
+:class:`DCBFPPO` is sb3-contrib's :class:`~sb3_contrib.MaskablePPO` with two changes:
+
+* ``collect_rollouts`` takes each action's mask from the policy
+  (:meth:`~sb3_pm.policies.DCBFActorCriticPolicy.forward_with_masks`), not from the env's
+  ``action_masks()``, and stores exactly that mask in the :class:`MaskableDictRolloutBuffer`.
+  MaskablePPO's ``train()`` then feeds the stored masks to ``evaluate_actions`` unchanged, so the
+  ratio compares the same distribution support that was sampled from, even after the estimator
+  (which drives the filter) has changed. The env therefore needs no ``action_masks()`` method: the
+  reachable set is read from the observation's ``action_mask`` entry.
+* ``learn`` attaches :class:`~sb3_pm.callbacks.EstimatorCallback` when the policy has an
+  estimator, and ``_get_torch_save_params`` adds the estimator's optimizer so that save/load
+  round-trips it (the estimator's weights are part of the policy's state dict).
+
+Usage::
+
+    from sb3_pm.ppo_dcbf import DCBFPPO
+    model = DCBFPPO("DCBFPolicy", env, policy_kwargs=dict(avoid_collisions=True), seed=0)
+    model.learn(10_000)
+    action, _ = model.predict(obs, deterministic=True)  # DCBF-filtered
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from sb3_contrib import MaskablePPO
+from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import MaybeCallback
+from stable_baselines3.common.utils import obs_as_tensor
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_pm.callbacks import UPDATE_AT, EstimatorCallback
+from sb3_pm.policies.policy import DCBFActorCriticPolicy
+from sb3_pm.ppo_dcbf.policies import DCBFPolicy
+
+SelfDCBFPPO = TypeVar("SelfDCBFPPO", bound="DCBFPPO")
+
+
+def _contains_estimator_callback(callback: MaybeCallback) -> bool:
+    if isinstance(callback, EstimatorCallback):
+        return True
+    if isinstance(callback, CallbackList):
+        return any(_contains_estimator_callback(c) for c in callback.callbacks)
+    if isinstance(callback, list):
+        return any(_contains_estimator_callback(c) for c in callback)
+    return False
+
+
+class DCBFPPO(MaskablePPO):
+    """PPO (clip) with DCBF-filtered masked actions and a self-trained state estimator.
+
+    Takes every :class:`~sb3_contrib.MaskablePPO` argument, plus:
+
+    :param estimator_update_at: when :class:`~sb3_pm.callbacks.EstimatorCallback` fits the
+        estimator, ``"after_train"`` (default) or ``"rollout_end"``.
+
+    Policy options (ablation flags and the filter's settings) are policy kwargs, see
+    :class:`~sb3_pm.policies.DCBFActorCriticPolicy`.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"DCBFPolicy": DCBFPolicy}
+    policy: DCBFActorCriticPolicy  # type: ignore[assignment]
+
+    def __init__(self, *args: Any, estimator_update_at: str = "after_train", **kwargs: Any) -> None:
+        if estimator_update_at not in UPDATE_AT:
+            raise ValueError(f"estimator_update_at must be one of {UPDATE_AT}, got {estimator_update_at!r}")
+        self.estimator_update_at = estimator_update_at
+        super().__init__(*args, **kwargs)
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        if not isinstance(self.policy, DCBFActorCriticPolicy):
+            raise ValueError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        if getattr(self.policy, "estimator_optimizer", None) is not None:
+            state_dicts = [*state_dicts, "policy.estimator_optimizer"]
+        return state_dicts, variables
+
+    def collect_rollouts(  # type: ignore[override]
+        self,
+        env: VecEnv,
+        callback: BaseCallback,
+        rollout_buffer: RolloutBuffer,
+        n_rollout_steps: int,
+        use_masking: bool = True,
+    ) -> bool:
+        """Fill ``rollout_buffer`` with ``n_rollout_steps`` steps per env, each stored with its DCBF mask.
+
+        ``use_masking`` is accepted for MaskablePPO compatibility and ignored: the DCBF mask is
+        part of the policy and is always applied.
+        """
+        if not isinstance(rollout_buffer, MaskableDictRolloutBuffer):
+            raise TypeError("DCBFPPO needs a MaskableDictRolloutBuffer (mental-map observations are a Dict)")
+        assert self._last_obs is not None, "No previous observation was provided"
+        self.policy.set_training_mode(False)
+        rollout_buffer.reset()
+        callback.on_rollout_start()
+        discrete = isinstance(self.action_space, spaces.Discrete)
+        new_obs: Any = self._last_obs
+        dones = self._last_episode_starts
+
+        for _ in range(n_rollout_steps):
+            with th.no_grad():
+                obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
+                actions_t, values, log_probs, masks_t = self.policy.forward_with_masks(obs_tensor)
+            actions = actions_t.cpu().numpy()
+            masks = masks_t.cpu().numpy()
+            new_obs, rewards, dones, infos = env.step(actions)
+            self.num_timesteps += env.num_envs
+
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return False
+            self._update_info_buffer(infos, dones)
+
+            # A time-limit end is not a real end: bootstrap with the value of the final state.
+            for idx in np.flatnonzero(dones):
+                terminal = infos[idx].get("terminal_observation")
+                if terminal is not None and infos[idx].get("TimeLimit.truncated", False):
+                    terminal_obs = self.policy.obs_to_tensor(terminal)[0]
+                    with th.no_grad():
+                        rewards[idx] += self.gamma * self.policy.predict_values(terminal_obs)[0].item()
+
+            rollout_buffer.add(
+                self._last_obs,  # type: ignore[arg-type]
+                actions.reshape(-1, 1) if discrete else actions,
+                rewards,
+                self._last_episode_starts,  # type: ignore[arg-type]
+                values,
+                log_probs,
+                action_masks=masks,  # the very mask sampled from; train() reuses it unchanged
+            )
+            self._last_obs = new_obs
+            self._last_episode_starts = dones
+
+        with th.no_grad():
+            last_values = self.policy.predict_values(obs_as_tensor(new_obs, self.device))  # type: ignore[arg-type]
+        rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=dones)
+        callback.on_rollout_end()
+        return True
+
+    def learn(  # type: ignore[override]
+        self: SelfDCBFPPO,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1,
+        tb_log_name: str = "DCBFPPO",
+        reset_num_timesteps: bool = True,
+        use_masking: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfDCBFPPO:
+        """MaskablePPO's ``learn``, with the estimator callback attached when the policy has an estimator."""
+        if self.policy.estimator is not None and not _contains_estimator_callback(callback):
+            estimator_callback = EstimatorCallback(update_at=self.estimator_update_at)
+            if callback is None:
+                callback = estimator_callback
+            elif isinstance(callback, list):
+                callback = [*callback, estimator_callback]
+            elif isinstance(callback, BaseCallback):
+                callback = CallbackList([callback, estimator_callback])
+            else:  # a plain function, as SB3 accepts
+                callback = CallbackList([ConvertCallback(callback), estimator_callback])
+        return super().learn(
+            total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            use_masking=use_masking,
+            progress_bar=progress_bar,
+        )
