@@ -90,3 +90,22 @@ def test_maps_are_private() -> None:
                 np.array([[True, False, False], [False, False, False]]))
     assert maps.features[1, :, U].tolist() == [0, 0, 0]
     assert maps.adjacency[1].sum() == 0 and maps.adjacency[0].sum() == 2
+
+
+def test_shared_map_is_the_union_of_the_team_observations() -> None:
+    env, obs = env_on_path([0, 4], shared_map=True)
+    for agent in ("agent_0", "agent_1"):
+        nodes = obs[agent]["nodes"]
+        assert nodes[:, TARGET].tolist() == [1, 0, 0, 0, 1]  # each sees both ends of the path
+    obs, *_ = env.step({"agent_0": 0, "agent_1": 4})
+    for agent in ("agent_0", "agent_1"):
+        assert obs[agent]["nodes"][:, AGE].tolist() == [0, 0, 1, 0, 0]  # only the middle is unseen by both
+    assert obs["agent_0"]["nodes"][:, SELF].tolist() == [1, 0, 0, 0, 0]
+    assert obs["agent_1"]["nodes"][:, SELF].tolist() == [0, 0, 0, 0, 1]
+    assert obs["agent_0"]["adjacency"].sum() == 4  # edges 0-1 and 3-4, from both agents
+
+
+def test_separate_maps_do_not_share() -> None:
+    env, obs = env_on_path([0, 4])
+    assert obs["agent_0"]["nodes"][:, TARGET].tolist() == [1, 0, 0, 0, 0]
+    assert obs["agent_0"]["adjacency"].sum() == 2

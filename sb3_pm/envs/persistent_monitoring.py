@@ -46,6 +46,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         observation: str = "map",
         graph_knowledge: str = "discovered",
         illegal_action: str = "raise",
+        shared_map: bool = False,
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
@@ -81,6 +82,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.observation_mode = observation
         self.graph_knowledge = graph_knowledge
         self.illegal_action = illegal_action
+        self.shared_map = bool(shared_map)
         self.render_mode = render_mode
 
         self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
@@ -227,13 +229,19 @@ class PersistentMonitoringEnv(ParallelEnv):
         positions = self.core.positions
         self._observed = self._observes[positions]  # (n_agents, N) bool
         self._last_outcome_counts = counts
+        edge_nodes = self._edge_nodes[positions]
+        map_observed = self._observed
+        if self.shared_map:
+            # Centralized setting: every map receives the union of the team's observations.
+            map_observed = np.broadcast_to(self._observed.any(axis=0), self._observed.shape)
+            edge_nodes = np.broadcast_to(edge_nodes.any(axis=0), edge_nodes.shape)
         self.maps.update(
             positions,
-            self._observed,
+            map_observed,
             self.core.uncertainty,
             self._targets,
             counts,
-            self._edge_nodes[positions],
+            edge_nodes,
             advance_age=advance_age,
         )
 

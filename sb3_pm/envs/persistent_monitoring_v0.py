@@ -44,6 +44,9 @@ illegal_action (``"raise"``)
     ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
     and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``
     records the request.
+shared_map (``False``)
+    ``True`` feeds every agent's mental map with the union of all agents' observations: the
+    *centralized* setting (METHOD.md "centralized" baseline). Never used by decentralized teams.
 render_mode (``None``)
     ``"rgb_array"`` (a matplotlib frame), ``"human"`` (a window) or ``"ansi"`` (text).
 
