@@ -13,8 +13,9 @@ Rule, per agent and step:
    (``age == 0``) are skipped, since that agent is serving them. Head for the highest estimate
    (ties: nearest in known hops, then lowest index), one step along a shortest path over the
    known adjacency. A target the agent cannot reach in its known graph is ignored.
-3. If it knows no reachable target: explore, heading for the reachable node observed longest
-   ago (never-observed nodes first), nearest first.
+3. If it knows no reachable target: explore, heading for the nearest known node it has not
+   stood on this episode (ties: observed longest ago, then lowest index); standing on a node
+   is what reveals its edges. The agent remembers its own past positions, nothing else.
 
 Nodes the agent has never observed have target flag 0, so they are never taken for targets.
 Shortest paths: one all-pairs BFS (``scipy.sparse.csgraph``) per agent, cached and recomputed
@@ -72,6 +73,7 @@ class LocalGreedyTeam(Team):
         super().reset(env, seed)
         # A problem parameter, not state; the known-adjacency caches survive episodes because
         # discovered edges do too.
+        self._visited: dict[str, np.ndarray] = {}
         self.u_max = float(self.u_max_override if self.u_max_override is not None else env.unwrapped.u_max)
 
     def known_graph(self, agent: str, adjacency: np.ndarray) -> _KnownGraph:
@@ -89,6 +91,8 @@ class LocalGreedyTeam(Team):
         nodes = np.asarray(obs["nodes"])
         position = int(obs["position"])
         u, age, is_target, occupied = nodes[:, U], nodes[:, AGE], nodes[:, TARGET] > 0.5, nodes[:, OCCUPIED] > 0.5
+        visited = self._visited.setdefault(agent, np.zeros(len(nodes), dtype=bool))
+        visited[position] = True
         if is_target[position] and u[position] > 0:
             return position
         known = self.known_graph(agent, obs["adjacency"])
@@ -100,11 +104,11 @@ class LocalGreedyTeam(Team):
             estimate = np.minimum(u + age, self.u_max)
             goal = int(nearest_first(candidates, distance, estimate)[0])
         else:
-            frontier = np.flatnonzero(reachable)
-            frontier = frontier[frontier != position]
+            frontier = np.flatnonzero(reachable & ~visited)
             if len(frontier) == 0:
                 return position
-            goal = int(nearest_first(frontier, distance, age)[0])
+            # np.lexsort: last key first, so distance, then oldest observation, then index.
+            goal = int(frontier[np.lexsort((frontier, -age[frontier], distance[frontier]))[0]])
         move = known.step_towards(position, goal)
         mask = obs["action_mask"]
         return move if mask[move] else position  # the known graph is a subgraph of the true one
