@@ -1,0 +1,456 @@
+"""One PettingZoo ``ParallelEnv`` (``n_envs`` copies of it) seen as one SB3 ``VecEnv`` per agent.
+
+Each agent of a decentralized team is its own, unmodified SB3 learner. A learner only knows how to
+drive a single-agent ``VecEnv``, while the environment needs every agent's action before it can
+step. :class:`ParallelEnvMultiplexer` bridges the two:
+
+* it owns ``n_envs`` copies of the parallel env and hands out one :class:`AgentVecEnv` per agent;
+* each learner runs its own ``learn()`` in its own thread (:func:`learn_concurrently`);
+* an agent's ``step_wait`` (and ``reset``) submits its action and blocks until every agent has
+  submitted; the last one steps all copies at once and publishes every agent's slice.
+
+**Turn order (the baton).** Threads share torch's and NumPy's global random generators, so two
+learners running at the same time would draw from them in an order decided by the OS scheduler,
+and no two runs would be alike. A baton, passed ``agent_0 -> agent_1 -> ... -> agent_{n-1} ->
+agent_0``, makes every stretch of learner code between two env interactions (policy forward,
+``train()``, callbacks) run alone, in a fixed order, so a run is bit-for-bit reproducible from its
+seed. ``strict_order=False`` drops the baton (agents submit in any order), for experiments only.
+
+**Episode ends.** The env ends every episode by truncation at ``max_cycles``. As in SB3's
+``DummyVecEnv`` with a ``TimeLimit``, a finished copy is reset at once; the step reports
+``done=True``, ``info["terminal_observation"]`` (the last real observation, so PPO bootstraps from
+it) and ``info["TimeLimit.truncated"]``. Like SB3's ``Monitor``, ``info["episode"]`` holds the
+agent's return ``r``, length ``l`` and wall time ``t``, so ``rollout/ep_rew_mean`` is logged; the
+env's own ``info["metrics"]`` is passed through.
+
+**Failure.** If a learner raises, or stops early (a callback returned ``False``), the multiplexer
+is aborted: every agent blocked in ``step_wait`` raises :class:`TeamAborted`, which
+:func:`learn_concurrently` swallows, and the original error is re-raised to the caller. Waits use
+timeouts, so nothing can deadlock even if a thread dies without reporting.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+
+#: How often (seconds) a blocked agent re-checks the abort flag even without a notification.
+POLL_INTERVAL = 0.5
+
+
+class TeamAborted(RuntimeError):
+    """Raised inside a learner blocked on the multiplexer when the team is being shut down."""
+
+
+class MultiplexerError(RuntimeError):
+    """The agents disagreed about what to do next (e.g. some reset while others stepped)."""
+
+
+class ParallelEnvMultiplexer:
+    """Steps ``n_envs`` copies of a PettingZoo ``ParallelEnv`` for agents that act in separate threads.
+
+    :param env_fns: one factory per env copy, each returning a fresh ``ParallelEnv`` whose
+        ``possible_agents`` act every step and whose episodes end for all agents at once.
+    :param strict_order: pass a baton so learner code runs in a fixed agent order (reproducible).
+    :param timeout: seconds an agent may wait for the others before the team is aborted
+        (``None``: wait forever, still waking every :data:`POLL_INTERVAL` to check for aborts).
+    """
+
+    def __init__(
+        self,
+        env_fns: Sequence[Callable[[], Any]],
+        strict_order: bool = True,
+        timeout: float | None = None,
+    ) -> None:
+        if not env_fns:
+            raise ValueError("the multiplexer needs at least one env copy")
+        self.envs = [fn() for fn in env_fns]
+        self.n_envs = len(self.envs)
+        first = self.envs[0]
+        self.agents: list[str] = list(first.possible_agents)
+        self.n_agents = len(self.agents)
+        for env in self.envs[1:]:
+            if list(env.possible_agents) != self.agents:
+                raise ValueError("every env copy must have the same possible_agents")
+        self.strict_order = strict_order
+        self.timeout = timeout
+        self.observation_spaces = {agent: first.observation_space(agent) for agent in self.agents}
+        self.action_spaces = {agent: first.action_space(agent) for agent in self.agents}
+
+        self._cond = threading.Condition()
+        self._round = 0  # index of the joint step being gathered
+        self._kinds: list[str | None] = [None] * self.n_agents  # "reset" / "step" submitted this round
+        self._actions = np.zeros((self.n_agents, self.n_envs), dtype=np.int64)
+        self._results: list[tuple[Any, ...] | None] = [None] * self.n_agents
+        self._result_round = -1  # last round whose results are published
+        self._baton = 0
+        self._finished = [False] * self.n_agents
+        self._aborted: str | None = None
+        self._explicit_seed: int | None = None
+        self._agent_seeds: list[int | None] = [None] * self.n_agents
+        #: called after every joint step with the number of agent-steps taken (progress bars)
+        self.on_round: Callable[[int], None] | None = None
+
+        # Per agent and copy: running return; per copy: running length (Monitor-style stats).
+        self._ep_returns = np.zeros((self.n_agents, self.n_envs), dtype=np.float64)
+        self._ep_lengths = np.zeros(self.n_envs, dtype=np.int64)
+        self._t_start = time.time()
+        self._last_obs: list[list[dict[str, Any]]] = [[{} for _ in range(self.n_envs)] for _ in self.agents]
+        self.vec_envs = [AgentVecEnv(self, i) for i in range(self.n_agents)]
+
+    # ------------------------------------------------------------------ public
+    def agent_env(self, agent: str | int) -> AgentVecEnv:
+        """The ``VecEnv`` of one agent, by name or index."""
+        return self.vec_envs[agent if isinstance(agent, int) else self.agents.index(agent)]
+
+    def seed(self, seed: int | None) -> None:
+        """Seed the next joint reset: copy ``k`` is reset with ``seed + k``."""
+        with self._cond:
+            self._explicit_seed = seed
+
+    def abort(self, reason: str) -> None:
+        """Wake every blocked agent with :class:`TeamAborted`; the first reason is kept."""
+        with self._cond:
+            if self._aborted is None:
+                self._aborted = reason
+            self._cond.notify_all()
+
+    @property
+    def aborted(self) -> str | None:
+        """The reason the team was aborted, or ``None``."""
+        return self._aborted
+
+    def restart(self) -> None:
+        """Make the multiplexer usable for another ``learn()`` after all agents finished or aborted.
+
+        The env copies keep their state, so a continued run picks up mid-episode.
+        """
+        with self._cond:
+            self._kinds = [None] * self.n_agents
+            self._results = [None] * self.n_agents
+            self._round = 0
+            self._result_round = -1
+            self._baton = 0
+            self._finished = [False] * self.n_agents
+            self._aborted = None
+
+    def finish(self, index: int) -> None:
+        """Agent ``index``'s learner is done: hand the baton on and never wait for it again."""
+        with self._cond:
+            self._finished[index] = True
+            self._kinds[index] = None
+            if self._baton == index:
+                self._pass_baton(index)
+            self._maybe_complete()
+            self._cond.notify_all()
+
+    def acquire(self, index: int) -> None:
+        """Block until agent ``index`` holds the baton (a learner thread calls this first)."""
+        with self._cond:
+            self._wait(index, lambda: not self.strict_order or self._baton == index)
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+    # ---------------------------------------------------------------- internal
+    def _wait(self, index: int, ready: Callable[[], bool]) -> None:
+        """Wait (holding ``_cond``) until ``ready()``; raise :class:`TeamAborted` on abort or timeout."""
+        deadline = None if self.timeout is None else time.monotonic() + self.timeout
+        while True:
+            if self._aborted is not None:
+                raise TeamAborted(self._aborted)
+            if ready():
+                return
+            wait = POLL_INTERVAL
+            if deadline is not None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    self._aborted = f"{self.agents[index]} waited more than {self.timeout} s for the other agents"
+                    self._cond.notify_all()
+                    raise TeamAborted(self._aborted)
+                wait = min(wait, remaining)
+            self._cond.wait(wait)
+
+    def _pass_baton(self, index: int) -> None:
+        """Give the baton to the next unfinished agent after ``index`` (in ring order)."""
+        for offset in range(1, self.n_agents + 1):
+            candidate = (index + offset) % self.n_agents
+            if not self._finished[candidate]:
+                self._baton = candidate
+                return
+        self._baton = -1
+
+    def _submit(self, index: int, kind: str, actions: np.ndarray | None) -> tuple[Any, ...]:
+        """Record agent ``index``'s request for the current round, wait for the round, return its slice."""
+        with self._cond:
+            if self._aborted is not None:
+                raise TeamAborted(self._aborted)
+            if self._kinds[index] is not None:
+                raise MultiplexerError(f"{self.agents[index]} submitted twice in one round")
+            my_round = self._round
+            self._kinds[index] = kind
+            if actions is not None:
+                self._actions[index] = actions
+            if self.strict_order:
+                self._pass_baton(index)
+            try:
+                self._maybe_complete()
+            except Exception as error:  # an env error ends the whole team, reported by this agent
+                self._aborted = f"the environment raised {type(error).__name__}: {error}"
+                self._cond.notify_all()
+                raise
+            self._cond.notify_all()
+            self._wait(
+                index,
+                lambda: self._result_round >= my_round and (not self.strict_order or self._baton == index),
+            )
+            result = self._results[index]
+            self._results[index] = None
+            assert result is not None
+            return result
+
+    def _maybe_complete(self) -> None:
+        """Run the joint reset/step once every unfinished agent has submitted (holding ``_cond``)."""
+        pending = [i for i in range(self.n_agents) if not self._finished[i]]
+        if not pending or any(self._kinds[i] is None for i in pending):
+            return
+        if any(self._finished):
+            # A learner stopped while others still want to act: no joint step can happen again.
+            stopped = [self.agents[i] for i in range(self.n_agents) if self._finished[i]]
+            self._aborted = f"{', '.join(stopped)} stopped training before the rest of the team"
+            return
+        kinds = set(self._kinds)
+        if len(kinds) != 1:
+            resetting = [self.agents[i] for i in range(self.n_agents) if self._kinds[i] == "reset"]
+            raise MultiplexerError(
+                f"agents disagree: {resetting} asked for reset() while the others stepped; every learner "
+                "of a team must reset together (same n_steps, n_envs and total timesteps)"
+            )
+        if kinds == {"reset"}:
+            self._joint_reset()
+        else:
+            self._joint_step()
+        self._kinds = [None] * self.n_agents
+        self._result_round = self._round
+        self._round += 1
+
+    def _joint_reset(self) -> None:
+        seed = self._explicit_seed
+        if seed is None:
+            seed = next((s for s in self._agent_seeds if s is not None), None)
+        self._explicit_seed = None
+        self._agent_seeds = [None] * self.n_agents
+        per_env = []
+        for k, env in enumerate(self.envs):
+            observations, infos = env.reset(seed=None if seed is None else seed + k)
+            per_env.append((observations, infos))
+        self._ep_returns[:] = 0.0
+        self._ep_lengths[:] = 0
+        for i, agent in enumerate(self.agents):
+            self._last_obs[i] = [obs[agent] for obs, _ in per_env]
+            self._results[i] = (self._stack(agent, self._last_obs[i]), [dict(infos.get(agent, {})) for _, infos in per_env])
+
+    def _joint_step(self) -> None:
+        n, e = self.n_agents, self.n_envs
+        rewards = np.zeros((n, e), dtype=np.float32)
+        dones = np.zeros(e, dtype=bool)
+        new_obs: list[list[dict[str, Any]]] = [[{}] * e for _ in range(n)]
+        infos_out: list[list[dict[str, Any]]] = [[{}] * e for _ in range(n)]
+        for k, env in enumerate(self.envs):
+            joint = {agent: int(self._actions[i, k]) for i, agent in enumerate(self.agents)}
+            observations, step_rewards, terminations, truncations, infos = env.step(joint)
+            self._ep_lengths[k] += 1
+            ended = [bool(terminations[a] or truncations[a]) for a in self.agents]
+            if any(ended) and not all(ended):
+                raise MultiplexerError("an episode ended for some agents but not others; the multiplexer needs all agents to end together")
+            for i, agent in enumerate(self.agents):
+                rewards[i, k] = step_rewards[agent]
+                self._ep_returns[i, k] += step_rewards[agent]
+                infos_out[i][k] = dict(infos.get(agent, {}))
+                new_obs[i][k] = observations[agent]
+            if ended[0]:
+                dones[k] = True
+                elapsed = round(time.time() - self._t_start, 6)
+                for i, agent in enumerate(self.agents):
+                    info = infos_out[i][k]
+                    info["terminal_observation"] = observations[agent]
+                    # SB3 bootstraps from the terminal observation only for time-limit ends.
+                    info["TimeLimit.truncated"] = bool(truncations[agent] and not terminations[agent])
+                    info["episode"] = {"r": round(float(self._ep_returns[i, k]), 6), "l": int(self._ep_lengths[k]), "t": elapsed}
+                    self._ep_returns[i, k] = 0.0
+                self._ep_lengths[k] = 0
+                reset_obs, _ = env.reset()
+                for i, agent in enumerate(self.agents):
+                    new_obs[i][k] = reset_obs[agent]
+        for i, agent in enumerate(self.agents):
+            self._last_obs[i] = new_obs[i]
+            self._results[i] = (self._stack(agent, new_obs[i]), rewards[i].copy(), dones.copy(), infos_out[i])
+        if self.on_round is not None:
+            self.on_round(n * e)
+
+    def _stack(self, agent: str, observations: list[dict[str, Any]]) -> VecEnvObs:
+        """Batch one agent's per-copy observations the way ``DummyVecEnv`` does (fresh arrays)."""
+        space = self.observation_spaces[agent]
+        if isinstance(space, spaces.Dict):
+            return {
+                key: np.stack([np.asarray(obs[key], dtype=sub.dtype) for obs in observations])
+                for key, sub in space.spaces.items()
+            }
+        return np.stack([np.asarray(obs, dtype=space.dtype) for obs in observations])
+
+
+class AgentVecEnv(VecEnv):
+    """The ``VecEnv`` seen by one agent's learner; a view onto a :class:`ParallelEnvMultiplexer`.
+
+    ``env_method("action_masks")`` returns the agent's ``action_mask`` from its last observation
+    (what sb3-contrib's ``MaskablePPO`` asks for). Other attributes and methods are forwarded to the
+    env copies, which are shared by all agents.
+    """
+
+    def __init__(self, hub: ParallelEnvMultiplexer, index: int) -> None:
+        self.hub = hub
+        self.index = index
+        self.agent = hub.agents[index]
+        self._actions: np.ndarray | None = None
+        super().__init__(hub.n_envs, hub.observation_spaces[self.agent], hub.action_spaces[self.agent])
+
+    def reset(self) -> VecEnvObs:
+        obs, infos = self.hub._submit(self.index, "reset", None)
+        self.reset_infos = infos
+        self._reset_seeds()
+        self._reset_options()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions).reshape(self.num_envs)
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async()")
+        actions, self._actions = self._actions, None
+        return self.hub._submit(self.index, "step", actions)
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Ask for the next joint reset to use ``seed`` (the lowest-indexed agent's request wins,
+        unless the multiplexer was seeded directly with :meth:`ParallelEnvMultiplexer.seed`)."""
+        with self.hub._cond:
+            self.hub._agent_seeds[self.index] = seed
+        return [None if seed is None else seed + k for k in range(self.num_envs)]
+
+    def action_masks(self) -> np.ndarray:
+        """``(n_envs, N)`` bool masks from the agent's last observation."""
+        return np.stack([np.asarray(obs["action_mask"], dtype=bool) for obs in self.hub._last_obs[self.index]])
+
+    def close(self) -> None:
+        # The env copies are shared: closing one agent's view must not close them for the others.
+        pass
+
+    def has_attr(self, attr_name: str) -> bool:
+        if attr_name == "action_masks":
+            return True
+        return super().has_attr(attr_name)
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        if attr_name == "action_masks":
+            masks = self.action_masks()
+            return [lambda m=masks[k]: m for k in self._get_indices(indices)]
+        return [getattr(self.hub.envs[k], attr_name) for k in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        for k in self._get_indices(indices):
+            setattr(self.hub.envs[k], attr_name, value)
+
+    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
+        if method_name == "action_masks":
+            masks = self.action_masks()
+            return [masks[k] for k in self._get_indices(indices)]
+        return [getattr(self.hub.envs[k], method_name)(*method_args, **method_kwargs) for k in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        # The copies are PettingZoo envs, never gymnasium wrappers (so SB3 sees no Monitor either).
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [env.render() if env.render_mode == "rgb_array" else None for env in self.hub.envs]
+
+
+def learn_concurrently(
+    models: Sequence[Any],
+    hub: ParallelEnvMultiplexer,
+    learn_kwargs: Sequence[dict[str, Any]],
+    join_timeout: float | None = None,
+) -> list[BaseException | None]:
+    """Run ``model.learn(**kwargs)`` for every agent, each in its own thread, in baton order.
+
+    Returns one entry per agent: ``None`` if it finished (or was stopped by the team), else the
+    exception it raised. The first real error is re-raised by :func:`raise_first_error`.
+
+    :param models: one SB3 algorithm per agent, in ``hub.agents`` order, each built on
+        ``hub.vec_envs[i]``.
+    :param learn_kwargs: keyword arguments of each ``learn()`` call.
+    :param join_timeout: seconds to wait for all threads (``None``: no limit).
+    """
+    if len(models) != hub.n_agents or len(learn_kwargs) != hub.n_agents:
+        raise ValueError(f"need one model and one set of learn() arguments per agent ({hub.n_agents})")
+    hub.restart()
+    errors: list[BaseException | None] = [None] * hub.n_agents
+
+    def run(index: int) -> None:
+        try:
+            hub.acquire(index)
+            models[index].learn(**learn_kwargs[index])
+        except TeamAborted:
+            pass  # another learner ended the run; its error (if any) is the one to report
+        except BaseException as error:  # noqa: BLE001 - reported to the caller, never lost
+            errors[index] = error
+            hub.abort(f"{hub.agents[index]} raised {type(error).__name__}: {error}")
+        finally:
+            hub.finish(index)
+
+    threads = [
+        threading.Thread(target=run, args=(i,), name=f"sb3_pm-learner-{hub.agents[i]}", daemon=True)
+        for i in range(hub.n_agents)
+    ]
+    for thread in threads:
+        thread.start()
+    deadline = None if join_timeout is None else time.monotonic() + join_timeout
+    try:
+        for thread in threads:
+            while thread.is_alive():
+                if deadline is not None and time.monotonic() > deadline:
+                    hub.abort(f"training did not finish within {join_timeout} s")
+                    raise TimeoutError(f"training did not finish within {join_timeout} s")
+                thread.join(POLL_INTERVAL)
+    except BaseException:
+        # KeyboardInterrupt or timeout in the caller: stop the learners, then let them unwind.
+        hub.abort("interrupted")
+        for thread in threads:
+            thread.join(5 * POLL_INTERVAL)
+        raise
+    return errors
+
+
+def raise_first_error(errors: Iterable[BaseException | None]) -> None:
+    """Re-raise the first exception in ``errors`` (the learner that failed first in agent order)."""
+    for error in errors:
+        if error is not None:
+            raise error
+
+
+__all__ = [
+    "AgentVecEnv",
+    "MultiplexerError",
+    "ParallelEnvMultiplexer",
+    "TeamAborted",
+    "learn_concurrently",
+    "raise_first_error",
+]

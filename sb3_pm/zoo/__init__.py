@@ -1,0 +1,1 @@
+"""rl-zoo style configuration: YAML -> keyword arguments, name -> class registries, schedules."""
