@@ -1,0 +1,176 @@
+"""GAT extractor, state estimator and the DCBF policy's structure (issue 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.preprocessing import preprocess_obs
+
+from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
+from sb3_pm.graphs import erdos_renyi
+from sb3_pm.policies import DCBFActorCriticPolicy, GATFeaturesExtractor, GraphAttention, GraphTransformer, StateEstimator
+from sb3_pm.policies.estimator import transition_pairs
+
+N = 12
+
+
+@pytest.fixture(scope="module")
+def env() -> SingleAgentMonitoringEnv:
+    return SingleAgentMonitoringEnv(erdos_renyi(N, 0.3, n_targets=3, seed=1), n_agents=2, max_cycles=20, graph_knowledge="known")
+
+
+def observation_batch(env: SingleAgentMonitoringEnv, steps: int = 8, seed: int = 0) -> dict[str, th.Tensor]:
+    """A batch of raw observations from a random walk, as SB3 tensors."""
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    collected = [obs]
+    for _ in range(steps - 1):
+        obs, *_ = env.step(int(rng.choice(np.flatnonzero(env.action_masks()))))
+        collected.append(obs)
+    return {key: th.as_tensor(np.stack([np.asarray(o[key]) for o in collected])) for key in collected[0]}
+
+
+def make_policy(env: SingleAgentMonitoringEnv, **kwargs: object) -> DCBFActorCriticPolicy:
+    return DCBFActorCriticPolicy(env.observation_space, env.action_space, lambda _: 3e-4, **kwargs)  # type: ignore[arg-type]
+
+
+def random_graphs(batch: int, n: int, density: float, seed: int = 0) -> th.Tensor:
+    generator = th.Generator().manual_seed(seed)
+    upper = th.triu((th.rand(batch, n, n, generator=generator) < density).float(), diagonal=1)
+    return upper + upper.transpose(1, 2)
+
+
+class TestLayers:
+    @pytest.mark.parametrize("density", [0.02, 0.3])
+    def test_gat_dense_and_sparse_agree(self, density: float) -> None:
+        th.manual_seed(0)
+        layer = GraphAttention(7, 8, heads=3)
+        x, adjacency = th.randn(4, 20, 7), random_graphs(4, 20, density)
+        dense, sparse = layer(x, adjacency, dense=True), layer(x, adjacency, dense=False)
+        assert dense.shape == (4, 20, 8)
+        th.testing.assert_close(dense, sparse, atol=1e-5, rtol=1e-5)
+
+    def test_transformer_dense_and_sparse_agree(self) -> None:
+        th.manual_seed(0)
+        layer = GraphTransformer(8)
+        x, adjacency = th.randn(3, 15, 8), random_graphs(3, 15, 0.1)
+        adjacency[:, 0, :] = adjacency[:, :, 0] = 0.0  # an isolated node: skip term only
+        th.testing.assert_close(layer(x, adjacency, dense=True), layer(x, adjacency, dense=False), atol=1e-5, rtol=1e-5)
+
+    def test_empty_graph(self) -> None:
+        layer = GraphAttention(4, 4, heads=2)
+        x = th.randn(2, 5, 4)
+        empty = th.zeros(2, 5, 5)
+        th.testing.assert_close(layer(x, empty, dense=True), layer(x, empty, dense=False), atol=1e-5, rtol=1e-5)
+
+    def test_auto_backend_follows_density(self) -> None:
+        from sb3_pm.policies.extractor import _use_dense
+
+        assert _use_dense(random_graphs(2, 60, 0.2), "auto")
+        assert not _use_dense(random_graphs(2, 60, 0.01), "auto")
+        assert _use_dense(random_graphs(2, 60, 0.01), "dense")
+        assert not _use_dense(random_graphs(2, 60, 0.2), "sparse")
+
+    def test_bad_options(self, env: SingleAgentMonitoringEnv) -> None:
+        with pytest.raises(ValueError, match="laplacian"):
+            GATFeaturesExtractor(env.observation_space, laplacian="full")
+        with pytest.raises(ValueError, match="backend"):
+            GraphAttention(3, 3, backend="gpu")
+
+
+class TestExtractor:
+    @pytest.mark.parametrize("laplacian", ["rows", "eigen", "none"])
+    @pytest.mark.parametrize("extra_attention", [False, True])
+    def test_shapes(self, env: SingleAgentMonitoringEnv, laplacian: str, extra_attention: bool) -> None:
+        extractor = GATFeaturesExtractor(env.observation_space, hidden_dim=16, laplacian=laplacian, extra_attention=extra_attention)
+        pre = preprocess_obs(observation_batch(env), env.observation_space)
+        out = extractor(pre)
+        assert out.shape == (8, N * 16) and extractor.features_dim == N * 16
+        assert extractor.node_embeddings(pre).shape == (8, N, 16)
+        assert th.isfinite(out).all()
+
+    def test_node_features_are_normalized(self, env: SingleAgentMonitoringEnv) -> None:
+        extractor = GATFeaturesExtractor(env.observation_space, laplacian="none")
+        pre = preprocess_obs(observation_batch(env, steps=20), env.observation_space)
+        x = extractor.node_inputs(pre)
+        assert x.min() >= 0.0 and x.max() <= 1.0
+
+
+class TestEstimator:
+    def test_predicts_zero_off_targets_and_in_range(self) -> None:
+        inv_high = th.ones(4, 5) / th.tensor([100.0, 20.0, 1.0, 1.0, 1.0])
+        estimator = StateEstimator(5, 100.0, inv_high)
+        nodes = th.rand(3, 4, 5) * th.tensor([100.0, 20.0, 0.0, 1.0, 1.0])  # no target known
+        assert (estimator(nodes) == 0).all()
+        nodes[..., 2] = 1.0
+        u_hat = estimator(nodes)
+        assert ((u_hat >= 0) & (u_hat <= 100)).all()
+
+    def test_observed_target_weights_only_fresh_nodes(self) -> None:
+        estimator = StateEstimator(5, 10.0, th.ones(3, 5))
+        previous = th.zeros(1, 3, 5)
+        previous[..., 2] = 1.0
+        current = th.zeros(1, 3, 5)
+        current[0, :, 0] = th.tensor([0.0, 5.0, 10.0])
+        current[0, :, 1] = th.tensor([0.0, 3.0, 3.0])  # only node 0 observed now
+        prediction = estimator.forward_normalized(previous)
+        expected = (prediction[0, 0] - 0.0) ** 2
+        th.testing.assert_close(estimator.loss(previous, current, "observed"), expected)
+        with pytest.raises(ValueError, match="estimator_target"):
+            estimator.loss(previous, current, "all")
+
+    def test_transition_pairs_skip_episode_boundaries(self) -> None:
+        nodes = np.arange(4 * 2, dtype=np.float32).reshape(4, 2, 1, 1)  # (T=4, envs=2, N=1, F=1)
+        starts = np.array([[1, 1], [0, 0], [1, 0], [0, 0]], dtype=np.float32)
+        previous, current = transition_pairs(nodes, starts, np.full((2, 1, 1), 99.0, dtype=np.float32), np.array([0, 1]))
+        pairs = sorted(zip(previous.ravel().tolist(), current.ravel().tolist()))
+        # env 0: rows 0,2,4,6 with a restart at row 2 (value 4); env 1: rows 1,3,5,7, ends done.
+        assert pairs == [(0.0, 2.0), (1.0, 3.0), (3.0, 5.0), (4.0, 6.0), (5.0, 7.0), (6.0, 99.0)]
+
+
+class TestPolicy:
+    def test_optimizers_are_disjoint_and_cover_everything(self, env: SingleAgentMonitoringEnv) -> None:
+        policy = make_policy(env)
+        assert policy.estimator is not None and policy.estimator_optimizer is not None
+        ppo = {id(p) for group in policy.optimizer.param_groups for p in group["params"]}
+        est = {id(p) for group in policy.estimator_optimizer.param_groups for p in group["params"]}
+        assert ppo and est and not ppo & est
+        assert ppo | est == {id(p) for p in policy.parameters()}
+        assert est == {id(p) for p in policy.estimator.parameters()}
+
+    def test_without_estimator_one_optimizer_holds_all(self, env: SingleAgentMonitoringEnv) -> None:
+        policy = make_policy(env, use_estimator=False)
+        assert policy.estimator is None and policy.estimator_optimizer is None
+        ppo = {id(p) for group in policy.optimizer.param_groups for p in group["params"]}
+        assert ppo == {id(p) for p in policy.parameters()}
+
+    def test_estimator_output_enters_detached(self, env: SingleAgentMonitoringEnv) -> None:
+        policy = make_policy(env)
+        obs = observation_batch(env)
+        actions = th.zeros(8, dtype=th.long)
+        values, log_prob, entropy = policy.evaluate_actions(obs, actions)
+        (values.sum() + log_prob.sum() + entropy.sum()).backward()
+        assert all(p.grad is None for p in policy.estimator.parameters())  # type: ignore[union-attr]
+        assert any(p.grad is not None for p in policy.features_extractor.parameters())
+
+    def test_masks_follow_the_flags(self, env: SingleAgentMonitoringEnv) -> None:
+        obs = observation_batch(env, steps=16)
+        reachable = obs["action_mask"].bool()
+        filtered = make_policy(env).compute_masks(obs)
+        unfiltered = make_policy(env, use_dcbf=False).compute_masks(obs)
+        assert th.equal(unfiltered, reachable)
+        assert not (filtered & ~reachable).any() and filtered.any(-1).all()
+
+    def test_deterministic_predict_stays_in_the_dcbf_mask(self, env: SingleAgentMonitoringEnv) -> None:
+        policy = make_policy(env, use_estimator=False)
+        obs = observation_batch(env, steps=16)
+        masks = policy.compute_masks(obs)
+        actions, _ = policy.predict({k: v.numpy() for k, v in obs.items()}, deterministic=True)
+        assert masks[th.arange(16), th.as_tensor(actions)].all()
+
+    def test_rejects_other_spaces(self) -> None:
+        from gymnasium import spaces
+
+        with pytest.raises(ValueError, match="mental-map"):
+            DCBFActorCriticPolicy(spaces.Box(0, 1, (3,)), spaces.Discrete(3), lambda _: 1e-3)
