@@ -246,3 +246,31 @@ class TestLocalGreedy:
         env = make_env(path_graph(10, [9]), n_agents=1, max_cycles=30, initial_positions=[0])
         history = [int(before[0]) for _, before, _ in play(LocalGreedyTeam(), env)]
         assert 9 in history
+
+
+# Reference figures of ../shared/graphs/README.md: 3 seeds x 5 episodes x 500 steps, 4 agents.
+REFERENCE = {
+    ("paper_50n_8t", "random"): 704.8,
+    ("paper_100n_17t", "random"): 1515.3,
+    ("paper_200n_41t", "random"): 3676.4,
+    ("paper_50n_8t", "grazing"): 116.6,
+    ("paper_100n_17t", "grazing"): 1116.4,
+    ("paper_200n_41t", "grazing"): 3276.0,
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("graph", "policy"), list(REFERENCE))
+def test_reference_figures(shared_graphs, graph: str, policy: str) -> None:
+    from sb3_pm.evaluation import SEED_STRIDE, pooled_values
+
+    results = [
+        evaluate(make_team(policy), shared_graphs / f"{graph}.graphml", episodes=5, seed=s * SEED_STRIDE, max_cycles=500)
+        for s in range(3)
+    ]
+    ours = float(pooled_values(results, "avg_uncertainty").mean())
+    reference = REFERENCE[(graph, policy)]
+    if policy == "random":
+        assert abs(ours - reference) / reference < 0.03, ours
+    else:  # at least as strong as the reference, up to 0.5% seed noise
+        assert ours <= reference * 1.005, ours

@@ -1,0 +1,129 @@
+"""``sb3-pm evaluate`` and ``sb3-pm compare``: outputs, JSON schema, trained-team loading, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import sys
+import types
+
+import pytest
+
+from sb3_pm.baselines import make_team
+from sb3_pm.cli import main
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+class TestEvaluate:
+    def test_prints_table_and_writes_json(self, capsys, tmp_path) -> None:
+        out_json = tmp_path / "r.json"
+        code, out, _ = run_cli(
+            capsys, "evaluate", "--policy", "grazing", "--graph", "paper-50", "--agents", "3", "--steps", "20",
+            "--episodes", "2", "--seed", "5", "--json", str(out_json),
+        )  # fmt: skip
+        assert code == 0
+        assert "avg_uncertainty" in out and "max_neglect" in out and "grazing on paper-50" in out
+        payload = json.loads(out_json.read_text())
+        assert set(payload) == {"episodes", "mean", "std", "config"}
+        assert [e["seed"] for e in payload["episodes"]] == [5, 6]
+        assert {"avg_uncertainty", "max_neglect", "collisions"} <= set(payload["episodes"][0])
+        assert (payload["config"]["n_agents"], payload["config"]["max_cycles"]) == (3, 20)
+        assert (payload["config"]["policy"], payload["config"]["graph"]) == ("grazing", "paper-50")
+
+    def test_graphml_and_gif(self, capsys, tmp_path, shared_graphs) -> None:
+        gif = tmp_path / "e.gif"
+        code, _, _ = run_cli(
+            capsys, "evaluate", "--policy", "random", "--graph", str(shared_graphs / "paper_50n_8t.graphml"),
+            "--steps", "3", "--episodes", "1", "--gif", str(gif),
+        )  # fmt: skip
+        assert code == 0
+        assert gif.read_bytes()[:3] == b"GIF"
+
+    @pytest.mark.parametrize(
+        ("args", "message"),
+        [
+            (["--policy", "nope"], "unknown policy 'nope'"),
+            (["--policy", "./no/such/team"], "trained team directory not found"),
+            (["--policy", "random", "--graph", "missing.graphml"], "graph file not found"),
+            (["--policy", "random", "--graph", "bogus"], "unknown graph 'bogus'"),
+            (["--policy", "random", "--episodes", "0"], "--episodes must be at least 1"),
+            (["--policy", "random", "--steps", "0"], "--steps must be at least 1"),
+            (["--policy", "random", "--agents", "0"], "--agents must be at least 1"),
+            (["--policy", "random", "--agents", "51"], "more agents (51) than nodes"),
+            (["--policy", "random", "--json", "/no/such/dir/r.json"], "output directory does not exist"),
+        ],
+    )
+    def test_errors_are_one_line(self, capsys, args, message) -> None:
+        code, out, err = run_cli(capsys, "evaluate", "--steps", "5", "--episodes", "1", *args)
+        assert code == 2
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("sb3-pm evaluate: error:")
+        assert message in lines[0]
+
+    def test_malformed_graph(self, capsys, tmp_path) -> None:
+        bad = tmp_path / "bad.graphml"
+        bad.write_text("<graphml><not closed")
+        code, _, err = run_cli(capsys, "evaluate", "--policy", "random", "--graph", str(bad))
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "bad.graphml" in err
+
+    def test_trained_team_directory(self, capsys, tmp_path, monkeypatch) -> None:
+        loaded = []
+
+        class FakePPO:
+            @staticmethod
+            def load(path):
+                loaded.append(path)
+                return make_team("sit_on_nodes")
+
+        module = types.ModuleType("sb3_pm.agents.team")
+        module.IndependentPPO = FakePPO
+        monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", module)
+        team_dir = tmp_path / "my_team"
+        team_dir.mkdir()
+        code, out, _ = run_cli(capsys, "evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1")
+        assert code == 0 and loaded and loaded[0] == team_dir
+        assert "my_team on paper-50" in out
+
+    def test_trained_team_without_learner(self, capsys, tmp_path, monkeypatch) -> None:
+        monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", None)  # import fails
+        code, _, err = run_cli(capsys, "evaluate", "--policy", str(tmp_path), "--steps", "5", "--episodes", "1")
+        assert code == 2 and "IndependentPPO is unavailable" in err and len(err.strip().splitlines()) == 1
+
+
+class TestCompare:
+    def test_writes_reports(self, capsys, tmp_path) -> None:
+        out_dir = tmp_path / "cmp"
+        code, out, _ = run_cli(
+            capsys, "compare", "--policies", "random", "grazing", "--graphs", "paper-50", "--seeds", "0", "1",
+            "--episodes", "2", "--steps", "10", "--out", str(out_dir),
+        )  # fmt: skip
+        assert code == 0
+        assert out.startswith("| Algorithm | Avg. Uncertainty | SD | Avg. Neglect Time | SD |")
+        names = {p.name for p in out_dir.iterdir()}
+        assert names == {"table.md", "table.csv", "table.tex", "anova.txt", "results.json", "uncertainty.png", "table.png"}
+        assert "avg_uncertainty: F(1, 6)" in (out_dir / "anova.txt").read_text()
+        # A second run refuses to overwrite, unless asked.
+        argv = ["compare", "--policies", "random", "--episodes", "1", "--steps", "5", "--out", str(out_dir)]
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 2 and "not empty" in err
+        code, _, _ = run_cli(capsys, *argv, "--overwrite")
+        assert code == 0
+
+    @pytest.mark.parametrize(
+        ("args", "message"),
+        [
+            (["--policies", "random", "nope"], "unknown policy 'nope'"),
+            (["--policies", "random", "random"], "lists a policy twice"),
+            (["--policies", "random", "--graphs", "paper-50", "gone.graphml"], "graph file not found"),
+            (["--policies", "random", "--episodes", "0"], "--episodes must be at least 1"),
+        ],
+    )
+    def test_errors(self, capsys, tmp_path, args, message) -> None:
+        code, _, err = run_cli(capsys, "compare", "--steps", "5", "--out", str(tmp_path / "o"), *args)
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "o").exists()  # nothing written before the inputs are checked
+

@@ -1,0 +1,229 @@
+"""Evaluation harness: metrics by hand on tiny graphs, seeding, aggregates, statistics, reports, plots."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from sb3_pm.baselines import Team, make_team
+from sb3_pm.evaluation import (
+    Summary,
+    anova,
+    anova_text,
+    compare,
+    csv_table,
+    evaluate,
+    latex_table,
+    markdown_table,
+    plot_table,
+    plot_uncertainty,
+    record_gif,
+    resolve_team,
+    summarize,
+    team_seed,
+)
+from sb3_pm.evaluation.harness import EpisodeRecord, EvaluationResult
+from sb3_pm.evaluation.teams import PolicyError
+from tests.conftest import path_graph
+
+
+class ScriptedTeam(Team):
+    """Plays a fixed list of joint moves (one list of nodes per step), then stays."""
+
+    name = "scripted"
+
+    def __init__(self, moves: list[list[int]]) -> None:
+        self.moves = moves
+
+    def reset(self, env, seed=None) -> None:
+        super().reset(env, seed)
+        self.k = 0
+
+    def predict(self, observations, deterministic=True):
+        agents = list(observations)
+        if self.k < len(self.moves):
+            move = self.moves[self.k]
+        else:
+            move = [int(observations[a]["position"]) for a in agents]
+        self.k += 1
+        return dict(zip(agents, move))
+
+
+class TestMetricsByHand:
+    def test_three_node_path(self) -> None:
+        # 0 - 1 - 2, targets 0 and 2, one agent starting on 1, K = 6.
+        # Moves: 0, 0, 1, 2, 2, 2.  u after each step (target 0, target 2):
+        #   k0 at 0: (0, 1)   k1 at 0: (0, 2)   k2 at 1: (1, 3)
+        #   k3 at 2: (2, 2)   k4 at 2: (3, 1)   k5 at 2: (4, 0)
+        # sums 1, 2, 4, 4, 4, 4 -> avg 19/6.
+        # Neglect runs: target 0 unvisited on k2..k5 -> 4; target 2 unvisited on k0..k2 -> 3. max 4.
+        graph = path_graph(3, [0, 2])
+        team = ScriptedTeam([[0], [0], [1], [2], [2], [2]])
+        result = evaluate(team, graph, n_agents=1, episodes=1, max_cycles=6, env_kwargs={"initial_positions": [1]})
+        record = result.episodes[0]
+        assert record.trace.tolist() == [1, 2, 4, 4, 4, 4]
+        assert record.metrics["avg_uncertainty"] == pytest.approx(19 / 6)
+        assert record.metrics["max_neglect"] == 4
+        assert record.metrics["peak_uncertainty"] == 4
+        assert record.metrics["collisions"] == 0
+        assert record.metrics["saturated_fraction"] == 0
+
+    def test_never_visited_target_and_cap_and_collisions(self) -> None:
+        # 0 - 1 - 2, target 2 only, u_max 3, two agents sitting together on node 0 for K = 5.
+        # u of target 2: 1, 2, 3, 3, 3 -> avg 12/5, saturated on 3 of 5 steps, neglect K = 5.
+        # Both agents share node 0 every step: 2 agent-collisions per step -> 10.
+        graph = path_graph(3, [2])
+        team = ScriptedTeam([])
+        result = evaluate(
+            team, graph, n_agents=2, episodes=1, max_cycles=5, env_kwargs={"initial_positions": [0, 0], "u_max": 3}
+        )
+        metrics = result.episodes[0].metrics
+        assert metrics["avg_uncertainty"] == pytest.approx(12 / 5)
+        assert metrics["max_neglect"] == 5
+        assert metrics["saturated_fraction"] == pytest.approx(3 / 5)
+        assert metrics["peak_uncertainty"] == 3
+        assert metrics["collisions"] == 10
+
+
+class TestEvaluate:
+    def test_records_seeds_and_aggregates(self) -> None:
+        result = evaluate(make_team("random"), "paper-50", n_agents=4, episodes=3, seed=7, max_cycles=30)
+        assert [r.episode for r in result.episodes] == [0, 1, 2]
+        assert [r.seed for r in result.episodes] == [7, 8, 9]
+        assert [r.team_seed for r in result.episodes] == [team_seed(s) for s in (7, 8, 9)]
+        assert len({r.team_seed for r in result.episodes} | {7, 8, 9}) == 6
+        values = result.values("avg_uncertainty")
+        assert result.mean["avg_uncertainty"] == pytest.approx(values.mean())
+        assert result.std["avg_uncertainty"] == pytest.approx(values.std(ddof=1))
+        assert result.traces.shape == (3, 30)
+        assert np.allclose(result.traces.mean(axis=1), values)
+
+    def test_reproducible(self) -> None:
+        a = evaluate(make_team("random"), "paper-50", episodes=2, seed=3, max_cycles=25)
+        b = evaluate(make_team("random"), "paper-50", episodes=2, seed=3, max_cycles=25)
+        assert a.to_dict() == b.to_dict()
+        c = evaluate(make_team("random"), "paper-50", episodes=2, seed=4, max_cycles=25)
+        assert a.to_dict()["episodes"] != c.to_dict()["episodes"]
+
+    def test_json_schema(self) -> None:
+        result = evaluate(make_team("grazing"), "paper-50", n_agents=3, episodes=2, seed=0, max_cycles=20)
+        payload = json.loads(json.dumps(result.to_dict()))
+        assert set(payload) == {"episodes", "mean", "std", "config"}
+        metrics = {"avg_uncertainty", "max_neglect", "collisions", "peak_uncertainty", "saturated_fraction"}
+        assert len(payload["episodes"]) == 2
+        for episode in payload["episodes"]:
+            assert metrics | {"episode", "seed", "team_seed"} <= set(episode)
+            assert all(isinstance(v, (int, float)) for v in episode.values())
+        assert metrics <= set(payload["mean"]) and set(payload["mean"]) == set(payload["std"])
+        config = payload["config"]
+        assert config["policy"] == "grazing" and config["n_agents"] == 3 and config["max_cycles"] == 20
+        assert config["episodes"] == 2 and config["seed"] == 0
+
+    def test_single_episode_sd_is_zero(self) -> None:
+        result = evaluate(make_team("sit_on_nodes"), "paper-50", episodes=1, max_cycles=10)
+        assert all(value == 0.0 for value in result.std.values())
+
+    def test_zero_episodes(self) -> None:
+        with pytest.raises(ValueError, match="episodes must be at least 1"):
+            evaluate(make_team("random"), "paper-50", episodes=0)
+
+
+def fake_result(policy: str, values: list[float], neglect: list[float] | None = None) -> EvaluationResult:
+    neglect = neglect or values
+    episodes = [
+        EpisodeRecord(i, i, 0, {"avg_uncertainty": v, "max_neglect": n}, np.array([v])) for i, (v, n) in enumerate(zip(values, neglect))
+    ]
+    return EvaluationResult(policy, "g", {}, episodes)
+
+
+class TestStatistics:
+    def test_pooled_summary(self) -> None:
+        table = summarize({"a": [fake_result("a", [1, 2]), fake_result("a", [3])]})
+        summary = table["a"]["avg_uncertainty"]
+        assert summary == Summary(2.0, 1.0, 3)
+
+    def test_anova_matches_scipy(self) -> None:
+        groups = {"a": [fake_result("a", [1, 2, 3])], "b": [fake_result("b", [4, 6, 8])], "c": [fake_result("c", [2, 2.5, 3.5])]}
+        result = anova(groups, "avg_uncertainty")
+        expected = stats.f_oneway([1, 2, 3], [4, 6, 8], [2, 2.5, 3.5])
+        assert result.statistic == pytest.approx(expected.statistic)
+        assert result.p_value == pytest.approx(expected.pvalue)
+        assert (result.df_between, result.df_within) == (2, 6)
+        assert result.groups == ("a", "b", "c")
+
+    def test_anova_undefined_cases(self) -> None:
+        assert math.isnan(anova({"a": [fake_result("a", [1, 2])]}, "avg_uncertainty").statistic)
+        assert math.isnan(anova({"a": [fake_result("a", [1])], "b": [fake_result("b", [2])]}, "avg_uncertainty").statistic)
+        text = anova_text([anova({"a": [fake_result("a", [1, 2])]}, "avg_uncertainty")])
+        assert "undefined" in text
+
+
+class TestReports:
+    table = summarize({"random": [fake_result("random", [700, 710], [100, 120])], "sit_on_nodes": [fake_result("s", [360, 360], [500, 500])]})
+
+    def test_markdown(self) -> None:
+        lines = markdown_table(self.table).splitlines()
+        assert lines[0] == "| Algorithm | Avg. Uncertainty | SD | Avg. Neglect Time | SD |"
+        assert lines[2] == "| random | 705.0 | 7.1 | 110.0 | 14.1 |"
+        assert lines[3] == "| sit_on_nodes | 360.0 | 0.0 | 500.0 | 0.0 |"
+
+    def test_csv(self) -> None:
+        rows = list(csv.DictReader(io.StringIO(csv_table(self.table))))
+        assert rows[0]["algorithm"] == "random"
+        assert float(rows[0]["avg_uncertainty_mean"]) == 705.0
+        assert float(rows[0]["max_neglect_sd"]) == pytest.approx(np.std([100, 120], ddof=1))
+        assert rows[1]["n"] == "2"
+
+    def test_latex(self) -> None:
+        text = latex_table(self.table)
+        assert r"\begin{tabular}{lrrrr}" in text
+        assert r"sit\_on\_nodes & 360.0 & 0.0 & 500.0 & 0.0 \\" in text
+
+
+class TestPlotsAndGif:
+    def test_plots_are_pngs(self, tmp_path) -> None:
+        results = {name: [evaluate(make_team(name), "paper-50", episodes=2, max_cycles=15)] for name in ("random", "grazing")}
+        for path in (plot_uncertainty(results, tmp_path / "u.png"), plot_table(summarize(results), tmp_path / "t.png")):
+            assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    def test_gif(self, tmp_path) -> None:
+        import imageio.v3 as iio
+
+        record = record_gif(make_team("grazing"), "paper-50", tmp_path / "e.gif", seed=2, max_cycles=4)
+        frames = iio.imread(tmp_path / "e.gif", index=None)
+        assert frames.shape[0] == 5  # the reset frame plus one per step
+        same = evaluate(make_team("grazing"), "paper-50", episodes=1, seed=2, max_cycles=4).episodes[0]
+        assert record.metrics == same.metrics
+
+
+class TestCompareAndResolve:
+    def test_compare_writes_everything(self, tmp_path) -> None:
+        comparison = compare(
+            {"random": lambda: make_team("random"), "grazing": lambda: make_team("grazing")},
+            ["paper-50"],
+            seeds=[0, 1],
+            episodes=2,
+            max_cycles=15,
+        )
+        assert [r.config["seed"] for r in comparison.results["random"]] == [0, 1000]
+        assert all(len(r.episodes) == 2 for r in comparison.results["grazing"])
+        names = {p.name for p in comparison.write(tmp_path)}
+        assert names == {"table.md", "table.csv", "table.tex", "anova.txt", "results.json", "uncertainty.png", "table.png"}
+        payload = json.loads((tmp_path / "results.json").read_text())
+        assert payload["table"]["random"]["avg_uncertainty"]["n"] == 4
+
+    def test_resolve_team(self, tmp_path) -> None:
+        assert resolve_team("tour_patrol").name == "tour_patrol"
+        with pytest.raises(PolicyError, match="unknown policy"):
+            resolve_team("nope")
+        with pytest.raises(FileNotFoundError):
+            resolve_team(str(tmp_path / "missing"))
+        (tmp_path / "file.zip").write_text("x")
+        with pytest.raises(PolicyError, match="is a file"):
+            resolve_team(str(tmp_path / "file.zip"))
