@@ -51,7 +51,13 @@ def main() -> None:
                 continue
             start = time.perf_counter()
             results = [
-                evaluate(make_team(policy), path, episodes=args.episodes, seed=s * SEED_STRIDE, max_cycles=args.steps)
+                evaluate(
+                    make_team(policy),
+                    path,
+                    episodes=args.episodes,
+                    seed=s * SEED_STRIDE,
+                    max_cycles=args.steps,
+                )
                 for s in range(args.seeds)
             ]
             u = float(pooled_values(results, "avg_uncertainty").mean())

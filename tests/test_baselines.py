@@ -12,7 +12,9 @@ from tests.conftest import path_graph
 
 
 def make_env(graph="paper-50", n_agents=4, max_cycles=60, **kwargs):
-    return persistent_monitoring_v0.parallel_env(graph=graph, n_agents=n_agents, max_cycles=max_cycles, **kwargs)
+    return persistent_monitoring_v0.parallel_env(
+        graph=graph, n_agents=n_agents, max_cycles=max_cycles, **kwargs
+    )
 
 
 def play(team: Team, env, seed: int = 0, options: dict | None = None):
@@ -265,7 +267,13 @@ def test_reference_figures(shared_graphs, graph: str, policy: str) -> None:
     from sb3_pm.evaluation import SEED_STRIDE, pooled_values
 
     results = [
-        evaluate(make_team(policy), shared_graphs / f"{graph}.graphml", episodes=5, seed=s * SEED_STRIDE, max_cycles=500)
+        evaluate(
+            make_team(policy),
+            shared_graphs / f"{graph}.graphml",
+            episodes=5,
+            seed=s * SEED_STRIDE,
+            max_cycles=500,
+        )
         for s in range(3)
     ]
     ours = float(pooled_values(results, "avg_uncertainty").mean())

@@ -22,8 +22,8 @@ class TestEvaluate:
     def test_prints_table_and_writes_json(self, capsys, tmp_path) -> None:
         out_json = tmp_path / "r.json"
         code, out, _ = run_cli(
-            capsys, "evaluate", "--policy", "grazing", "--graph", "paper-50", "--agents", "3", "--steps", "20",
-            "--episodes", "2", "--seed", "5", "--json", str(out_json),
+            capsys, "evaluate", "--policy", "grazing", "--graph", "paper-50", "--agents", "3",
+            "--steps", "20", "--episodes", "2", "--seed", "5", "--json", str(out_json),
         )  # fmt: skip
         assert code == 0
         assert "avg_uncertainty" in out and "max_neglect" in out and "grazing on paper-50" in out
@@ -84,13 +84,17 @@ class TestEvaluate:
         monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", module)
         team_dir = tmp_path / "my_team"
         team_dir.mkdir()
-        code, out, _ = run_cli(capsys, "evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1")
+        code, out, _ = run_cli(
+            capsys, "evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1"
+        )
         assert code == 0 and loaded and loaded[0] == team_dir
         assert "my_team on paper-50" in out
 
     def test_trained_team_without_learner(self, capsys, tmp_path, monkeypatch) -> None:
         monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", None)  # import fails
-        code, _, err = run_cli(capsys, "evaluate", "--policy", str(tmp_path), "--steps", "5", "--episodes", "1")
+        code, _, err = run_cli(
+            capsys, "evaluate", "--policy", str(tmp_path), "--steps", "5", "--episodes", "1"
+        )
         assert code == 2 and "IndependentPPO is unavailable" in err and len(err.strip().splitlines()) == 1
 
 
@@ -104,7 +108,15 @@ class TestCompare:
         assert code == 0
         assert out.startswith("| Algorithm | Avg. Uncertainty | SD | Avg. Neglect Time | SD |")
         names = {p.name for p in out_dir.iterdir()}
-        assert names == {"table.md", "table.csv", "table.tex", "anova.txt", "results.json", "uncertainty.png", "table.png"}
+        assert names == {
+            "table.md",
+            "table.csv",
+            "table.tex",
+            "anova.txt",
+            "results.json",
+            "uncertainty.png",
+            "table.png",
+        }
         assert "avg_uncertainty: F(1, 6)" in (out_dir / "anova.txt").read_text()
         # A second run refuses to overwrite, unless asked.
         argv = ["compare", "--policies", "random", "--episodes", "1", "--steps", "5", "--out", str(out_dir)]
@@ -126,4 +138,3 @@ class TestCompare:
         code, _, err = run_cli(capsys, "compare", "--steps", "5", "--out", str(tmp_path / "o"), *args)
         assert code == 2 and message in err and len(err.strip().splitlines()) == 1
         assert not (tmp_path / "o").exists()  # nothing written before the inputs are checked
-

@@ -65,7 +65,9 @@ class TestMetricsByHand:
         # Neglect runs: target 0 unvisited on k2..k5 -> 4; target 2 unvisited on k0..k2 -> 3. max 4.
         graph = path_graph(3, [0, 2])
         team = ScriptedTeam([[0], [0], [1], [2], [2], [2]])
-        result = evaluate(team, graph, n_agents=1, episodes=1, max_cycles=6, env_kwargs={"initial_positions": [1]})
+        result = evaluate(
+            team, graph, n_agents=1, episodes=1, max_cycles=6, env_kwargs={"initial_positions": [1]}
+        )
         record = result.episodes[0]
         assert record.trace.tolist() == [1, 2, 4, 4, 4, 4]
         assert record.metrics["avg_uncertainty"] == pytest.approx(19 / 6)
@@ -81,7 +83,12 @@ class TestMetricsByHand:
         graph = path_graph(3, [2])
         team = ScriptedTeam([])
         result = evaluate(
-            team, graph, n_agents=2, episodes=1, max_cycles=5, env_kwargs={"initial_positions": [0, 0], "u_max": 3}
+            team,
+            graph,
+            n_agents=2,
+            episodes=1,
+            max_cycles=5,
+            env_kwargs={"initial_positions": [0, 0], "u_max": 3},
         )
         metrics = result.episodes[0].metrics
         assert metrics["avg_uncertainty"] == pytest.approx(12 / 5)
@@ -137,7 +144,8 @@ class TestEvaluate:
 def fake_result(policy: str, values: list[float], neglect: list[float] | None = None) -> EvaluationResult:
     neglect = neglect or values
     episodes = [
-        EpisodeRecord(i, i, 0, {"avg_uncertainty": v, "max_neglect": n}, np.array([v])) for i, (v, n) in enumerate(zip(values, neglect))
+        EpisodeRecord(i, i, 0, {"avg_uncertainty": v, "max_neglect": n}, np.array([v]))
+        for i, (v, n) in enumerate(zip(values, neglect))
     ]
     return EvaluationResult(policy, "g", {}, episodes)
 
@@ -149,7 +157,11 @@ class TestStatistics:
         assert summary == Summary(2.0, 1.0, 3)
 
     def test_anova_matches_scipy(self) -> None:
-        groups = {"a": [fake_result("a", [1, 2, 3])], "b": [fake_result("b", [4, 6, 8])], "c": [fake_result("c", [2, 2.5, 3.5])]}
+        groups = {
+            "a": [fake_result("a", [1, 2, 3])],
+            "b": [fake_result("b", [4, 6, 8])],
+            "c": [fake_result("c", [2, 2.5, 3.5])],
+        }
         result = anova(groups, "avg_uncertainty")
         expected = stats.f_oneway([1, 2, 3], [4, 6, 8], [2, 2.5, 3.5])
         assert result.statistic == pytest.approx(expected.statistic)
@@ -159,13 +171,20 @@ class TestStatistics:
 
     def test_anova_undefined_cases(self) -> None:
         assert math.isnan(anova({"a": [fake_result("a", [1, 2])]}, "avg_uncertainty").statistic)
-        assert math.isnan(anova({"a": [fake_result("a", [1])], "b": [fake_result("b", [2])]}, "avg_uncertainty").statistic)
+        assert math.isnan(
+            anova({"a": [fake_result("a", [1])], "b": [fake_result("b", [2])]}, "avg_uncertainty").statistic
+        )
         text = anova_text([anova({"a": [fake_result("a", [1, 2])]}, "avg_uncertainty")])
         assert "undefined" in text
 
 
 class TestReports:
-    table = summarize({"random": [fake_result("random", [700, 710], [100, 120])], "sit_on_nodes": [fake_result("s", [360, 360], [500, 500])]})
+    table = summarize(
+        {
+            "random": [fake_result("random", [700, 710], [100, 120])],
+            "sit_on_nodes": [fake_result("s", [360, 360], [500, 500])],
+        }
+    )
 
     def test_markdown(self) -> None:
         lines = markdown_table(self.table).splitlines()
@@ -188,8 +207,14 @@ class TestReports:
 
 class TestPlotsAndGif:
     def test_plots_are_pngs(self, tmp_path) -> None:
-        results = {name: [evaluate(make_team(name), "paper-50", episodes=2, max_cycles=15)] for name in ("random", "grazing")}
-        for path in (plot_uncertainty(results, tmp_path / "u.png"), plot_table(summarize(results), tmp_path / "t.png")):
+        results = {
+            name: [evaluate(make_team(name), "paper-50", episodes=2, max_cycles=15)]
+            for name in ("random", "grazing")
+        }
+        for path in (
+            plot_uncertainty(results, tmp_path / "u.png"),
+            plot_table(summarize(results), tmp_path / "t.png"),
+        ):
             assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     def test_gif(self, tmp_path) -> None:
@@ -214,7 +239,15 @@ class TestCompareAndResolve:
         assert [r.config["seed"] for r in comparison.results["random"]] == [0, 1000]
         assert all(len(r.episodes) == 2 for r in comparison.results["grazing"])
         names = {p.name for p in comparison.write(tmp_path)}
-        assert names == {"table.md", "table.csv", "table.tex", "anova.txt", "results.json", "uncertainty.png", "table.png"}
+        assert names == {
+            "table.md",
+            "table.csv",
+            "table.tex",
+            "anova.txt",
+            "results.json",
+            "uncertainty.png",
+            "table.png",
+        }
         payload = json.loads((tmp_path / "results.json").read_text())
         assert payload["table"]["random"]["avg_uncertainty"]["n"] == 4
 

@@ -13,7 +13,9 @@ from sb3_pm.graphs import GraphSpec
 def agent_positions(observations: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], np.ndarray]:
     """The agents of ``observations`` (in the order given) and each one's own ``position``."""
     agents = list(observations)
-    positions = np.fromiter((int(observations[a]["position"]) for a in agents), dtype=np.int64, count=len(agents))
+    positions = np.fromiter(
+        (int(observations[a]["position"]) for a in agents), dtype=np.int64, count=len(agents)
+    )
     return agents, positions
 
 
@@ -22,7 +24,9 @@ def env_graph(env: Any) -> GraphSpec:
     return env.unwrapped.graph
 
 
-def nearest_first(candidates: np.ndarray, distances: np.ndarray, keys: np.ndarray | None = None) -> np.ndarray:
+def nearest_first(
+    candidates: np.ndarray, distances: np.ndarray, keys: np.ndarray | None = None
+) -> np.ndarray:
     """``candidates`` sorted by descending ``keys`` (if given), then ascending distance, then index.
 
     ``np.lexsort`` sorts by its *last* key first, so the keys are passed in reverse priority.
@@ -34,7 +38,9 @@ def nearest_first(candidates: np.ndarray, distances: np.ndarray, keys: np.ndarra
     return candidates[np.lexsort(order_keys)]
 
 
-def step_towards(next_hop: np.ndarray, positions: np.ndarray, goals: Sequence[int] | np.ndarray) -> np.ndarray:
+def step_towards(
+    next_hop: np.ndarray, positions: np.ndarray, goals: Sequence[int] | np.ndarray
+) -> np.ndarray:
     """One move along a shortest path for every agent (``next_hop[i, i] == i``, so goal reached = stay)."""
     return next_hop[positions, np.asarray(goals, dtype=np.int64)]
 

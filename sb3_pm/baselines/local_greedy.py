@@ -79,7 +79,9 @@ class LocalGreedyTeam(Team):
     def known_graph(self, agent: str, adjacency: np.ndarray) -> _KnownGraph:
         """The cached BFS for ``agent``, rebuilt only if its adjacency array changed."""
         cached = self._known.get(agent)
-        if cached is None or (cached.source is not adjacency and not np.array_equal(cached.source, adjacency)):
+        if cached is None or (
+            cached.source is not adjacency and not np.array_equal(cached.source, adjacency)
+        ):
             cached = _KnownGraph(adjacency)
             self._known[agent] = cached
         return cached
@@ -87,10 +89,17 @@ class LocalGreedyTeam(Team):
     def act(self, agent: str, obs: Observation) -> int:
         """One agent's destination from its own observation."""
         if "nodes" not in obs:
-            raise ValueError("local_greedy needs mental-map observations: create the env with observation='map'")
+            raise ValueError(
+                "local_greedy needs mental-map observations: create the env with observation='map'"
+            )
         nodes = np.asarray(obs["nodes"])
         position = int(obs["position"])
-        u, age, is_target, occupied = nodes[:, U], nodes[:, AGE], nodes[:, TARGET] > 0.5, nodes[:, OCCUPIED] > 0.5
+        u, age, is_target, occupied = (
+            nodes[:, U],
+            nodes[:, AGE],
+            nodes[:, TARGET] > 0.5,
+            nodes[:, OCCUPIED] > 0.5,
+        )
         visited = self._visited.setdefault(agent, np.zeros(len(nodes), dtype=bool))
         visited[position] = True
         if is_target[position] and u[position] > 0:

@@ -20,10 +20,16 @@ def register(subparsers: Any) -> None:
             "results.json, uncertainty.png and table.png into --out."
         ),
     )
-    parser.add_argument("--policies", nargs="+", required=True, help="baseline names and/or trained team directories")
+    parser.add_argument(
+        "--policies", nargs="+", required=True, help="baseline names and/or trained team directories"
+    )
     parser.add_argument("--graphs", nargs="+", default=["paper-50"], help="presets or .graphml paths")
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0], help="grid seeds; seed s uses env seeds s*1000+e")
-    parser.add_argument("--episodes", type=int, default=10, help="episodes per policy, graph and seed (default 10)")
+    parser.add_argument(
+        "--seeds", nargs="+", type=int, default=[0], help="grid seeds; seed s uses env seeds s*1000+e"
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=10, help="episodes per policy, graph and seed (default 10)"
+    )
     parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")
     parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
     parser.add_argument("--out", type=Path, required=True, help="output directory")

@@ -24,7 +24,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")
     parser.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="episode e uses env seed SEED + e (default 0)")
-    parser.add_argument("--json", type=Path, metavar="FILE", help="write episodes, mean, std and config as JSON")
+    parser.add_argument(
+        "--json", type=Path, metavar="FILE", help="write episodes, mean, std and config as JSON"
+    )
     parser.add_argument("--gif", type=Path, metavar="FILE", help="save the first episode as an animated GIF")
     parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
     parser.set_defaults(func=run)
@@ -44,7 +46,8 @@ def print_summary(result: Any, stream: Any = None) -> None:
     """The aggregate table: one row per metric, mean and SD over the episodes."""
     stream = stream or sys.stdout
     mean, std = result.mean, result.std
-    title = f"{result.policy} on {result.graph}: {len(result.episodes)} episodes x {result.config['max_cycles']} steps"
+    steps = result.config["max_cycles"]
+    title = f"{result.policy} on {result.graph}: {len(result.episodes)} episodes x {steps} steps"
     try:
         from rich.console import Console
         from rich.table import Table
@@ -91,6 +94,13 @@ def run(args: argparse.Namespace) -> int:
         args.json.write_text(json.dumps(result.to_dict(), indent=2))
         print(f"wrote {args.json}", file=sys.stderr)
     if args.gif is not None:
-        record_gif(resolve_team(args.policy), graph, args.gif, n_agents=args.agents, seed=args.seed, max_cycles=args.steps)
+        record_gif(
+            resolve_team(args.policy),
+            graph,
+            args.gif,
+            n_agents=args.agents,
+            seed=args.seed,
+            max_cycles=args.steps,
+        )
         print(f"wrote {args.gif}", file=sys.stderr)
     return 0

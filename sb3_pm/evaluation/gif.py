@@ -33,7 +33,11 @@ def record_gif(
     if not path.parent.exists():
         raise FileNotFoundError(f"directory for the GIF does not exist: {path.parent}")
     env = persistent_monitoring_v0.parallel_env(
-        graph=resolve_graph(graph), n_agents=n_agents, max_cycles=max_cycles, render_mode="rgb_array", **dict(env_kwargs or {})
+        graph=resolve_graph(graph),
+        n_agents=n_agents,
+        max_cycles=max_cycles,
+        render_mode="rgb_array",
+        **dict(env_kwargs or {}),
     )
     frames: list = []
     try:

@@ -133,9 +133,13 @@ def evaluate(
         raise ValueError(f"episodes must be at least 1, got {episodes}")
     spec = resolve_graph(graph)
     kwargs = dict(env_kwargs or {})
-    env = persistent_monitoring_v0.parallel_env(graph=spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs)
+    env = persistent_monitoring_v0.parallel_env(
+        graph=spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs
+    )
     records: list[EpisodeRecord] = []
-    bar = _progress_bar(episodes * max_cycles, progress, f"{policy_name or team.name} on {graph_label(graph)}")
+    bar = _progress_bar(
+        episodes * max_cycles, progress, f"{policy_name or team.name} on {graph_label(graph)}"
+    )
     try:
         for episode in range(episodes):
             env_seed = seed + episode
@@ -145,19 +149,22 @@ def evaluate(
         if bar is not None:
             bar.close()
         env.close()
-    config = {
-        "policy": policy_name or team.name,
-        "graph": graph_label(graph),
+    label, graph_name = policy_name or team.name, graph_label(graph)
+    config: dict[str, Any] = {
+        "policy": label,
+        "graph": graph_name,
         "n_agents": n_agents,
         "max_cycles": max_cycles,
         "episodes": episodes,
         "seed": seed,
         "env_kwargs": kwargs,
     }
-    return EvaluationResult(policy=config["policy"], graph=config["graph"], config=config, episodes=records)
+    return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
 
 
-def run_episode(team: Team, env: Any, env_seed: int, bar: Any = None, frames: list | None = None) -> EpisodeRecord:
+def run_episode(
+    team: Team, env: Any, env_seed: int, bar: Any = None, frames: list | None = None
+) -> EpisodeRecord:
     """Play one episode of ``env`` with ``team``; append rendered frames to ``frames`` if given."""
     observations, _ = env.reset(seed=env_seed)
     t_seed = team_seed(env_seed)
@@ -178,7 +185,11 @@ def run_episode(team: Team, env: Any, env_seed: int, bar: Any = None, frames: li
         bar.update(steps % 50)
     metrics = next(iter(infos.values()))["metrics"] if infos else env.unwrapped.episode_metrics()
     return EpisodeRecord(
-        episode=0, seed=int(env_seed), team_seed=t_seed, metrics=dict(metrics), trace=env.unwrapped.uncertainty_trace()
+        episode=0,
+        seed=int(env_seed),
+        team_seed=t_seed,
+        metrics=dict(metrics),
+        trace=env.unwrapped.uncertainty_trace(),
     )
 
 
@@ -188,4 +199,11 @@ def _progress_bar(total: int, progress: bool | None, description: str) -> Any:
     from tqdm.auto import tqdm
 
     # disable=None: tqdm hides itself when stderr is not a terminal.
-    return tqdm(total=total, desc=description, unit="step", file=sys.stderr, disable=None if progress is None else False, leave=False)
+    return tqdm(
+        total=total,
+        desc=description,
+        unit="step",
+        file=sys.stderr,
+        disable=None if progress is None else False,
+        leave=False,
+    )

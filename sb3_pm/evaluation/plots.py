@@ -56,7 +56,9 @@ def plot_table(table: Mapping[str, Mapping[str, Summary]], path: str | Path) -> 
     plt = _pyplot()
     policies = list(table)
     figure, axes = plt.subplots(1, 2, figsize=(9, 3.6), dpi=100)
-    for ax, (metric, label) in zip(axes, (("avg_uncertainty", "Avg. Uncertainty"), ("max_neglect", "Avg. Neglect Time"))):
+    for ax, (metric, label) in zip(
+        axes, (("avg_uncertainty", "Avg. Uncertainty"), ("max_neglect", "Avg. Neglect Time"))
+    ):
         means = [table[p][metric].mean for p in policies]
         sds = [table[p][metric].sd for p in policies]
         ax.bar(range(len(policies)), means, yerr=sds, capsize=3, color="tab:blue", alpha=0.8)

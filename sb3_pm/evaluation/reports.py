@@ -35,7 +35,9 @@ def csv_table(table: Mapping[str, Mapping[str, Summary]]) -> str:
     """CSV with full precision and the number of points per algorithm."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["algorithm", "avg_uncertainty_mean", "avg_uncertainty_sd", "max_neglect_mean", "max_neglect_sd", "n"])
+    writer.writerow(
+        ["algorithm", "avg_uncertainty_mean", "avg_uncertainty_sd", "max_neglect_mean", "max_neglect_sd", "n"]
+    )
     for policy, summaries in table.items():
         u, n = summaries["avg_uncertainty"], summaries["max_neglect"]
         writer.writerow([policy, repr(u.mean), repr(u.sd), repr(n.mean), repr(n.sd), u.n])
@@ -43,12 +45,20 @@ def csv_table(table: Mapping[str, Mapping[str, Summary]]) -> str:
 
 
 def _latex_escape(text: str) -> str:
-    for char, escaped in (("\\", r"\textbackslash{}"), ("_", r"\_"), ("&", r"\&"), ("%", r"\%"), ("#", r"\#")):
+    for char, escaped in (
+        ("\\", r"\textbackslash{}"),
+        ("_", r"\_"),
+        ("&", r"\&"),
+        ("%", r"\%"),
+        ("#", r"\#"),
+    ):
         text = text.replace(char, escaped)
     return text
 
 
-def latex_table(table: Mapping[str, Mapping[str, Summary]], digits: int = 1, caption: str | None = None) -> str:
+def latex_table(
+    table: Mapping[str, Mapping[str, Summary]], digits: int = 1, caption: str | None = None
+) -> str:
     """A ``table`` environment with a ``tabular`` (booktabs rules), like the paper's Table I."""
     lines = [r"\begin{table}[t]", r"\centering"]
     if caption:
@@ -66,6 +76,7 @@ def anova_text(results: Sequence[AnovaResult]) -> str:
         if math.isnan(result.statistic):
             verdict = "undefined (needs >= 2 algorithms with >= 2 points each and some variance)"
         else:
-            verdict = f"F({result.df_between}, {result.df_within}) = {result.statistic:.4g}, p = {result.p_value:.3g}"
+            dof = f"F({result.df_between}, {result.df_within})"
+            verdict = f"{dof} = {result.statistic:.4g}, p = {result.p_value:.3g}"
         lines.append(f"{result.metric}: {verdict}  [{', '.join(result.groups)}]")
     return "\n".join(lines) + "\n"

@@ -32,7 +32,9 @@ def resolve_team(policy: str | Path, **kwargs: Any) -> Team:
         raise PolicyError(f"policy {text!r} is a file; a trained team is a directory written by its save()")
     if "/" in text or "\\" in text or text.startswith("."):
         raise FileNotFoundError(f"trained team directory not found: {text}")
-    raise PolicyError(f"unknown policy {text!r}: use a baseline ({', '.join(BASELINES)}) or a trained team directory")
+    raise PolicyError(
+        f"unknown policy {text!r}: use a baseline ({', '.join(BASELINES)}) or a trained team directory"
+    )
 
 
 def load_trained_team(path: Path) -> Team:
@@ -41,7 +43,8 @@ def load_trained_team(path: Path) -> Team:
         from sb3_pm.agents.team import IndependentPPO
     except ImportError as error:
         raise PolicyError(
-            f"cannot load the trained team in {path}: sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
+            f"cannot load the trained team in {path}: "
+            f"sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
         ) from error
     try:
         team = IndependentPPO.load(path)
