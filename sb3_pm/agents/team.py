@@ -206,6 +206,16 @@ class IndependentPPO(Team):
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
 
+    @classmethod
+    def from_config(cls, config: Any, graph: GraphLike, seed: int = 0, **kwargs: Any) -> IndependentPPO:
+        """A team from a :class:`~sb3_pm.zoo.config.TrainConfig` (an entry of ``zoo/ippo.yml``).
+
+        :param kwargs: further ``IndependentPPO`` arguments (``tensorboard_log``, ``verbose`` ...),
+            overriding the config's.
+        """
+        options = {**config.team_kwargs(), **kwargs}
+        return cls(graph, seed=seed, **options)
+
     # ------------------------------------------------------------ building
     def _make_env(self) -> Any:
         from sb3_pm.envs import persistent_monitoring_v0
@@ -401,7 +411,8 @@ class IndependentPPO(Team):
         strict_order: bool = True,
         custom_objects: dict[str, Any] | None = None,
     ) -> IndependentPPO:
-        """Load a team saved with :meth:`save`, ready to act or to resume training.
+        """Load a team saved with :meth:`save` (or the run folder of ``sb3-pm train`` holding it in
+        ``team/``), ready to act or to resume training.
 
         :param graph: the graph to run on; ``None`` uses the saved one. It must be the same problem
             (same fingerprint) as the one the team was trained on.
@@ -410,6 +421,8 @@ class IndependentPPO(Team):
         :raises ValueError: if ``graph`` is not the graph the team was trained on.
         """
         folder = Path(path)
+        if not (folder / MANIFEST).exists() and (folder / "team" / MANIFEST).exists():
+            folder = folder / "team"  # a run folder written by ``sb3-pm train``
         manifest_path = folder / MANIFEST
         if not folder.is_dir():
             raise FileNotFoundError(f"no saved team at {folder} (not a folder)")

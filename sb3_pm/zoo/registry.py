@@ -35,6 +35,7 @@ OPTIMIZERS: dict[str, str] = {name: f"torch.optim:{name}" for name in ("Adam", "
 FEATURES_EXTRACTORS: dict[str, str] = {
     "CombinedExtractor": "stable_baselines3.common.torch_layers:CombinedExtractor",
     "FlattenExtractor": "stable_baselines3.common.torch_layers:FlattenExtractor",
+    "GATFeaturesExtractor": "sb3_pm.policies.extractor:GATFeaturesExtractor",
 }
 
 #: Which ``policy_kwargs`` keys hold classes, and the registry that names them.

@@ -1,0 +1,123 @@
+"""``sb3-pm train``: train an independent-learner team from an rl-zoo style config.
+
+::
+
+    sb3-pm train --config zoo/ippo.yml --env paper-50 --seed 0 [--timesteps T] [--out DIR]
+
+The run folder (default ``runs/<graph>_<algo>_s<seed>``, relative to the working directory)
+records ``config.yml`` (the resolved entry), ``args.yml``, ``command.txt``, TensorBoard logs per
+agent in ``tb/`` and the saved team in ``team/`` (what ``sb3-pm evaluate --policy RUN_DIR`` loads).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import shutil
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+#: Files that mark a folder as a run folder (only such a folder is replaced by --overwrite).
+RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "train",
+        help="train an independent PPO team from a YAML config",
+        description="Train one learner per agent (sharing nothing) and save the team to a run folder.",
+    )
+    parser.add_argument("--config", type=Path, default=Path("zoo/ippo.yml"), help="rl-zoo style YAML (default zoo/ippo.yml)")
+    parser.add_argument("--env", default="paper-50", help="a preset (paper-50/100/200) or a .graphml path")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the env copies and every learner (default 0)")
+    parser.add_argument("--timesteps", type=int, metavar="T", help="steps per learner (default: the config's n_timesteps)")
+    parser.add_argument("--n-envs", type=int, metavar="N", help="env copies (default: the config's n_envs)")
+    parser.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/<graph>_<algo>_s<seed>)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+    parser.add_argument("--device", default="cpu", help="torch device of every learner (default cpu)")
+    parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity of every learner (default 0)")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    parser.set_defaults(func=run)
+
+
+def _package_dir() -> Path:
+    import sb3_pm
+
+    return Path(sb3_pm.__file__).resolve().parent
+
+
+def prepare_run_folder(out: Path, overwrite: bool) -> None:
+    """Create ``out``; refuse an existing non-empty one unless ``overwrite`` and it is a run folder."""
+    from sb3_pm.cli import UsageError
+
+    resolved = out.resolve()
+    if resolved == _package_dir() or _package_dir() in resolved.parents:
+        raise UsageError(f"run folder {out} is inside the sb3_pm package; choose a folder outside the source tree")
+    if out.exists():
+        if not out.is_dir():
+            raise UsageError(f"{out} exists and is not a folder")
+        if any(out.iterdir()):
+            if not overwrite:
+                raise UsageError(f"run folder {out} already exists; pass --overwrite to replace it")
+            if not any((out / marker).exists() for marker in RUN_MARKERS):
+                raise UsageError(f"{out} is not empty and does not look like a run folder; refusing to replace it")
+            shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_pm.cli import UsageError
+    from sb3_pm.graphs import graph_label, resolve_graph
+    from sb3_pm.zoo import load_config
+
+    for flag in ("timesteps", "n_envs"):
+        value = getattr(args, flag)
+        if value is not None and value < 1:
+            raise UsageError(f"--{flag.replace('_', '-')} must be at least 1, got {value}")
+    graph = resolve_graph(args.env)
+    config = load_config(args.config, args.env)
+    if args.timesteps is not None:
+        config.n_timesteps = args.timesteps
+    if args.n_envs is not None:
+        config.n_envs = args.n_envs
+    out = args.out or Path("runs") / f"{graph_label(args.env)}_{config.algo}_s{args.seed}"
+    prepare_run_folder(out, args.overwrite)
+
+    recorded = {key: (str(value) if isinstance(value, Path) else value) for key, value in vars(args).items() if key != "func"}
+    recorded["out"] = str(out)
+    (out / "args.yml").write_text(yaml.safe_dump(recorded, sort_keys=True))
+    resolved = {"env": str(args.env), "entry": config.entry, "source": config.source, **config.to_dict()}
+    (out / "config.yml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+    # The equivalent command (with every setting made explicit), to rerun this exact training.
+    (out / "command.txt").write_text(shlex.join(["sb3-pm", "train", *_argv_from(args, out)]) + "\n")
+
+    from sb3_pm.agents.team import IndependentPPO
+
+    team = IndependentPPO.from_config(
+        config, graph, seed=args.seed, tensorboard_log=out / "tb", verbose=args.verbose, device=args.device
+    )
+    print(
+        f"training {config.n_agents} x {config.algo} on {graph.name} ({graph.n_nodes} nodes, {graph.n_targets} targets), "
+        f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
+    )
+    team.learn(config.n_timesteps, progress_bar=not args.no_progress)
+    folder = team.save(out / "team")
+    team.close()
+    print(f"team saved to {folder}")
+    print(f"evaluate it with: sb3-pm evaluate --policy {out} --graph {args.env}")
+    return 0
+
+
+def _argv_from(args: argparse.Namespace, out: Path) -> list[str]:
+    """The command line that reproduces this run (``command.txt``)."""
+    argv = ["--config", str(args.config), "--env", str(args.env), "--seed", str(args.seed), "--out", str(out)]
+    for flag, value in (("--timesteps", args.timesteps), ("--n-envs", args.n_envs)):
+        if value is not None:
+            argv += [flag, str(value)]
+    if args.device != "cpu":
+        argv += ["--device", args.device]
+    if args.overwrite:
+        argv.append("--overwrite")
+    return argv

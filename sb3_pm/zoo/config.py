@@ -1,0 +1,294 @@
+"""rl-zoo style training configs: one YAML file, keyed by graph name, with a ``default:`` entry.
+
+Example (``zoo/ippo.yml``)::
+
+    default: &default
+      n_timesteps: 20000          # per learner, as SB3 counts (a 4-agent team takes 4x that)
+      n_envs: 2
+      n_agents: 4
+      algo: dcbf_ppo              # dcbf_ppo | maskable_ppo | ppo
+      policy: DCBFPolicy          # optional: the algorithm's default policy
+      n_steps: 250
+      learning_rate: lin_3e-4     # linear decay to 0
+      policy_kwargs:              # a real mapping; class names go through sb3_pm.zoo.registry
+        activation_fn: ReLU
+      env_kwargs: {max_cycles: 500}
+      agents:                     # optional per-agent overrides
+        agent_1: {learning_rate: 1.0e-4}
+    paper-50:
+      <<: *default
+      n_timesteps: 50000
+
+A graph looks up its own entry (the ``--env`` string, then the file stem of a GraphML path) and
+falls back to ``default:``. Entries do not inherit from ``default:`` implicitly; use YAML anchors,
+as rl-zoo does. Every key is checked against the algorithm's and the environment's signatures, so a
+typo is an error that names the file, the entry and the key rather than a silently ignored value.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sb3_pm.zoo.registry import DEFAULT_POLICIES, RegistryError, default_algo, resolve_algo, resolve_policy_kwargs
+from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
+
+DEFAULT_ENTRY = "default"
+#: Keys that belong to the team, not to one learner's algorithm.
+TEAM_KEYS = ("n_timesteps", "n_envs", "n_agents", "algo", "env_kwargs", "agents")
+#: Algorithm arguments the team sets itself (never from a config).
+MANAGED_ARGS = {"self", "policy", "env", "seed", "tensorboard_log", "verbose", "device", "_init_setup_model"}
+#: Keys allowed in a per-agent override: learner hyperparameters, but not the team's own keys
+#: (n_steps is allowed so that the team can report a mismatch with a clear message).
+AGENT_FORBIDDEN = set(TEAM_KEYS)
+
+
+class ConfigError(ValueError):
+    """A malformed config; the message names the file, the entry and the key."""
+
+
+@dataclass
+class TrainConfig:
+    """One resolved config entry: everything :class:`~sb3_pm.agents.team.IndependentPPO` needs.
+
+    Values are kept as written (``lin_3e-4`` stays a string) so the entry can be written back to
+    a run folder's ``config.yml``; the team resolves schedules and class names itself.
+    """
+
+    source: str
+    entry: str
+    n_timesteps: int
+    n_envs: int
+    n_agents: int
+    algo: str
+    policy: str
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    agents: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def team_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``IndependentPPO`` (all but ``graph``, ``seed`` and logging)."""
+        return {
+            "n_agents": self.n_agents,
+            "env_kwargs": dict(self.env_kwargs),
+            "algo": self.algo,
+            "policy": self.policy,
+            "n_envs": self.n_envs,
+            "hyperparams": dict(self.hyperparams),
+            "per_agent": {agent: dict(values) for agent, values in self.agents.items()},
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """The entry as plain YAML-able data (what a run folder's ``config.yml`` records)."""
+        data: dict[str, Any] = {
+            "n_timesteps": self.n_timesteps,
+            "n_envs": self.n_envs,
+            "n_agents": self.n_agents,
+            "algo": self.algo,
+            "policy": self.policy,
+            **self.hyperparams,
+            "env_kwargs": dict(self.env_kwargs),
+        }
+        if self.agents:
+            data["agents"] = {agent: dict(values) for agent, values in self.agents.items()}
+        return data
+
+
+def read_yaml(path: str | Path) -> dict[str, Any]:
+    """Parse a config file into a mapping of entries.
+
+    :raises FileNotFoundError: if it does not exist.
+    :raises ConfigError: for malformed YAML or a file that is not a mapping of mappings.
+    """
+    file = Path(path)
+    if not file.is_file():
+        raise FileNotFoundError(f"config file not found: {file}")
+    try:
+        data = yaml.safe_load(file.read_text())
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{file}: malformed YAML: {error}".replace("\n", " ")) from error
+    if not isinstance(data, dict):
+        raise ConfigError(f"{file}: expected a mapping of entries (graph name -> settings), got {type(data).__name__}")
+    for entry, value in data.items():
+        if not isinstance(value, dict):
+            raise ConfigError(f"{file}: entry {entry!r} must be a mapping, got {type(value).__name__}")
+    return data
+
+
+def entry_for(data: Mapping[str, Any], env: str, source: str = "config") -> str:
+    """The entry used for ``env``: its own (by string, then file stem), else ``default``."""
+    candidates = [str(env)]
+    if str(env).lower().endswith((".graphml", ".xml")):
+        candidates.append(Path(env).stem)
+    for candidate in candidates:
+        if candidate in data:
+            return candidate
+    if DEFAULT_ENTRY in data:
+        return DEFAULT_ENTRY
+    raise ConfigError(f"{source}: no entry for {env!r} and no {DEFAULT_ENTRY!r} entry")
+
+
+def _algo_args(cls: type) -> dict[str, inspect.Parameter]:
+    """Constructor arguments of ``cls`` a config may set (the team manages the rest).
+
+    Walks the MRO while constructors forward ``**kwargs`` (``DCBFPPO(*args, estimator_update_at,
+    **kwargs)`` passes everything else on to ``MaskablePPO``).
+    """
+    found: dict[str, inspect.Parameter] = {}
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(vars(klass)["__init__"]).parameters
+        for name, p in parameters.items():
+            if name not in MANAGED_ARGS and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+                found.setdefault(name, p)
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters.values()):
+            break
+    return found
+
+
+def _env_args() -> set[str]:
+    from sb3_pm.envs.persistent_monitoring import PersistentMonitoringEnv
+
+    parameters = inspect.signature(PersistentMonitoringEnv.__init__).parameters
+    return {name for name in parameters if name not in ("self", "graph", "n_agents")}
+
+
+def _as_int(value: Any, where: str, minimum: int = 1) -> int:
+    """An integer from YAML, accepting ``5e4``-style numbers (PyYAML reads ``5e4`` as a string)."""
+    if isinstance(value, bool):
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise ConfigError(f"{where}: expected an integer, got {value!r}") from None
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"{where}: expected an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def _check_hyperparam(key: str, value: Any, parameter: inspect.Parameter, where: str) -> Any:
+    """Check ``value`` against the type of the argument's default; return it normalised."""
+    default = parameter.default
+    if key in SCHEDULE_KEYS:
+        if value is None and default is None:  # clip_range_vf: None means "no clipping"
+            return None
+        try:
+            parsed = parse_schedule(value, key)
+        except ValueError as error:
+            raise ConfigError(f"{where}: {error}") from None
+        if isinstance(value, str) and value.strip().startswith("lin_"):
+            return value.strip()  # kept as written; the team turns it into a schedule
+        if isinstance(parsed, bool) or not isinstance(parsed, (int, float)):
+            raise ConfigError(f"{where}: expected a number or lin_<number>, got {value!r}")
+        return float(parsed)
+    if key == "policy_kwargs":
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a mapping (not a string to eval), got {type(value).__name__}")
+        try:
+            resolve_policy_kwargs(value)
+        except (RegistryError, ImportError) as error:
+            raise ConfigError(f"{where}: {error}") from None
+        return dict(value)
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if isinstance(default, int):
+        return _as_int(value, where, minimum=-(2**31))
+    if isinstance(default, float):
+        if isinstance(value, str):
+            try:
+                return float(value)
+            except ValueError:
+                pass
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    return value
+
+
+def _hyperparams(raw: Mapping[str, Any], allowed: Mapping[str, inspect.Parameter], where: str, extra: set[str]) -> dict[str, Any]:
+    checked: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key in extra:
+            continue
+        if key not in allowed:
+            raise ConfigError(f"{where}: unknown key {key!r} (not a team key, nor an argument of the algorithm)")
+        checked[key] = _check_hyperparam(key, value, allowed[key], f"{where}.{key}")
+    return checked
+
+
+def load_config(path: str | Path, env: str) -> TrainConfig:
+    """Load the entry of ``path`` for graph ``env`` (a preset name or a GraphML path).
+
+    :raises FileNotFoundError: if the file does not exist.
+    :raises ConfigError: for malformed YAML, unknown keys or wrong types (naming file and key).
+    """
+    source = str(path)
+    data = read_yaml(path)
+    entry = entry_for(data, env, source)
+    raw = dict(data[entry])
+    where = f"{source}: {entry}"
+
+    algo = raw.get("algo") or default_algo()
+    if not isinstance(algo, str):
+        raise ConfigError(f"{where}.algo: expected a name, got {algo!r}")
+    try:
+        algo_class = resolve_algo(algo)
+    except RegistryError as error:
+        raise ConfigError(f"{where}.algo: {error}") from None
+    allowed = _algo_args(algo_class)
+    policy = raw.get("policy", DEFAULT_POLICIES.get(algo, "MultiInputPolicy"))
+    if not isinstance(policy, str):
+        raise ConfigError(f"{where}.policy: expected a policy name, got {policy!r}")
+
+    env_kwargs = raw.get("env_kwargs") or {}
+    if not isinstance(env_kwargs, dict):
+        raise ConfigError(f"{where}.env_kwargs: expected a mapping, got {type(env_kwargs).__name__}")
+    unknown_env = sorted(set(env_kwargs) - _env_args())
+    if unknown_env:
+        raise ConfigError(f"{where}.env_kwargs: unknown key {unknown_env[0]!r} (not an argument of the environment)")
+
+    hyperparams = _hyperparams(raw, allowed, where, set(TEAM_KEYS) | {"policy"})
+    n_agents = _as_int(raw.get("n_agents", 4), f"{where}.n_agents")
+    agents_raw = raw.get("agents") or {}
+    if not isinstance(agents_raw, dict):
+        raise ConfigError(f"{where}.agents: expected a mapping agent_name -> overrides")
+    agents: dict[str, dict[str, Any]] = {}
+    names = {f"agent_{i}" for i in range(n_agents)}
+    for agent, overrides in agents_raw.items():
+        if agent not in names:
+            raise ConfigError(f"{where}.agents: unknown agent {agent!r} (the team has agent_0 .. agent_{n_agents - 1})")
+        if not isinstance(overrides, dict):
+            raise ConfigError(f"{where}.agents.{agent}: expected a mapping of hyperparameters")
+        forbidden = sorted(set(overrides) & AGENT_FORBIDDEN)
+        if forbidden:
+            raise ConfigError(f"{where}.agents.{agent}: {forbidden[0]!r} is set for the whole team, not per agent")
+        agents[agent] = _hyperparams(overrides, allowed, f"{where}.agents.{agent}", set())
+
+    return TrainConfig(
+        source=source,
+        entry=entry,
+        n_timesteps=_as_int(raw.get("n_timesteps", 50_000), f"{where}.n_timesteps"),
+        n_envs=_as_int(raw.get("n_envs", 1), f"{where}.n_envs"),
+        n_agents=n_agents,
+        algo=algo,
+        policy=policy,
+        hyperparams=hyperparams,
+        env_kwargs=dict(env_kwargs),
+        agents=agents,
+    )
+
+
+__all__ = ["DEFAULT_ENTRY", "ConfigError", "TrainConfig", "entry_for", "load_config", "read_yaml"]

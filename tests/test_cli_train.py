@@ -1,0 +1,69 @@
+"""``sb3-pm train`` end to end with a tiny budget (issue 4)."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+import torch as th
+import yaml
+
+from sb3_pm.cli import main
+from sb3_pm.graphs import erdos_renyi, save_graphml
+
+th.set_num_threads(1)
+
+TINY = """
+default:
+  n_timesteps: 100000
+  n_envs: 1
+  n_agents: 2
+  algo: maskable_ppo
+  n_steps: 16
+  batch_size: 16
+  n_epochs: 1
+  learning_rate: lin_1e-3
+  env_kwargs: {max_cycles: 10}
+"""
+
+
+@pytest.fixture()
+def setup(tmp_path):
+    config = tmp_path / "tiny.yml"
+    config.write_text(textwrap.dedent(TINY))
+    graph = save_graphml(erdos_renyi(12, 0.3, n_targets=3, seed=1), tmp_path / "g12.graphml")
+    return config, graph, tmp_path / "run"
+
+
+def test_train_writes_run_folder_and_refuses_overwrite(setup, capsys) -> None:
+    config, graph, out = setup
+    argv = ["train", "--config", str(config), "--env", str(graph), "--seed", "3", "--timesteps", "32", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    assert "team saved to" in capsys.readouterr().out
+    for name in ("config.yml", "args.yml", "command.txt", "team/manifest.json", "team/agent_0.zip", "team/agent_1.zip"):
+        assert (out / name).exists(), name
+    resolved = yaml.safe_load((out / "config.yml").read_text())
+    assert resolved["entry"] == "default" and resolved["n_timesteps"] == 32 and resolved["learning_rate"] == "lin_1e-3"
+    assert yaml.safe_load((out / "args.yml").read_text())["seed"] == 3
+    assert "--timesteps 32" in (out / "command.txt").read_text()
+    assert any((out / "tb").iterdir())  # TensorBoard runs, one per agent
+
+    from sb3_pm.agents.team import IndependentPPO
+
+    team = IndependentPPO.load(out)  # the run folder loads (evaluate --policy RUN_DIR)
+    assert team.num_timesteps == 32
+
+    assert main(argv) == 2
+    assert "already exists; pass --overwrite" in capsys.readouterr().err
+    assert main([*argv, "--overwrite"]) == 0
+
+
+def test_train_user_errors(setup, capsys) -> None:
+    config, graph, out = setup
+    assert main(["train", "--config", str(config), "--env", "nope", "--out", str(out)]) == 2
+    assert "unknown graph" in capsys.readouterr().err
+    bad = config.parent / "bad.yml"
+    bad.write_text("default: {n_stepz: 3}\n")
+    assert main(["train", "--config", str(bad), "--env", str(graph), "--out", str(out)]) == 2
+    assert "unknown key 'n_stepz'" in capsys.readouterr().err
+    assert main(["train", "--config", str(config), "--env", str(graph), "--timesteps", "0", "--out", str(out)]) == 2

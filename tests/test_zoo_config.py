@@ -1,0 +1,139 @@
+"""The rl-zoo style config loader, registries and schedules (issue 4)."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+import torch as th
+from stable_baselines3.common.utils import LinearSchedule
+
+from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.graphs import erdos_renyi
+from sb3_pm.zoo import ConfigError, load_config, parse_schedule, resolve_algo, resolve_policy_kwargs
+from sb3_pm.zoo.registry import RegistryError
+
+th.set_num_threads(1)
+
+CONFIG = """
+default: &default
+  n_timesteps: 5e4
+  n_envs: 2
+  n_agents: 2
+  algo: maskable_ppo
+  n_steps: 16
+  batch_size: 32
+  n_epochs: 1
+  learning_rate: lin_3e-4
+  gamma: 0.98
+  ent_coef: 1e-3
+  policy_kwargs:
+    net_arch: [16]
+    activation_fn: ReLU
+  env_kwargs: {max_cycles: 20}
+  agents:
+    agent_1: {learning_rate: 1e-4}
+paper-50:
+  <<: *default
+  n_timesteps: 50000
+  n_envs: 4
+"""
+
+
+def write(tmp_path, text: str):
+    path = tmp_path / "cfg.yml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_default_fallback_and_own_entry(tmp_path) -> None:
+    path = write(tmp_path, CONFIG)
+    own = load_config(path, "paper-50")
+    assert own.entry == "paper-50" and own.n_envs == 4 and own.n_timesteps == 50000
+    fallback = load_config(path, "paper-200")
+    assert fallback.entry == "default" and fallback.n_envs == 2
+    assert fallback.n_timesteps == 50000  # "5e4" (a string to PyYAML) is read as a number
+    assert load_config(path, "some/dir/paper-50.graphml").entry == "paper-50"  # by file stem
+    assert fallback.hyperparams["ent_coef"] == pytest.approx(1e-3)
+    assert fallback.agents == {"agent_1": {"learning_rate": 1e-4}}
+    assert fallback.to_dict()["learning_rate"] == "lin_3e-4"
+
+
+def test_no_entry_and_no_default(tmp_path) -> None:
+    path = write(tmp_path, "paper-50: {n_envs: 1}\n")
+    with pytest.raises(ConfigError, match="no entry for 'paper-100' and no 'default'"):
+        load_config(path, "paper-100")
+
+
+def test_lin_schedule() -> None:
+    schedule = parse_schedule("lin_3e-4")
+    assert isinstance(schedule, LinearSchedule)
+    assert schedule(1.0) == pytest.approx(3e-4) and schedule(0.5) == pytest.approx(1.5e-4) and schedule(0.0) == 0
+    assert parse_schedule("1e-4") == pytest.approx(1e-4)
+    assert parse_schedule(0.2) == 0.2
+    with pytest.raises(ValueError, match="lin_<number>"):
+        parse_schedule("lin_fast", "learning_rate")
+
+
+def test_config_builds_team_with_overrides(tmp_path) -> None:
+    config = load_config(write(tmp_path, CONFIG), "tiny")
+    team = IndependentPPO.from_config(config, erdos_renyi(12, 0.3, n_targets=3, seed=1), seed=0)
+    first, second = team.models["agent_0"], team.models["agent_1"]
+    assert first.lr_schedule(1.0) == pytest.approx(3e-4) and first.lr_schedule(0.5) == pytest.approx(1.5e-4)
+    assert second.lr_schedule(1.0) == pytest.approx(1e-4)
+    assert first.gamma == pytest.approx(0.98)
+    assert isinstance(first.policy.mlp_extractor.policy_net[1], th.nn.ReLU)
+    assert team.n_envs == 2 and first.n_steps == 16
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("default: {n_steps: [1, 2\n", "malformed YAML"),
+        ("- a\n- b\n", "expected a mapping of entries"),
+        ("default: 3\n", "entry 'default' must be a mapping"),
+        ("default: {algo: maskable_ppo, learnin_rate: 0.1}\n", "default: unknown key 'learnin_rate'"),
+        ("default: {algo: maskable_ppo, n_steps: many}\n", r"default.n_steps: expected an integer"),
+        ("default: {algo: maskable_ppo, gamma: high}\n", r"default.gamma: expected a number"),
+        ("default: {algo: maskable_ppo, normalize_advantage: 3}\n", "expected true/false"),
+        ("default: {algo: maskable_ppo, learning_rate: lin_x}\n", "lin_<number>"),
+        ("default: {algo: maskable_ppo, policy_kwargs: 'dict(net_arch=[8])'}\n", "not a string to eval"),
+        ("default: {algo: maskable_ppo, policy_kwargs: {activation_fn: Relu}}\n", "unknown activation_fn 'Relu'"),
+        ("default: {algo: maskable_ppo, env_kwargs: {max_cycle: 5}}\n", "env_kwargs: unknown key 'max_cycle'"),
+        ("default: {algo: nope}\n", "default.algo: unknown algo 'nope'"),
+        ("default: {algo: maskable_ppo, n_envs: 0}\n", r"default.n_envs: expected an integer >= 1"),
+        ("default: {algo: maskable_ppo, agents: {agent_7: {gamma: 0.9}}}\n", "unknown agent 'agent_7'"),
+        ("default: {algo: maskable_ppo, agents: {agent_1: {n_envs: 2}}}\n", "'n_envs' is set for the whole team"),
+    ],
+)
+def test_malformed_configs_name_file_and_key(tmp_path, text: str, message: str) -> None:
+    path = write(tmp_path, text)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_config(path, "paper-50")
+    assert str(path) in str(info.value)
+
+
+def test_missing_file(tmp_path) -> None:
+    with pytest.raises(FileNotFoundError, match="config file not found"):
+        load_config(tmp_path / "nope.yml", "paper-50")
+
+
+def test_registries() -> None:
+    from sb3_contrib import MaskablePPO
+
+    assert resolve_algo("maskable_ppo") is MaskablePPO
+    with pytest.raises(RegistryError, match="unknown algo"):
+        resolve_algo("dqn")
+    resolved = resolve_policy_kwargs({"activation_fn": "Tanh", "optimizer_class": "torch.optim:AdamW", "net_arch": [8]})
+    assert resolved["activation_fn"] is th.nn.Tanh and resolved["optimizer_class"] is th.optim.AdamW
+    assert resolved["net_arch"] == [8]
+
+
+def test_repository_config_is_valid() -> None:
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "zoo" / "ippo.yml"
+    for env in ("paper-50", "paper-100", "paper-200", "custom.graphml"):
+        config = load_config(path, env)
+        assert config.n_agents == 4
+    assert load_config(path, "paper-50").n_timesteps == 50_000
