@@ -75,20 +75,27 @@ class TestEvaluate:
 
         class FakePPO:
             @staticmethod
-            def load(path):
+            def load(path, graph=None):
                 loaded.append(path)
-                return make_team("sit_on_nodes")
+                team = make_team("sit_on_nodes")
+                team.n_agents, team.env_kwargs = 4, {"obs_radius": 2, "max_cycles": 7}
+                return team
 
         module = types.ModuleType("sb3_pm.agents.team")
         module.IndependentPPO = FakePPO
         monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", module)
         team_dir = tmp_path / "my_team"
         team_dir.mkdir()
-        code, out, _ = run_cli(
-            capsys, "evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1"
-        )
+        argv = ["evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1"]
+        code, out, _ = run_cli(capsys, *argv)
         assert code == 0 and loaded and loaded[0] == team_dir
         assert "my_team on paper-50" in out
+        # The team's own env options are used (obs_radius), the episode length stays ours.
+        code, _, _ = run_cli(capsys, *argv, "--json", str(tmp_path / "r.json"))
+        config = json.loads((tmp_path / "r.json").read_text())["config"]
+        assert config["env_kwargs"] == {"obs_radius": 2} and config["max_cycles"] == 5
+        code, _, err = run_cli(capsys, *argv, "--agents", "3")
+        assert code == 2 and "has 4 agents; pass --agents 4" in err
 
     def test_trained_team_without_learner(self, capsys, tmp_path, monkeypatch) -> None:
         monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", None)  # import fails

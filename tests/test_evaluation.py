@@ -230,7 +230,7 @@ class TestPlotsAndGif:
 class TestCompareAndResolve:
     def test_compare_writes_everything(self, tmp_path) -> None:
         comparison = compare(
-            {"random": lambda: make_team("random"), "grazing": lambda: make_team("grazing")},
+            {"random": lambda graph: make_team("random"), "grazing": lambda graph: make_team("grazing")},
             ["paper-50"],
             seeds=[0, 1],
             episodes=2,

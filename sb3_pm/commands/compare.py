@@ -54,11 +54,11 @@ def run(args: argparse.Namespace) -> int:
         resolve_graph(graph)  # every graph checked before the long part starts
     teams = {}
     for policy in args.policies:
-        team = resolve_team(policy)  # checks the name/directory now
+        team = resolve_team(policy, graph=args.graphs[0])  # checks the name/directory now
         label = policy_label(policy, team)
         if label in teams:
             raise UsageError(f"two policies share the label {label!r}")
-        teams[label] = lambda policy=policy: resolve_team(policy)
+        teams[label] = lambda graph, policy=policy: resolve_team(policy, graph=graph)
     comparison = compare(
         teams,
         args.graphs,

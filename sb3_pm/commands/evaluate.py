@@ -67,7 +67,9 @@ def print_summary(result: Any, stream: Any = None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_pm.cli import UsageError
     from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
+    from sb3_pm.evaluation.teams import team_env_kwargs
     from sb3_pm.graphs import resolve_graph
 
     check_counts(args)
@@ -75,8 +77,14 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.json, args.gif):
         if path is not None and not path.parent.exists():
             raise FileNotFoundError(f"output directory does not exist: {path.parent}")
-    team = resolve_team(args.policy)
+    team = resolve_team(args.policy, graph=graph)
     label = policy_label(args.policy, team)
+    trained_agents = getattr(team, "n_agents", None)
+    if trained_agents is not None and trained_agents != args.agents:
+        raise UsageError(
+            f"the team in {args.policy} has {trained_agents} agents; pass --agents {trained_agents}"
+        )
+    env_kwargs = team_env_kwargs(team)
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     result = evaluate(
         team,
@@ -85,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         episodes=args.episodes,
         seed=args.seed,
         max_cycles=args.steps,
+        env_kwargs=env_kwargs,
         progress=None if long_run and not args.no_progress else False,
         policy_name=label,
     )
@@ -95,12 +104,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.json}", file=sys.stderr)
     if args.gif is not None:
         record_gif(
-            resolve_team(args.policy),
+            resolve_team(args.policy, graph=graph),
             graph,
             args.gif,
             n_agents=args.agents,
             seed=args.seed,
             max_cycles=args.steps,
+            env_kwargs=env_kwargs,
         )
         print(f"wrote {args.gif}", file=sys.stderr)
     return 0

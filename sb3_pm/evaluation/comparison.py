@@ -17,6 +17,7 @@ from sb3_pm.evaluation.harness import EvaluationResult, evaluate
 from sb3_pm.evaluation.plots import plot_table, plot_uncertainty
 from sb3_pm.evaluation.reports import anova_text, csv_table, latex_table, markdown_table
 from sb3_pm.evaluation.statistics import TABLE_METRICS, AnovaResult, Summary, anova, summarize
+from sb3_pm.evaluation.teams import team_env_kwargs
 
 SEED_STRIDE = 1000
 
@@ -65,7 +66,7 @@ class Comparison:
 
 
 def compare(
-    teams: Mapping[str, Callable[[], Team]],
+    teams: Mapping[str, Callable[[str], Team]],
     graphs: Sequence[str],
     seeds: Sequence[int] = (0,),
     episodes: int = 10,
@@ -76,7 +77,9 @@ def compare(
 ) -> Comparison:
     """Evaluate every team on every graph for every seed.
 
-    :param teams: label -> factory of a fresh team (a fresh team per graph and seed keeps runs independent).
+    :param teams: label -> factory of a fresh team for a graph (a fresh team per graph and seed keeps
+        runs independent; a trained team is loaded for, and checked against, that graph).
+        A trained team's own env options (:func:`team_env_kwargs`) apply, then ``env_kwargs``.
     :param graphs: preset names or ``.graphml`` paths.
     :param seeds: grid seeds (see the module docstring for the env seeds they give).
     """
@@ -104,15 +107,16 @@ def compare(
         runs = comparison.results.setdefault(label, [])
         for graph in graphs:
             for seed in seeds:
+                team = factory(graph)
                 runs.append(
                     evaluate(
-                        factory(),
+                        team,
                         graph,
                         n_agents=n_agents,
                         episodes=episodes,
                         seed=seed * SEED_STRIDE,
                         max_cycles=max_cycles,
-                        env_kwargs=env_kwargs,
+                        env_kwargs={**team_env_kwargs(team), **dict(env_kwargs or {})},
                         progress=progress,
                         policy_name=label,
                     )

@@ -13,11 +13,13 @@ class PolicyError(ValueError):
     """A ``--policy`` that names no baseline and no loadable trained team."""
 
 
-def resolve_team(policy: str | Path, **kwargs: Any) -> Team:
+def resolve_team(policy: str | Path, graph: Any = None, **kwargs: Any) -> Team:
     """A team for ``policy``.
 
     :param policy: a baseline name (a key of :data:`~sb3_pm.baselines.BASELINES`) or the path of a
         directory holding a saved trained team (loaded with ``IndependentPPO.load``).
+    :param graph: for a trained team, the graph it will run on; its loader checks that the team
+        was trained on the same problem. Ignored for baselines.
     :param kwargs: constructor arguments for a baseline; ignored for a trained team.
     :raises PolicyError: an unknown name, or a directory that cannot be loaded.
     :raises FileNotFoundError: a path-like policy that does not exist.
@@ -27,7 +29,7 @@ def resolve_team(policy: str | Path, **kwargs: Any) -> Team:
         return make_team(text, **kwargs)
     path = Path(text).expanduser()
     if path.is_dir():
-        return load_trained_team(path)
+        return load_trained_team(path, graph)
     if path.exists():
         raise PolicyError(f"policy {text!r} is a file; a trained team is a directory written by its save()")
     if "/" in text or "\\" in text or text.startswith("."):
@@ -37,7 +39,7 @@ def resolve_team(policy: str | Path, **kwargs: Any) -> Team:
     )
 
 
-def load_trained_team(path: Path) -> Team:
+def load_trained_team(path: Path, graph: Any = None) -> Team:
     """``IndependentPPO.load(path)``, imported lazily so that baselines never need torch."""
     try:
         from sb3_pm.agents.team import IndependentPPO
@@ -47,15 +49,22 @@ def load_trained_team(path: Path) -> Team:
             f"sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
         ) from error
     try:
-        team = IndependentPPO.load(path)
+        team = IndependentPPO.load(path) if graph is None else IndependentPPO.load(path, graph=graph)
     except (FileNotFoundError, ValueError) as error:
         raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
-    if not getattr(team, "name", None) or team.name == "team":
-        try:
-            team.name = path.name
-        except AttributeError:
-            pass
     return team
+
+
+def team_env_kwargs(team: Team) -> dict[str, Any]:
+    """The environment options a trained team was trained with (``{}`` for a baseline).
+
+    A learned team is evaluated in the env it was trained in (observation radius, map mode, ...);
+    the episode length and the graph remain the caller's choice.
+    """
+    kwargs = dict(getattr(team, "env_kwargs", None) or {})
+    for key in ("graph", "n_agents", "max_cycles", "render_mode"):
+        kwargs.pop(key, None)
+    return kwargs
 
 
 def policy_label(policy: str | Path, team: Team) -> str:
