@@ -12,10 +12,11 @@ and ``Discrete(N)`` actions. ``action_masks()`` returns the learner's reachable 
 sb3-contrib's MaskablePPO). Episodes end by truncation after ``max_cycles`` steps; the last
 step's ``info`` holds the env's ``"metrics"``.
 
-Seeding: ``reset(seed=s)`` reseeds the env, the teammates' randomness (derived from ``s``) and
-starts the agents' known adjacency over (``graph_knowledge="discovered"``), so that the same seed
-always gives the same episode. ``reset()`` without a seed continues the agents' lifetime: edges
-discovered in earlier episodes are kept, as METHOD.md prescribes.
+Seeding: ``reset(seed=s)`` reseeds the env and the teammates' randomness (derived from ``s``) and
+starts a new agent lifetime: the known adjacency (``graph_knowledge="discovered"``) and the
+``change`` reward's history of past episodes are cleared, so that the same seed always gives the
+same episode. ``reset()`` without a seed continues the lifetime: edges discovered and episode
+totals from earlier episodes are kept, as METHOD.md prescribes.
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ class SingleAgentMonitoringEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, Any], dict]:
         super().reset(seed=seed)
         if seed is not None:
-            self.env.maps.forget_edges()  # a seeded reset starts a fresh lifetime: reproducible
+            self._new_lifetime()
         # Teammates' randomness comes from gymnasium's np_random, itself seeded by ``seed``.
         team_seed = int(self.np_random.integers(2**31 - 1))
         self._teammate_rng = np.random.default_rng(team_seed)
@@ -73,6 +74,16 @@ class SingleAgentMonitoringEnv(gym.Env):
         if self.teammates is not None:
             self.teammates.reset(self.env, seed=team_seed)
         return self._observations[self.agent], infos[self.agent]
+
+    def _new_lifetime(self) -> None:
+        """Forget what spans episodes (discovered edges, the reward's episode history).
+
+        A seeded reset must give the same episode whatever ran before; the wrapped env keeps both
+        across its own resets by design, so they are cleared here.
+        """
+        self.env.maps.forget_edges()
+        for window in self.env.rewards_computer.history:
+            window.clear()
 
     def _teammate_actions(self) -> dict[str, int]:
         observations = {a: self._observations[a] for a in self.teammate_names}
