@@ -20,11 +20,17 @@ When the fit happens (``update_at``):
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, cast
+
 import numpy as np
 import torch as th
+from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_pm.policies.estimator import transition_pairs
+
+if TYPE_CHECKING:
+    from sb3_pm.policies.policy import DCBFActorCriticPolicy
 
 UPDATE_AT = ("after_train", "rollout_end")
 
@@ -52,7 +58,7 @@ class EstimatorCallback(BaseCallback):
         return True
 
     def _on_rollout_end(self) -> None:
-        buffer = self.model.rollout_buffer
+        buffer = cast(MaskableDictRolloutBuffer, self.model.rollout_buffer)  # type: ignore[attr-defined]
         pairs = transition_pairs(
             buffer.observations["nodes"],  # type: ignore[index, call-overload]
             buffer.episode_starts,
@@ -77,7 +83,7 @@ class EstimatorCallback(BaseCallback):
 
     def fit(self, previous: np.ndarray, current: np.ndarray) -> float:
         """Fit the estimator on pairs of maps ``(P, N, F)``; returns the last epoch's mean loss."""
-        policy = self.model.policy
+        policy = cast("DCBFActorCriticPolicy", self.model.policy)
         estimator, optimizer = policy.estimator, policy.estimator_optimizer
         if estimator is None or optimizer is None or len(previous) == 0:
             return self.last_loss

@@ -88,7 +88,14 @@ class TestAvoidCollisions:
         assert run(u_hat, reachable=[0, 1, 2], occupied=[1], avoid_collisions=True) == [1]
 
     def test_frozen_agent_is_never_left_without_a_move(self) -> None:
-        mask = run([0, 50, 0, 0, 0, 0], reachable=[0, 1], on_target=True, u_here=4, occupied=[0], avoid_collisions=True)
+        mask = run(
+            [0, 50, 0, 0, 0, 0],
+            reachable=[0, 1],
+            on_target=True,
+            u_here=4,
+            occupied=[0],
+            avoid_collisions=True,
+        )
         assert mask == [0]
 
 
@@ -124,7 +131,15 @@ def test_never_all_false_on_random_batches() -> None:
 
 
 def test_even_an_empty_reachable_set_gives_a_row() -> None:
-    mask = dcbf_mask(th.zeros(1, N), th.zeros(1, N, dtype=th.bool), th.tensor([0]), th.tensor([False]), th.zeros(1), th.zeros(1), th.zeros(1, N, dtype=th.bool))
+    mask = dcbf_mask(
+        th.zeros(1, N),
+        th.zeros(1, N, dtype=th.bool),
+        th.tensor([0]),
+        th.tensor([False]),
+        th.zeros(1),
+        th.zeros(1),
+        th.zeros(1, N, dtype=th.bool),
+    )
     assert mask.all()
 
 

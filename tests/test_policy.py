@@ -9,7 +9,13 @@ from stable_baselines3.common.preprocessing import preprocess_obs
 
 from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
 from sb3_pm.graphs import erdos_renyi
-from sb3_pm.policies import DCBFActorCriticPolicy, GATFeaturesExtractor, GraphAttention, GraphTransformer, StateEstimator
+from sb3_pm.policies import (
+    DCBFActorCriticPolicy,
+    GATFeaturesExtractor,
+    GraphAttention,
+    GraphTransformer,
+    StateEstimator,
+)
 from sb3_pm.policies.estimator import transition_pairs
 
 N = 12
@@ -17,7 +23,9 @@ N = 12
 
 @pytest.fixture(scope="module")
 def env() -> SingleAgentMonitoringEnv:
-    return SingleAgentMonitoringEnv(erdos_renyi(N, 0.3, n_targets=3, seed=1), n_agents=2, max_cycles=20, graph_knowledge="known")
+    return SingleAgentMonitoringEnv(
+        erdos_renyi(N, 0.3, n_targets=3, seed=1), n_agents=2, max_cycles=20, graph_knowledge="known"
+    )
 
 
 def observation_batch(env: SingleAgentMonitoringEnv, steps: int = 8, seed: int = 0) -> dict[str, th.Tensor]:
@@ -56,13 +64,17 @@ class TestLayers:
         layer = GraphTransformer(8)
         x, adjacency = th.randn(3, 15, 8), random_graphs(3, 15, 0.1)
         adjacency[:, 0, :] = adjacency[:, :, 0] = 0.0  # an isolated node: skip term only
-        th.testing.assert_close(layer(x, adjacency, dense=True), layer(x, adjacency, dense=False), atol=1e-5, rtol=1e-5)
+        th.testing.assert_close(
+            layer(x, adjacency, dense=True), layer(x, adjacency, dense=False), atol=1e-5, rtol=1e-5
+        )
 
     def test_empty_graph(self) -> None:
         layer = GraphAttention(4, 4, heads=2)
         x = th.randn(2, 5, 4)
         empty = th.zeros(2, 5, 5)
-        th.testing.assert_close(layer(x, empty, dense=True), layer(x, empty, dense=False), atol=1e-5, rtol=1e-5)
+        th.testing.assert_close(
+            layer(x, empty, dense=True), layer(x, empty, dense=False), atol=1e-5, rtol=1e-5
+        )
 
     def test_auto_backend_follows_density(self) -> None:
         from sb3_pm.policies.extractor import _use_dense
@@ -83,7 +95,9 @@ class TestExtractor:
     @pytest.mark.parametrize("laplacian", ["rows", "eigen", "none"])
     @pytest.mark.parametrize("extra_attention", [False, True])
     def test_shapes(self, env: SingleAgentMonitoringEnv, laplacian: str, extra_attention: bool) -> None:
-        extractor = GATFeaturesExtractor(env.observation_space, hidden_dim=16, laplacian=laplacian, extra_attention=extra_attention)
+        extractor = GATFeaturesExtractor(
+            env.observation_space, hidden_dim=16, laplacian=laplacian, extra_attention=extra_attention
+        )
         pre = preprocess_obs(observation_batch(env), env.observation_space)
         out = extractor(pre)
         assert out.shape == (8, N * 16) and extractor.features_dim == N * 16
@@ -123,7 +137,9 @@ class TestEstimator:
     def test_transition_pairs_skip_episode_boundaries(self) -> None:
         nodes = np.arange(4 * 2, dtype=np.float32).reshape(4, 2, 1, 1)  # (T=4, envs=2, N=1, F=1)
         starts = np.array([[1, 1], [0, 0], [1, 0], [0, 0]], dtype=np.float32)
-        previous, current = transition_pairs(nodes, starts, np.full((2, 1, 1), 99.0, dtype=np.float32), np.array([0, 1]))
+        previous, current = transition_pairs(
+            nodes, starts, np.full((2, 1, 1), 99.0, dtype=np.float32), np.array([0, 1])
+        )
         pairs = sorted(zip(previous.ravel().tolist(), current.ravel().tolist()))
         # env 0: rows 0,2,4,6 with a restart at row 2 (value 4); env 1: rows 1,3,5,7, ends done.
         assert pairs == [(0.0, 2.0), (1.0, 3.0), (3.0, 5.0), (4.0, 6.0), (5.0, 7.0), (6.0, 99.0)]

@@ -45,7 +45,9 @@ def collect(model: DCBFPPO) -> None:
 
 def flat_actions_and_masks(model: DCBFPPO) -> tuple[np.ndarray, np.ndarray]:
     buffer = model.rollout_buffer
-    return buffer.actions.reshape(-1).astype(int), buffer.action_masks.reshape(-1, buffer.mask_dims).astype(bool)
+    return buffer.actions.reshape(-1).astype(int), buffer.action_masks.reshape(-1, buffer.mask_dims).astype(
+        bool
+    )
 
 
 ABLATIONS = [
@@ -60,7 +62,9 @@ ABLATIONS = [
 ]
 
 
-@pytest.mark.parametrize("policy_kwargs", ABLATIONS, ids=lambda k: ",".join(f"{a}={b}" for a, b in k.items()) or "paper")
+@pytest.mark.parametrize(
+    "policy_kwargs", ABLATIONS, ids=lambda k: ",".join(f"{a}={b}" for a, b in k.items()) or "paper"
+)
 def test_learn_runs(policy_kwargs: dict[str, Any]) -> None:
     model = make_model(**policy_kwargs)
     model.learn(32)
@@ -114,7 +118,9 @@ def test_train_uses_the_stored_masks() -> None:
     model = make_model(n_steps=32)
     collect(model)
     buffer = model.rollout_buffer
-    observations = obs_as_tensor({k: v.reshape(-1, *v.shape[2:]) for k, v in buffer.observations.items()}, model.device)  # type: ignore[union-attr]
+    observations = obs_as_tensor(
+        {k: v.reshape(-1, *v.shape[2:]) for k, v in buffer.observations.items()}, model.device
+    )  # type: ignore[union-attr]
     actions = th.as_tensor(buffer.actions.reshape(-1)).long()
     stored = th.as_tensor(buffer.action_masks.reshape(-1, buffer.mask_dims))
     with th.no_grad():

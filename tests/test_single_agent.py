@@ -26,7 +26,9 @@ def rollout(env: SingleAgentMonitoringEnv, seed: int, steps: int = 20) -> list[t
     trace: list[tuple[Any, ...]] = [(obs["position"], obs["nodes"].copy(), obs["adjacency"].copy())]
     for _ in range(steps):
         obs, reward, terminated, truncated, _ = env.step(int(rng.choice(np.flatnonzero(env.action_masks()))))
-        trace.append((obs["position"], obs["nodes"].copy(), reward, terminated, truncated, tuple(env.env.positions)))
+        trace.append(
+            (obs["position"], obs["nodes"].copy(), reward, terminated, truncated, tuple(env.env.positions))
+        )
     return trace
 
 

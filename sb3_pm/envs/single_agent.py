@@ -46,7 +46,13 @@ class SingleAgentMonitoringEnv(gym.Env):
 
     metadata = {"render_modes": ["human", "rgb_array", "ansi"], "render_fps": 4}
 
-    def __init__(self, graph: Any = "paper-50", agent: str = "agent_0", teammates: Team | None = None, **env_kwargs: Any) -> None:
+    def __init__(
+        self,
+        graph: Any = "paper-50",
+        agent: str = "agent_0",
+        teammates: Team | None = None,
+        **env_kwargs: Any,
+    ) -> None:
         super().__init__()
         if env_kwargs.get("observation", "map") != "map":
             raise ValueError("SingleAgentMonitoringEnv needs observation='map'")
@@ -63,7 +69,9 @@ class SingleAgentMonitoringEnv(gym.Env):
         self._observations: dict[str, dict[str, Any]] = {}
         self._teammate_rng = np.random.default_rng()
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, Any], dict]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict]:
         super().reset(seed=seed)
         if seed is not None:
             self._new_lifetime()
@@ -89,7 +97,10 @@ class SingleAgentMonitoringEnv(gym.Env):
         observations = {a: self._observations[a] for a in self.teammate_names}
         if self.teammates is not None:
             return {a: int(v) for a, v in self.teammates.predict(observations, deterministic=True).items()}
-        return {a: int(self._teammate_rng.choice(np.flatnonzero(obs["action_mask"]))) for a, obs in observations.items()}
+        return {
+            a: int(self._teammate_rng.choice(np.flatnonzero(obs["action_mask"])))
+            for a, obs in observations.items()
+        }
 
     def step(self, action: Any) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         actions = self._teammate_actions()

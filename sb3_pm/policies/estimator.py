@@ -44,9 +44,12 @@ class StateEstimator(nn.Module):
         - output: ``(B, N)`` predicted ``u`` (``forward``) or ``u / u_max`` (``forward_normalized``)
     """
 
-    def __init__(self, n_features: int, u_max: float, inv_high: th.Tensor, hidden: Sequence[int] = (64, 64)) -> None:
+    def __init__(
+        self, n_features: int, u_max: float, inv_high: th.Tensor, hidden: Sequence[int] = (64, 64)
+    ) -> None:
         super().__init__()
         self.n_features, self.u_max, self.hidden = n_features, float(u_max), tuple(hidden)
+        self.inv_high: th.Tensor
         self.register_buffer("inv_high", inv_high.clone().float())
         layers: list[nn.Module] = []
         size = n_features
@@ -100,6 +103,8 @@ def transition_pairs(
         if last_episode_starts is None:
             raise ValueError("last_episode_starts is required with last_nodes")
         nodes = np.concatenate((nodes, last_nodes[None]), axis=0)
-        episode_starts = np.concatenate((episode_starts, np.asarray(last_episode_starts, dtype=np.float32)[None]))
+        episode_starts = np.concatenate(
+            (episode_starts, np.asarray(last_episode_starts, dtype=np.float32)[None])
+        )
     valid = episode_starts[1:] == 0  # (T-1, n_envs)
     return nodes[:-1][valid], nodes[1:][valid]

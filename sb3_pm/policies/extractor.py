@@ -87,7 +87,12 @@ class GraphAttention(nn.Module):
         super().__init__()
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        self.in_channels, self.out_channels, self.heads, self.backend = in_channels, out_channels, heads, backend
+        self.in_channels, self.out_channels, self.heads, self.backend = (
+            in_channels,
+            out_channels,
+            heads,
+            backend,
+        )
         self.conv = GATConv(in_channels, out_channels, heads=heads, concat=False, add_self_loops=True)
 
     def reset_parameters(self) -> None:
@@ -103,7 +108,10 @@ class GraphAttention(nn.Module):
         return out.view(batch, n, -1)
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}({self.in_channels}, {self.out_channels}, heads={self.heads}, backend={self.backend!r})"
+        name = type(self).__name__
+        return (
+            f"{name}({self.in_channels}, {self.out_channels}, heads={self.heads}, backend={self.backend!r})"
+        )
 
 
 class GraphTransformer(nn.Module):
@@ -218,10 +226,18 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         if gat_layers < 1:
             raise ValueError(f"gat_layers must be at least 1, got {gat_layers}")
         nodes_space = observation_space["nodes"]
+        if not isinstance(nodes_space, spaces.Box) or len(nodes_space.shape) != 2:
+            raise ValueError("GATFeaturesExtractor needs a mental-map observation with a (N, F) 'nodes' Box")
         n_nodes, n_features = nodes_space.shape
         super().__init__(observation_space, features_dim=n_nodes * hidden_dim)
-        self.n_nodes, self.hidden_dim, self.laplacian, self.laplacian_k = n_nodes, hidden_dim, laplacian, laplacian_k
+        self.n_nodes, self.hidden_dim, self.laplacian, self.laplacian_k = (
+            n_nodes,
+            hidden_dim,
+            laplacian,
+            laplacian_k,
+        )
         self.extra_attention, self.backend = extra_attention, backend
+        self.inv_high: th.Tensor
         # 1 / high per (node, feature): every node column scaled to [0, 1] (highs of 0 left as is).
         high = th.as_tensor(nodes_space.high, dtype=th.float32)
         self.register_buffer("inv_high", th.where(high > 0, 1.0 / high.clamp(min=1e-12), th.ones_like(high)))
@@ -232,7 +248,9 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             for i in range(gat_layers)
         )
         if extra_attention:
-            self.extra_gat: GraphAttention | None = GraphAttention(hidden_dim, hidden_dim, heads=1, backend=backend)
+            self.extra_gat: GraphAttention | None = GraphAttention(
+                hidden_dim, hidden_dim, heads=1, backend=backend
+            )
             self.transformer: GraphTransformer | None = GraphTransformer(hidden_dim, backend=backend)
         else:
             self.extra_gat = self.transformer = None

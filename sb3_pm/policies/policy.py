@@ -22,6 +22,7 @@ filtered exactly like training; a mask given by the caller is intersected with i
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -113,8 +114,12 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         estimator_epochs: int = 5,
         estimator_batch_size: int = 256,
     ) -> None:
-        if not isinstance(observation_space, spaces.Dict) or any(k not in observation_space.spaces for k in MAP_KEYS):
-            raise ValueError(f"DCBFActorCriticPolicy needs the mental-map Dict observation with keys {MAP_KEYS}")
+        if not isinstance(observation_space, spaces.Dict) or any(
+            k not in observation_space.spaces for k in MAP_KEYS
+        ):
+            raise ValueError(
+                f"DCBFActorCriticPolicy needs the mental-map Dict observation with keys {MAP_KEYS}"
+            )
         if not isinstance(action_space, spaces.Discrete):
             raise ValueError(f"DCBFActorCriticPolicy needs a Discrete action space, got {action_space}")
         if not share_features_extractor:
@@ -166,7 +171,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         hidden = extractor.hidden_dim
         self.estimator: StateEstimator | None = None
         if self.use_estimator:
-            self.estimator = StateEstimator(len(FEATURES), self.u_max, extractor.inv_high, self.estimator_hidden)
+            self.estimator = StateEstimator(
+                len(FEATURES), self.u_max, extractor.inv_high, self.estimator_hidden
+            )
         u_dim = 1 if self.use_estimator else 0
         if isinstance(self.net_arch, dict):
             pi_arch, vf_arch = list(self.net_arch.get("pi", [])), list(self.net_arch.get("vf", []))
@@ -177,11 +184,18 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self.critic_body, vf_out = _mlp(hidden + u_dim + hidden, vf_arch, self.activation_fn)
         self.value_net = nn.Linear(vf_out, 1)
         if self.ortho_init:
-            for module, gain in ((self.actor_body, np.sqrt(2)), (self.critic_body, np.sqrt(2)), (self.action_net, 0.01), (self.value_net, 1.0)):
-                module.apply(lambda m, g=gain: self.init_weights(m, gain=g))
+            for module, gain in (
+                (self.actor_body, np.sqrt(2)),
+                (self.critic_body, np.sqrt(2)),
+                (self.action_net, 0.01),
+                (self.value_net, 1.0),
+            ):
+                module.apply(partial(self.init_weights, gain=gain))
         # The estimator is trained only by its own optimizer (EstimatorCallback); PPO's optimizer
         # must never hold its parameters, or PPO's steps would move it (weight decay, momentum).
-        self.optimizer = self.optimizer_class(self.actor_critic_parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)  # type: ignore[call-arg]
+        self.optimizer = self.optimizer_class(
+            self.actor_critic_parameters(), lr=lr_schedule(1), **self.optimizer_kwargs
+        )  # type: ignore[call-arg]
         self.estimator_optimizer: th.optim.Optimizer | None = None
         if self.estimator is not None:
             self.estimator_optimizer = th.optim.Adam(self.estimator.parameters(), lr=self.estimator_lr)
@@ -216,20 +230,28 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
 
     # ------------------------------------------------------------- pieces
     def _preprocess(self, obs: PyTorchObs) -> dict[str, th.Tensor]:
-        pre: dict[str, th.Tensor] = preprocess_obs(obs, self.observation_space, normalize_images=self.normalize_images)  # type: ignore[assignment]
+        pre: dict[str, th.Tensor] = preprocess_obs(
+            obs, self.observation_space, normalize_images=self.normalize_images
+        )  # type: ignore[assignment]
         # A Discrete entry sampled from a rollout buffer is stored as (B, 1), so its one-hot is
         # (B, 1, N); fresh observations give (B, N). Bring both to (B, N).
         batch = pre["nodes"].shape[0]
-        return {**pre, "position": pre["position"].reshape(batch, -1), "dwell": pre["dwell"].reshape(batch, 1)}
+        return {
+            **pre,
+            "position": pre["position"].reshape(batch, -1),
+            "dwell": pre["dwell"].reshape(batch, 1),
+        }
 
     def uncertainty(self, pre: dict[str, th.Tensor]) -> th.Tensor:
-        """``û`` ``(B, N)`` in units of ``u``: the estimator's (detached), or the map's last observed ``u``."""
+        """``û`` ``(B, N)`` in units of ``u``: the estimator's (detached) or the map's last observed ``u``."""
         if self.estimator is None:
             return pre["nodes"][..., U]
         with th.no_grad():  # detached: neither PPO's loss nor its optimizer touch the estimator
             return self.estimator(pre["nodes"])
 
-    def _masks(self, pre: dict[str, th.Tensor], u_hat: th.Tensor, given: th.Tensor | np.ndarray | None) -> th.Tensor:
+    def _masks(
+        self, pre: dict[str, th.Tensor], u_hat: th.Tensor, given: th.Tensor | np.ndarray | None
+    ) -> th.Tensor:
         """The DCBF mask (or the reachable set), intersected with a caller's mask if any."""
         if self.use_dcbf:
             mask = dcbf_mask_from_map(pre, u_hat, self.dcbf_config)
@@ -296,7 +318,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     def evaluate_actions(  # type: ignore[override]
         self, obs: PyTorchObs, actions: th.Tensor, action_masks: th.Tensor | None = None
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
-        """Values, log-probabilities and entropies; with ``action_masks`` (PPO's stored masks) they are used as is."""
+        """Values, log-probabilities and entropies; ``action_masks`` (PPO's stored masks) are used as is."""
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
         logits, values = self._heads(pre, u_hat)
@@ -307,7 +329,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         distribution = self._distribution(logits, masks)
         return values, distribution.log_prob(actions), distribution.entropy()
 
-    def get_distribution(self, obs: PyTorchObs, action_masks: np.ndarray | None = None) -> MaskableDistribution:
+    def get_distribution(
+        self, obs: PyTorchObs, action_masks: np.ndarray | None = None
+    ) -> MaskableDistribution:
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
         logits, _ = self._heads(pre, u_hat)

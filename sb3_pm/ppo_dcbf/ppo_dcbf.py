@@ -143,6 +143,7 @@ class DCBFPPO(MaskablePPO):
             self._last_obs = new_obs
             self._last_episode_starts = dones
 
+        assert dones is not None
         with th.no_grad():
             last_values = self.policy.predict_values(obs_as_tensor(new_obs, self.device))  # type: ignore[arg-type]
         rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=dones)
