@@ -58,9 +58,10 @@ def test_is_a_team_and_learns() -> None:
 
 
 def test_same_seed_same_parameters_bit_for_bit() -> None:
+    # Both built before either learns: learn() must not depend on what ran since construction.
+    teams = [make_team(n_agents=3), make_team(n_agents=3)]
     runs = []
-    for _ in range(2):
-        team = make_team(n_agents=3)
+    for team in teams:
         team.learn(64)
         runs.append(parameters(team))
     assert all(th.equal(a, b) for a, b in zip(*runs))

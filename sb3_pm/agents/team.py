@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, learn_concurrently, raise_first_error
 from sb3_pm.baselines.base import Observation, Team
@@ -106,6 +107,14 @@ def agent_seed(seed: int, index: int) -> int:
     seed 1 (``seed + index`` would make them equal).
     """
     return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
+
+
+def learn_seed(seed: int, num_timesteps: int) -> int:
+    """The seed of the process-wide generators at the start of a ``learn()`` call.
+
+    Distinct from every :func:`agent_seed` (its entropy has three words, theirs two).
+    """
+    return int(np.random.SeedSequence([int(seed), int(num_timesteps), 1]).generate_state(1)[0])
 
 
 def _check_same(values: Mapping[str, Any], key: str) -> None:
@@ -298,6 +307,11 @@ class IndependentPPO(Team):
             # All learners must reset together (the multiplexer steps them as one).
             for model in self.models.values():
                 model._last_obs = None
+        # Reseed the process-wide generators (python, NumPy, torch) from the team seed and the step
+        # count: learners share them, and whatever ran since construction (another team, an
+        # evaluation) would otherwise leak into this run. With the baton, the run is then a
+        # function of (seed, num_timesteps, parameters) alone.
+        set_random_seed(learn_seed(self.seed, self.num_timesteps))
         user_callbacks = self._callbacks(callback)
         learn_kwargs = []
         for agent, user in zip(self.agents, user_callbacks):
@@ -489,4 +503,4 @@ def check_same_graph(expected: GraphSpec, actual: GraphSpec) -> None:
         )
 
 
-__all__ = ["EpisodeMetricsCallback", "IndependentPPO", "agent_seed", "check_same_graph"]
+__all__ = ["EpisodeMetricsCallback", "IndependentPPO", "agent_seed", "check_same_graph", "learn_seed"]
