@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from sb3_pm.agents.mental_map import AGE, FEATURES, OCCUPIED, SELF, TARGET, U, MentalMaps
 from sb3_pm.envs import persistent_monitoring_v0
@@ -109,3 +110,12 @@ def test_separate_maps_do_not_share() -> None:
     env, obs = env_on_path([0, 4])
     assert obs["agent_0"]["nodes"][:, TARGET].tolist() == [1, 0, 0, 0, 0]
     assert obs["agent_0"]["adjacency"].sum() == 2
+
+
+def test_new_lifetime_forgets_edges_and_history() -> None:
+    env, obs = env_on_path([0])
+    env.step({"agent_0": 1})
+    obs, _ = env.reset(seed=0, options={"initial_positions": [4], "new_lifetime": True})
+    assert obs["agent_0"]["adjacency"].sum() == 2  # only the edge 3-4, seen now
+    with pytest.raises(ValueError, match="unknown reset options"):
+        env.reset(options={"forget": True})

@@ -162,6 +162,13 @@ class PersistentMonitoringEnv(ParallelEnv):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         options = options or {}
+        unknown = sorted(set(options) - {"initial_positions", "new_lifetime"})
+        if unknown:
+            raise ValueError(f"unknown reset options {unknown}; allowed: initial_positions, new_lifetime")
+        if options.get("new_lifetime"):
+            # Agents that have never lived: no discovered edges, no past episodes for `change`.
+            self.maps.forget_edges()
+            self.rewards_computer.forget_history()
         n_nodes = self.graph.n_nodes
         positions = options.get("initial_positions", self.initial_positions)
         if positions is None:

@@ -29,6 +29,8 @@ obs_radius (``1``)
 initial_positions (``None``)
     A list of ``n_agents`` nodes; ``None`` draws distinct nodes uniformly from the reset seed.
     ``reset(options={"initial_positions": [...]})`` overrides it for one episode.
+    ``reset(options={"new_lifetime": True})`` also forgets every map's discovered edges and the
+    ``change`` reward's past episodes, as if the agents were new.
 initial_uncertainty (``"zero"``)
     ``"zero"`` or ``"random"`` (uniform integers in ``[0, u_max]`` on targets, from the seed).
 reward (``"paper"``)

@@ -67,6 +67,11 @@ class RewardComputer:
         self.momentum = np.zeros(n_agents, dtype=np.float64)
         self.history: list[deque[float]] = [deque(maxlen=CHANGE_WINDOW) for _ in range(n_agents)]
 
+    def forget_history(self) -> None:
+        """Forget past episodes (a new agent lifetime): ``change`` starts from no history again."""
+        for window in self.history:
+            window.clear()
+
     def reset(self) -> None:
         """New episode: momentum restarts; the change history is kept (it spans episodes)."""
         self.momentum[:] = 0.0

@@ -74,7 +74,9 @@ class SingleAgentMonitoringEnv(gym.Env):
     ) -> tuple[dict[str, Any], dict]:
         super().reset(seed=seed)
         if seed is not None:
-            self._new_lifetime()
+            # A seeded reset must give the same episode whatever ran before: start a new lifetime
+            # (the wrapped env otherwise keeps discovered edges and reward history across resets).
+            options = {**(options or {}), "new_lifetime": True}
         # Teammates' randomness comes from gymnasium's np_random, itself seeded by ``seed``.
         team_seed = int(self.np_random.integers(2**31 - 1))
         self._teammate_rng = np.random.default_rng(team_seed)
@@ -82,16 +84,6 @@ class SingleAgentMonitoringEnv(gym.Env):
         if self.teammates is not None:
             self.teammates.reset(self.env, seed=team_seed)
         return self._observations[self.agent], infos[self.agent]
-
-    def _new_lifetime(self) -> None:
-        """Forget what spans episodes (discovered edges, the reward's episode history).
-
-        A seeded reset must give the same episode whatever ran before; the wrapped env keeps both
-        across its own resets by design, so they are cleared here.
-        """
-        self.env.maps.forget_edges()
-        for window in self.env.rewards_computer.history:
-            window.clear()
 
     def _teammate_actions(self) -> dict[str, int]:
         observations = {a: self._observations[a] for a in self.teammate_names}

@@ -89,14 +89,32 @@ class EvaluationResult:
         """``(episodes, K)`` summed target uncertainty per step."""
         return np.stack([record.trace for record in self.episodes])
 
-    def to_dict(self) -> dict[str, Any]:
-        """``{"episodes": [...], "mean": {...}, "std": {...}, "config": {...}}`` (the ``--json`` schema)."""
-        return {
+    def to_dict(self, traces: bool = False) -> dict[str, Any]:
+        """``{"episodes": [...], "mean": {...}, "std": {...}, "config": {...}}`` (the ``--json`` schema).
+
+        :param traces: also store each episode's uncertainty trace (``"traces"``), so that
+            :meth:`from_dict` restores the result completely.
+        """
+        payload: dict[str, Any] = {
             "episodes": [record.to_dict() for record in self.episodes],
             "mean": self.mean,
             "std": self.std,
             "config": dict(self.config),
         }
+        if traces:
+            payload["traces"] = [record.trace.tolist() for record in self.episodes]
+        return payload
+
+    @classmethod
+    def from_dict(cls, payload: dict[str, Any]) -> EvaluationResult:
+        """The inverse of ``to_dict(traces=True)`` (traces are empty if they were not stored)."""
+        traces = payload.get("traces") or [[] for _ in payload["episodes"]]
+        records = []
+        for row, trace in zip(payload["episodes"], traces):
+            metrics = {k: v for k, v in row.items() if k not in ("episode", "seed", "team_seed")}
+            records.append(EpisodeRecord(int(row["episode"]), int(row["seed"]), int(row["team_seed"]), metrics, np.asarray(trace, dtype=float)))
+        config = payload["config"]
+        return cls(policy=config["policy"], graph=config["graph"], config=config, episodes=records)
 
 
 def _sample_sd(values: np.ndarray) -> float:

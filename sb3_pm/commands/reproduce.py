@@ -1,0 +1,75 @@
+"""``sb3-pm reproduce``: rerun one of the paper's experiments (Table I or II) end to end."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "reproduce",
+        help="train and evaluate an experiment grid (zoo/experiments/*.yml), resumably",
+        description=(
+            "Train every (variant, graph, seed) cell that has no finished run in --out, evaluate every "
+            "cell on the same episodes, and write results.md/.csv/.tex, anova.txt, results.json and the "
+            "plots. Rerunning the same command resumes an interrupted sweep."
+        ),
+    )
+    parser.add_argument("experiment", type=Path, help="an experiment YAML, e.g. zoo/experiments/comparison.yml")
+    parser.add_argument("--out", type=Path, required=True, help="output directory (reused to resume)")
+    parser.add_argument("--quick", action="store_true", help="tiny budgets for a smoke test; its numbers are not results")
+    parser.add_argument("--graphs", nargs="+", help="override the experiment's graphs (presets or .graphml paths)")
+    parser.add_argument("--backend", choices=["local", "ray"], default="local", help="where cells run (default local)")
+    parser.add_argument("--ray-address", help="address of an existing Ray cluster (default: start a local one)")
+    parser.add_argument("--jobs", type=int, help="parallel cells (default: one per core)")
+    parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from sb3_pm.cli import UsageError
+    from sb3_pm.experiments import load_experiment, reproduce
+    from sb3_pm.graphs import resolve_graph
+
+    experiment = load_experiment(args.experiment)
+    if args.quick:
+        experiment = experiment.quick()
+    if args.graphs:
+        experiment = experiment.with_graphs(args.graphs)
+    for graph in experiment.graphs:
+        resolve_graph(graph)  # every graph checked before hours of training start
+    if args.jobs is not None and args.jobs < 1:
+        raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.ray_address and args.backend != "ray":
+        raise UsageError("--ray-address needs --backend ray")
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"--out {args.out} exists and is not a directory")
+    record = args.out / "experiment.yml"
+    if record.exists():
+        import yaml
+
+        from sb3_pm.experiments.runner import experiment_record
+
+        previous = yaml.safe_load(record.read_text())
+        if previous != yaml.safe_load(yaml.safe_dump(experiment_record(experiment), sort_keys=False)):
+            raise FileExistsError(
+                f"{args.out} holds a different experiment ({record}); resume with the same file and flags, "
+                "or choose another --out"
+            )
+    comparison = reproduce(
+        experiment,
+        args.out,
+        backend=args.backend,
+        n_jobs=args.jobs,
+        ray_address=args.ray_address,
+        progress=not args.no_progress,
+        command=["sb3-pm", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith("sb3-pm") else None,
+    )
+    from sb3_pm.evaluation import markdown_table
+
+    print(markdown_table(comparison.table))
+    print(f"\nresults written to {args.out}/results.md (and .csv, .tex, anova.txt, plots)")
+    return 0

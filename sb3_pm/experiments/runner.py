@@ -1,0 +1,201 @@
+"""Run an experiment: train every learned (variant, graph, seed) cell that has not finished,
+evaluate every cell, and write the paper-shaped tables, the ANOVA and the plots.
+
+Layout of the output folder::
+
+    DIR/
+      experiment.yml            the experiment as run (after --quick and --graphs)
+      command.txt
+      cells/<variant>/<graph>/seed<k>/
+          team/                 the trained team (learned variants)
+          tb/                   TensorBoard logs of its training
+          evaluation.json       the cell's evaluation (EvaluationResult.to_dict())
+          DONE                  written last: a cell with DONE is never run again
+      results.md results.csv results.tex anova.txt results.json
+      uncertainty.png table.png training.png estimator_loss.png
+
+A cell is one job; jobs run on a local process pool or on Ray (:mod:`.backends`). An interrupted
+sweep resumes where it stopped: finished cells (those with ``DONE``) are read back, not re-run.
+Every cell of every variant is evaluated on the same episodes (env seeds
+``EVAL_SEED_OFFSET + seed * SEED_STRIDE + e``), so the comparison is paired.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
+from sb3_pm.experiments.backends import run_jobs
+from sb3_pm.experiments.curves import plot_training_curves
+from sb3_pm.experiments.spec import Experiment, Variant
+from sb3_pm.graphs import graph_label
+
+#: Evaluation env seeds start here, far from the seeds training episodes use.
+EVAL_SEED_OFFSET = 1_000_000
+DONE = "DONE"
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One (variant, graph, seed) job, in a form that pickles (for process pools and Ray)."""
+
+    variant: dict[str, Any]
+    graph: str
+    seed: int
+    folder: str
+    config: str | None
+    timesteps: int | None
+    episodes: int
+    max_cycles: int
+    n_agents: int
+    env_kwargs: dict[str, Any]
+
+    @property
+    def done(self) -> bool:
+        return (Path(self.folder) / DONE).exists()
+
+
+def cell_folder(out: Path, variant: Variant, graph: str, seed: int) -> Path:
+    return out / "cells" / variant.key / graph_label(graph) / f"seed{seed}"
+
+
+def plan_cells(experiment: Experiment, out: Path) -> list[Cell]:
+    """Every cell of the grid, in table order."""
+    cells = []
+    for variant in experiment.variants:
+        for graph in experiment.graphs:
+            for seed in experiment.seeds:
+                cells.append(
+                    Cell(
+                        variant=asdict(variant),
+                        graph=graph,
+                        seed=seed,
+                        folder=str(cell_folder(out, variant, graph, seed)),
+                        config=None if experiment.config is None else str(experiment.config),
+                        timesteps=experiment.timesteps,
+                        episodes=experiment.episodes,
+                        max_cycles=experiment.max_cycles,
+                        n_agents=experiment.n_agents,
+                        env_kwargs=dict(experiment.env_kwargs),
+                    )
+                )
+    return cells
+
+
+def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
+    """Train the learned team of a cell and save it to ``folder/team``."""
+    from sb3_pm.zoo.config import load_config
+
+    assert cell.config is not None
+    config = load_config(cell.config, cell.graph)
+    config.hyperparams.update(variant.hyperparams)
+    if variant.policy_kwargs:
+        config.hyperparams["policy_kwargs"] = {**config.hyperparams.get("policy_kwargs", {}), **variant.policy_kwargs}
+    config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
+    config.n_agents = cell.n_agents
+    timesteps = cell.timesteps or config.n_timesteps
+    if variant.kind == "centralized":
+        from sb3_pm.sharing.centralized import CentralizedPPO as team_class
+    else:
+        from sb3_pm.agents.team import IndependentPPO as team_class
+    team = team_class.from_config(config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"))
+    team.learn(timesteps)
+    team.save(folder / "team", overwrite=True)
+    return team
+
+
+def run_cell(cell: Cell) -> dict[str, Any]:
+    """Train (if learned) and evaluate one cell; write ``evaluation.json`` and then ``DONE``."""
+    import torch
+
+    torch.set_num_threads(1)  # one job per core: threads inside a job would oversubscribe
+    folder = Path(cell.folder)
+    if cell.done:
+        return json.loads((folder / "evaluation.json").read_text())
+    folder.mkdir(parents=True, exist_ok=True)
+    variant = Variant(**cell.variant)
+    started = time.time()
+    if variant.learned:
+        team = _train(cell, variant, folder)
+        env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}
+    else:
+        from sb3_pm.baselines import make_team
+
+        assert variant.policy is not None
+        team = make_team(variant.policy)
+        env_kwargs = dict(cell.env_kwargs)
+    result = evaluate(
+        team,
+        cell.graph,
+        n_agents=cell.n_agents,
+        episodes=cell.episodes,
+        seed=EVAL_SEED_OFFSET + cell.seed * SEED_STRIDE,
+        max_cycles=cell.max_cycles,
+        env_kwargs=env_kwargs,
+        policy_name=variant.label,
+    )
+    payload = result.to_dict(traces=True)
+    payload["cell"] = {"variant": variant.key, "graph": cell.graph, "seed": cell.seed, "seconds": time.time() - started}
+    (folder / "evaluation.json").write_text(json.dumps(payload, indent=2))
+    (folder / DONE).write_text(time.strftime("%Y-%m-%dT%H:%M:%S\n"))
+    return payload
+
+
+def reproduce(
+    experiment: Experiment,
+    out: str | Path,
+    backend: str = "local",
+    n_jobs: int | None = None,
+    ray_address: str | None = None,
+    progress: bool = True,
+    command: list[str] | None = None,
+) -> Comparison:
+    """Run (or resume) ``experiment`` into ``out`` and write its reports; returns the comparison."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
+    (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
+    cells = plan_cells(experiment, out)
+    todo = [cell for cell in cells if not cell.done]
+    bar = None
+    if progress and todo:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(todo), unit="cell", desc=f"{experiment.name}: {len(cells) - len(todo)} of {len(cells)} done")
+    run_jobs(run_cell, todo, backend=backend, n_jobs=n_jobs, ray_address=ray_address,
+             on_done=(lambda index, result: bar.update(1)) if bar is not None else None)
+    if bar is not None:
+        bar.close()
+    comparison = Comparison(config=experiment_record(experiment))
+    for cell in cells:
+        payload = json.loads((Path(cell.folder) / "evaluation.json").read_text())
+        comparison.results.setdefault(cell.variant["label"], []).append(EvaluationResult.from_dict(payload))
+    comparison.write(out)
+    for name in ("table.md", "table.csv", "table.tex"):  # the issue's names for the paper's table
+        (out / name).replace(out / name.replace("table", "results"))
+    plot_training_curves(cells, out)
+    return comparison
+
+
+def experiment_record(experiment: Experiment) -> dict[str, Any]:
+    return {
+        "name": experiment.name,
+        "graphs": list(experiment.graphs),
+        "seeds": list(experiment.seeds),
+        "episodes": experiment.episodes,
+        "max_cycles": experiment.max_cycles,
+        "n_agents": experiment.n_agents,
+        "config": None if experiment.config is None else str(experiment.config),
+        "timesteps": experiment.timesteps,
+        "env_kwargs": experiment.env_kwargs,
+        "evaluation_seeds": f"{EVAL_SEED_OFFSET} + seed * {SEED_STRIDE} + episode",
+        "variants": {v.key: {k: val for k, val in asdict(v).items() if k != "key"} for v in experiment.variants},
+    }

@@ -1,0 +1,186 @@
+"""Experiment definitions: the YAML files under ``zoo/experiments/``.
+
+An experiment is a grid of *variants* (algorithms or ablations) x graphs x training seeds, each
+evaluated for a number of episodes. One file describes it::
+
+    name: comparison
+    graphs: [paper-50, paper-100, paper-200]   # preset names or .graphml paths
+    seeds: [0, 1, 2]                           # training seeds (evaluation seeds derive from them)
+    episodes: 10                               # evaluation episodes per cell
+    max_cycles: 500
+    n_agents: 4
+    config: ../ippo.yml                        # the rl-zoo style training config (relative to this file)
+    timesteps: 50000                           # per learner; null = the config's n_timesteps
+    quick: {seeds: [0], episodes: 2, max_cycles: 50, timesteps: 512}   # --quick overrides
+    variants:
+      proposed: {kind: independent}                     # IndependentPPO with the base config
+      no_dcbf: {kind: independent, policy_kwargs: {use_dcbf: false}}
+      centralized: {kind: centralized}                  # one shared map + network, same model code
+      grazing: {kind: baseline, policy: grazing}
+
+Variant keys: ``kind`` (``independent``, ``centralized`` or ``baseline``), ``policy`` (baselines:
+a baseline name), ``policy_kwargs`` / ``hyperparams`` / ``env_kwargs`` (learned variants:
+overrides merged over the base config), ``label`` (the name in tables; defaults to the key).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+VARIANT_KINDS = ("independent", "centralized", "baseline")
+_TOP_KEYS = {"name", "graphs", "seeds", "episodes", "max_cycles", "n_agents", "config", "timesteps", "quick",
+             "variants", "description", "env_kwargs"}
+_VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label"}
+
+
+class ExperimentError(ValueError):
+    """A malformed experiment file (the message names the file and the key)."""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One row of the results table."""
+
+    key: str
+    kind: str
+    label: str
+    policy: str | None = None
+    policy_kwargs: dict[str, Any] = field(default_factory=dict)
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def learned(self) -> bool:
+        return self.kind != "baseline"
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A parsed experiment file; see the module docstring."""
+
+    name: str
+    graphs: tuple[str, ...]
+    seeds: tuple[int, ...]
+    episodes: int
+    max_cycles: int
+    n_agents: int
+    config: Path | None
+    timesteps: int | None
+    variants: tuple[Variant, ...]
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    quick_overrides: dict[str, Any] = field(default_factory=dict)
+    source: Path | None = None
+
+    def quick(self) -> Experiment:
+        """The ``--quick`` version: smaller budgets for smoke tests (its numbers are not results)."""
+        return replace(self, **_coerce_top(self.quick_overrides, self.source, base=self.source))
+
+    def with_graphs(self, graphs: list[str]) -> Experiment:
+        return replace(self, graphs=tuple(graphs))
+
+
+def _fail(source: Path | None, message: str) -> ExperimentError:
+    return ExperimentError(f"{source or '<experiment>'}: {message}")
+
+
+def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key not in _TOP_KEYS - {"variants", "quick", "name", "description"}:
+            raise _fail(source, f"unknown or unsupported key {key!r} in quick overrides")
+        if key in ("graphs",):
+            out[key] = tuple(str(g) for g in value)
+        elif key == "seeds":
+            out[key] = tuple(int(s) for s in value)
+        elif key == "config":
+            out[key] = (base.parent / str(value)) if base else Path(str(value))
+        else:
+            out[key] = value
+    return out
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Parse and validate an experiment file.
+
+    :raises FileNotFoundError: if the file is missing.
+    :raises ExperimentError: for malformed YAML, unknown keys, bad values or a missing config file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"experiment file not found: {path}")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise _fail(path, f"not valid YAML: {error}") from error
+    if not isinstance(raw, dict):
+        raise _fail(path, "expected a mapping at the top level")
+    unknown = sorted(set(raw) - _TOP_KEYS)
+    if unknown:
+        raise _fail(path, f"unknown keys {unknown}; allowed: {sorted(_TOP_KEYS)}")
+    for key in ("graphs", "seeds", "variants"):
+        if not raw.get(key):
+            raise _fail(path, f"{key!r} is required and must not be empty")
+    variants = []
+    if not isinstance(raw["variants"], dict):
+        raise _fail(path, "'variants' must map names to settings")
+    for key, settings in raw["variants"].items():
+        settings = settings or {}
+        if not isinstance(settings, dict):
+            raise _fail(path, f"variant {key!r} must be a mapping")
+        bad = sorted(set(settings) - _VARIANT_KEYS)
+        if bad:
+            raise _fail(path, f"variant {key!r}: unknown keys {bad}; allowed: {sorted(_VARIANT_KEYS)}")
+        kind = settings.get("kind", "independent")
+        if kind not in VARIANT_KINDS:
+            raise _fail(path, f"variant {key!r}: kind must be one of {VARIANT_KINDS}, got {kind!r}")
+        if kind == "baseline" and not settings.get("policy"):
+            raise _fail(path, f"variant {key!r}: a baseline needs 'policy'")
+        for mapping in ("policy_kwargs", "hyperparams", "env_kwargs"):
+            if not isinstance(settings.get(mapping, {}), dict):
+                raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
+        variants.append(
+            Variant(
+                key=str(key),
+                kind=kind,
+                label=str(settings.get("label", key)),
+                policy=settings.get("policy"),
+                policy_kwargs=dict(settings.get("policy_kwargs", {})),
+                hyperparams=dict(settings.get("hyperparams", {})),
+                env_kwargs=dict(settings.get("env_kwargs", {})),
+            )
+        )
+    config = raw.get("config")
+    config_path = (path.parent / str(config)) if config else None
+    if any(v.learned for v in variants):
+        if config_path is None:
+            raise _fail(path, "learned variants need 'config' (the training YAML)")
+        if not config_path.is_file():
+            raise _fail(path, f"training config not found: {config_path}")
+    quick = raw.get("quick", {}) or {}
+    if not isinstance(quick, dict):
+        raise _fail(path, "'quick' must be a mapping")
+    try:
+        experiment = Experiment(
+            name=str(raw.get("name", path.stem)),
+            graphs=tuple(str(g) for g in raw["graphs"]),
+            seeds=tuple(int(s) for s in raw["seeds"]),
+            episodes=int(raw.get("episodes", 10)),
+            max_cycles=int(raw.get("max_cycles", 500)),
+            n_agents=int(raw.get("n_agents", 4)),
+            config=config_path,
+            timesteps=None if raw.get("timesteps") is None else int(raw["timesteps"]),
+            variants=tuple(variants),
+            env_kwargs=dict(raw.get("env_kwargs", {}) or {}),
+            quick_overrides=dict(quick),
+            source=path,
+        )
+        experiment.quick()  # validate the overrides now rather than at --quick time
+    except (TypeError, ValueError) as error:
+        raise _fail(path, str(error)) from error
+    if experiment.episodes < 1:
+        raise _fail(path, "'episodes' must be at least 1")
+    return experiment
