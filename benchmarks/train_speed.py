@@ -20,7 +20,12 @@ def team_speed(graph: str, algo: str, timesteps: int, n_envs: int, n_steps: int,
     from sb3_pm.agents.team import IndependentPPO
 
     team = IndependentPPO(
-        graph, n_agents=4, env_kwargs={"max_cycles": 500}, algo=algo, n_envs=n_envs, seed=0,
+        graph,
+        n_agents=4,
+        env_kwargs={"max_cycles": 500},
+        algo=algo,
+        n_envs=n_envs,
+        seed=0,
         hyperparams={"n_steps": n_steps, "batch_size": n_steps, "n_epochs": 5},
     )
     team.learn(n_steps * n_envs)  # warm-up: one rollout and one train() per learner
@@ -45,9 +50,13 @@ def cartpole_speed(timesteps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--timesteps", type=int, default=1000, help="timed steps per learner (default 1000)")
-    parser.add_argument("--cartpole-timesteps", type=int, default=20480, help="timed CartPole steps (default 20480)")
+    parser.add_argument(
+        "--cartpole-timesteps", type=int, default=20480, help="timed CartPole steps (default 20480)"
+    )
     parser.add_argument("--graphs", nargs="+", default=["paper-50", "paper-200"])
-    parser.add_argument("--algo", default=None, help="dcbf_ppo | maskable_ppo | ppo (default: the team's default)")
+    parser.add_argument(
+        "--algo", default=None, help="dcbf_ppo | maskable_ppo | ppo (default: the team's default)"
+    )
     parser.add_argument("--n-envs", type=int, default=2)
     parser.add_argument("--n-steps", type=int, default=250)
     parser.add_argument("--threads", type=int, default=th.get_num_threads(), help="torch threads")
@@ -56,13 +65,19 @@ def main() -> None:
     from sb3_pm.zoo.registry import default_algo
 
     algo = args.algo or default_algo()
-    print(f"torch threads: {args.threads}; team: 4 agents x {algo}, n_envs={args.n_envs}, n_steps={args.n_steps}")
+    print(
+        f"torch threads: {args.threads}; team: 4 agents x {algo}, "
+        f"n_envs={args.n_envs}, n_steps={args.n_steps}"
+    )
     cartpole = cartpole_speed(args.cartpole_timesteps)
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<48} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
         speed = team_speed(graph, algo, args.timesteps, args.n_envs, args.n_steps, args.threads)
         paper = 4 * 50_000 / speed
-        print(f"{f'team {graph} ({algo})':<48} {speed:>10.0f} agent-steps/s   paper budget (4 x 50,000): {paper / 60:.1f} min")
+        print(
+            f"{f'team {graph} ({algo})':<48} {speed:>10.0f} agent-steps/s   "
+            f"paper budget (4 x 50,000): {paper / 60:.1f} min"
+        )
 
 
 if __name__ == "__main__":

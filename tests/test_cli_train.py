@@ -37,13 +37,37 @@ def setup(tmp_path):
 
 def test_train_writes_run_folder_and_refuses_overwrite(setup, capsys) -> None:
     config, graph, out = setup
-    argv = ["train", "--config", str(config), "--env", str(graph), "--seed", "3", "--timesteps", "32", "--out", str(out), "--no-progress"]
+    argv = [
+        "train",
+        "--config",
+        str(config),
+        "--env",
+        str(graph),
+        "--seed",
+        "3",
+        "--timesteps",
+        "32",
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
     assert main(argv) == 0
     assert "team saved to" in capsys.readouterr().out
-    for name in ("config.yml", "args.yml", "command.txt", "team/manifest.json", "team/agent_0.zip", "team/agent_1.zip"):
+    for name in (
+        "config.yml",
+        "args.yml",
+        "command.txt",
+        "team/manifest.json",
+        "team/agent_0.zip",
+        "team/agent_1.zip",
+    ):
         assert (out / name).exists(), name
     resolved = yaml.safe_load((out / "config.yml").read_text())
-    assert resolved["entry"] == "default" and resolved["n_timesteps"] == 32 and resolved["learning_rate"] == "lin_1e-3"
+    assert (
+        resolved["entry"] == "default"
+        and resolved["n_timesteps"] == 32
+        and resolved["learning_rate"] == "lin_1e-3"
+    )
     assert yaml.safe_load((out / "args.yml").read_text())["seed"] == 3
     assert "--timesteps 32" in (out / "command.txt").read_text()
     assert any((out / "tb").iterdir())  # TensorBoard runs, one per agent
@@ -66,4 +90,7 @@ def test_train_user_errors(setup, capsys) -> None:
     bad.write_text("default: {n_stepz: 3}\n")
     assert main(["train", "--config", str(bad), "--env", str(graph), "--out", str(out)]) == 2
     assert "unknown key 'n_stepz'" in capsys.readouterr().err
-    assert main(["train", "--config", str(config), "--env", str(graph), "--timesteps", "0", "--out", str(out)]) == 2
+    assert (
+        main(["train", "--config", str(config), "--env", str(graph), "--timesteps", "0", "--out", str(out)])
+        == 2
+    )

@@ -11,7 +11,12 @@ from sb3_contrib import MaskablePPO
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, TeamAborted, learn_concurrently, raise_first_error
+from sb3_pm.agents.multiplexer import (
+    ParallelEnvMultiplexer,
+    TeamAborted,
+    learn_concurrently,
+    raise_first_error,
+)
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
@@ -21,7 +26,9 @@ GRAPH = erdos_renyi(12, 0.3, n_targets=3, seed=1)
 TINY = {"n_steps": 16, "batch_size": 32, "n_epochs": 1}
 
 
-def make_hub(n_agents: int = 2, n_envs: int = 2, max_cycles: int = 5, illegal_action: str = "raise") -> ParallelEnvMultiplexer:
+def make_hub(
+    n_agents: int = 2, n_envs: int = 2, max_cycles: int = 5, illegal_action: str = "raise"
+) -> ParallelEnvMultiplexer:
     def make():
         return persistent_monitoring_v0.parallel_env(
             graph=GRAPH, n_agents=n_agents, max_cycles=max_cycles, illegal_action=illegal_action
@@ -115,7 +122,9 @@ def test_same_seed_same_observations() -> None:
 
 def test_learners_run_with_maskable_and_plain_ppo() -> None:
     for algo in ("maskable_ppo", "ppo"):
-        team = IndependentPPO(GRAPH, n_agents=2, env_kwargs={"max_cycles": 10}, algo=algo, n_envs=2, hyperparams=TINY)
+        team = IndependentPPO(
+            GRAPH, n_agents=2, env_kwargs={"max_cycles": 10}, algo=algo, n_envs=2, hyperparams=TINY
+        )
         team.learn(64)
         assert team.num_timesteps == 64
         assert all(len(m.ep_info_buffer) > 0 for m in team.models.values())
@@ -128,7 +137,9 @@ def test_raising_learner_does_not_hang() -> None:
                 raise RuntimeError("boom")
             return True
 
-    team = IndependentPPO(GRAPH, n_agents=3, env_kwargs={"max_cycles": 10}, algo="maskable_ppo", n_envs=2, hyperparams=TINY)
+    team = IndependentPPO(
+        GRAPH, n_agents=3, env_kwargs={"max_cycles": 10}, algo="maskable_ppo", n_envs=2, hyperparams=TINY
+    )
     outcome: dict[str, BaseException] = {}
 
     def target() -> None:
@@ -150,7 +161,9 @@ def test_stopping_learner_ends_team() -> None:
         def _on_step(self) -> bool:
             return self.num_timesteps < 20
 
-    team = IndependentPPO(GRAPH, n_agents=2, env_kwargs={"max_cycles": 10}, algo="maskable_ppo", n_envs=1, hyperparams=TINY)
+    team = IndependentPPO(
+        GRAPH, n_agents=2, env_kwargs={"max_cycles": 10}, algo="maskable_ppo", n_envs=1, hyperparams=TINY
+    )
     done = threading.Event()
 
     def target() -> None:
@@ -166,7 +179,9 @@ def test_stopping_learner_ends_team() -> None:
 
 def test_learn_concurrently_reports_errors_in_order() -> None:
     hub = make_hub(n_agents=2, n_envs=1)
-    models = [MaskablePPO("MultiInputPolicy", venv, n_steps=16, batch_size=16, n_epochs=1) for venv in hub.vec_envs]
+    models = [
+        MaskablePPO("MultiInputPolicy", venv, n_steps=16, batch_size=16, n_epochs=1) for venv in hub.vec_envs
+    ]
     errors = learn_concurrently(models, hub, [{"total_timesteps": 32}, {"total_timesteps": 32}])
     assert errors == [None, None]
     raise_first_error(errors)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 import torch as th
 
@@ -21,7 +20,14 @@ ENV = {"max_cycles": 20}
 
 
 def make_team(**kwargs) -> IndependentPPO:
-    options = {"n_agents": 2, "env_kwargs": ENV, "algo": "maskable_ppo", "n_envs": 2, "seed": 0, "hyperparams": TINY}
+    options = {
+        "n_agents": 2,
+        "env_kwargs": ENV,
+        "algo": "maskable_ppo",
+        "n_envs": 2,
+        "seed": 0,
+        "hyperparams": TINY,
+    }
     options.update(kwargs)
     return IndependentPPO(GRAPH, **options)
 
@@ -151,5 +157,12 @@ def test_single_callback_object_rejected() -> None:
 def test_predict_with_plain_ppo() -> None:
     team = make_team(algo="ppo")
     assert team.env_kwargs["illegal_action"] == "stay"
-    actions = team.predict({a: obs for a, obs in persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, **ENV).reset(seed=0)[0].items()})
+    actions = team.predict(
+        {
+            a: obs
+            for a, obs in persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, **ENV)
+            .reset(seed=0)[0]
+            .items()
+        }
+    )
     assert set(actions) == {"agent_0", "agent_1"} and all(isinstance(v, int) for v in actions.values())

@@ -68,7 +68,9 @@ def test_no_entry_and_no_default(tmp_path) -> None:
 def test_lin_schedule() -> None:
     schedule = parse_schedule("lin_3e-4")
     assert isinstance(schedule, LinearSchedule)
-    assert schedule(1.0) == pytest.approx(3e-4) and schedule(0.5) == pytest.approx(1.5e-4) and schedule(0.0) == 0
+    assert (
+        schedule(1.0) == pytest.approx(3e-4) and schedule(0.5) == pytest.approx(1.5e-4) and schedule(0.0) == 0
+    )
     assert parse_schedule("1e-4") == pytest.approx(1e-4)
     assert parse_schedule(0.2) == 0.2
     with pytest.raises(ValueError, match="lin_<number>"):
@@ -98,12 +100,21 @@ def test_config_builds_team_with_overrides(tmp_path) -> None:
         ("default: {algo: maskable_ppo, normalize_advantage: 3}\n", "expected true/false"),
         ("default: {algo: maskable_ppo, learning_rate: lin_x}\n", "lin_<number>"),
         ("default: {algo: maskable_ppo, policy_kwargs: 'dict(net_arch=[8])'}\n", "not a string to eval"),
-        ("default: {algo: maskable_ppo, policy_kwargs: {activation_fn: Relu}}\n", "unknown activation_fn 'Relu'"),
-        ("default: {algo: maskable_ppo, env_kwargs: {max_cycle: 5}}\n", "env_kwargs: unknown key 'max_cycle'"),
+        (
+            "default: {algo: maskable_ppo, policy_kwargs: {activation_fn: Relu}}\n",
+            "unknown activation_fn 'Relu'",
+        ),
+        (
+            "default: {algo: maskable_ppo, env_kwargs: {max_cycle: 5}}\n",
+            "env_kwargs: unknown key 'max_cycle'",
+        ),
         ("default: {algo: nope}\n", "default.algo: unknown algo 'nope'"),
         ("default: {algo: maskable_ppo, n_envs: 0}\n", r"default.n_envs: expected an integer >= 1"),
         ("default: {algo: maskable_ppo, agents: {agent_7: {gamma: 0.9}}}\n", "unknown agent 'agent_7'"),
-        ("default: {algo: maskable_ppo, agents: {agent_1: {n_envs: 2}}}\n", "'n_envs' is set for the whole team"),
+        (
+            "default: {algo: maskable_ppo, agents: {agent_1: {n_envs: 2}}}\n",
+            "'n_envs' is set for the whole team",
+        ),
     ],
 )
 def test_malformed_configs_name_file_and_key(tmp_path, text: str, message: str) -> None:
@@ -124,7 +135,9 @@ def test_registries() -> None:
     assert resolve_algo("maskable_ppo") is MaskablePPO
     with pytest.raises(RegistryError, match="unknown algo"):
         resolve_algo("dqn")
-    resolved = resolve_policy_kwargs({"activation_fn": "Tanh", "optimizer_class": "torch.optim:AdamW", "net_arch": [8]})
+    resolved = resolve_policy_kwargs(
+        {"activation_fn": "Tanh", "optimizer_class": "torch.optim:AdamW", "net_arch": [8]}
+    )
     assert resolved["activation_fn"] is th.nn.Tanh and resolved["optimizer_class"] is th.optim.AdamW
     assert resolved["net_arch"] == [8]
 

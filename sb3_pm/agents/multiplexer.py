@@ -174,7 +174,9 @@ class ParallelEnvMultiplexer:
             if deadline is not None:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    self._aborted = f"{self.agents[index]} waited more than {self.timeout} s for the other agents"
+                    self._aborted = (
+                        f"{self.agents[index]} waited more than {self.timeout} s for the other agents"
+                    )
                     self._cond.notify_all()
                     raise TeamAborted(self._aborted)
                 wait = min(wait, remaining)
@@ -257,7 +259,10 @@ class ParallelEnvMultiplexer:
         self._ep_lengths[:] = 0
         for i, agent in enumerate(self.agents):
             self._last_obs[i] = [obs[agent] for obs, _ in per_env]
-            self._results[i] = (self._stack(agent, self._last_obs[i]), [dict(infos.get(agent, {})) for _, infos in per_env])
+            self._results[i] = (
+                self._stack(agent, self._last_obs[i]),
+                [dict(infos.get(agent, {})) for _, infos in per_env],
+            )
 
     def _joint_step(self) -> None:
         n, e = self.n_agents, self.n_envs
@@ -271,7 +276,10 @@ class ParallelEnvMultiplexer:
             self._ep_lengths[k] += 1
             ended = [bool(terminations[a] or truncations[a]) for a in self.agents]
             if any(ended) and not all(ended):
-                raise MultiplexerError("an episode ended for some agents but not others; the multiplexer needs all agents to end together")
+                raise MultiplexerError(
+                    "an episode ended for some agents but not others; "
+                    "the multiplexer needs all agents to end together"
+                )
             for i, agent in enumerate(self.agents):
                 rewards[i, k] = step_rewards[agent]
                 self._ep_returns[i, k] += step_rewards[agent]
@@ -285,7 +293,11 @@ class ParallelEnvMultiplexer:
                     info["terminal_observation"] = observations[agent]
                     # SB3 bootstraps from the terminal observation only for time-limit ends.
                     info["TimeLimit.truncated"] = bool(truncations[agent] and not terminations[agent])
-                    info["episode"] = {"r": round(float(self._ep_returns[i, k]), 6), "l": int(self._ep_lengths[k]), "t": elapsed}
+                    info["episode"] = {
+                        "r": round(float(self._ep_returns[i, k]), 6),
+                        "l": int(self._ep_lengths[k]),
+                        "t": elapsed,
+                    }
                     self._ep_returns[i, k] = 0.0
                 self._ep_lengths[k] = 0
                 reset_obs, _ = env.reset()
@@ -348,7 +360,9 @@ class AgentVecEnv(VecEnv):
 
     def action_masks(self) -> np.ndarray:
         """``(n_envs, N)`` bool masks from the agent's last observation."""
-        return np.stack([np.asarray(obs["action_mask"], dtype=bool) for obs in self.hub._last_obs[self.index]])
+        return np.stack(
+            [np.asarray(obs["action_mask"], dtype=bool) for obs in self.hub._last_obs[self.index]]
+        )
 
     def close(self) -> None:
         # The env copies are shared: closing one agent's view must not close them for the others.
@@ -369,11 +383,16 @@ class AgentVecEnv(VecEnv):
         for k in self._get_indices(indices):
             setattr(self.hub.envs[k], attr_name, value)
 
-    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
         if method_name == "action_masks":
             masks = self.action_masks()
             return [masks[k] for k in self._get_indices(indices)]
-        return [getattr(self.hub.envs[k], method_name)(*method_args, **method_kwargs) for k in self._get_indices(indices)]
+        return [
+            getattr(self.hub.envs[k], method_name)(*method_args, **method_kwargs)
+            for k in self._get_indices(indices)
+        ]
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         # The copies are PettingZoo envs, never gymnasium wrappers (so SB3 sees no Monitor either).

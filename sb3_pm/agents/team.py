@@ -28,13 +28,21 @@ from typing import Any
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, learn_concurrently, raise_first_error
 from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
-from sb3_pm.zoo.registry import DEFAULT_POLICIES, algo_name, default_algo, resolve_algo, resolve_policy_kwargs, uses_masks
+from sb3_pm.zoo.registry import (
+    DEFAULT_POLICIES,
+    algo_name,
+    default_algo,
+    resolve_algo,
+    resolve_policy_kwargs,
+    uses_masks,
+)
 from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
 
 logger = logging.getLogger(__name__)
@@ -46,7 +54,13 @@ TEAM_KEYS = ("n_steps", "n_envs")
 #: Keys the team sets itself; a hyperparameter dict must not hold them.
 RESERVED_KEYS = ("env", "policy", "seed", "tensorboard_log", "verbose", "device", "_init_setup_model")
 
-CallbackArg = BaseCallback | Sequence[BaseCallback | None] | Mapping[str, BaseCallback] | Callable[[str], BaseCallback] | None
+CallbackArg = (
+    BaseCallback
+    | Sequence[BaseCallback | None]
+    | Mapping[str, BaseCallback]
+    | Callable[[str], BaseCallback]
+    | None
+)
 
 
 class EpisodeMetricsCallback(BaseCallback):
@@ -120,7 +134,9 @@ def learn_seed(seed: int, num_timesteps: int) -> int:
 def _check_same(values: Mapping[str, Any], key: str) -> None:
     if len(set(values.values())) > 1:
         listed = ", ".join(f"{agent}={value}" for agent, value in values.items())
-        raise ValueError(f"every learner of a team must use the same {key} (they are stepped together); got {listed}")
+        raise ValueError(
+            f"every learner of a team must use the same {key} (they are stepped together); got {listed}"
+        )
 
 
 class IndependentPPO(Team):
@@ -178,7 +194,7 @@ class IndependentPPO(Team):
         self.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
         if algo is None:
             algo = default_algo()
-        self.algo_class: type = resolve_algo(algo) if isinstance(algo, str) else algo
+        self.algo_class: type[BaseAlgorithm] = resolve_algo(algo) if isinstance(algo, str) else algo
         self.algo = algo if isinstance(algo, str) else algo_name(algo)
         self.policy = policy if policy is not None else DEFAULT_POLICIES.get(self.algo, "MultiInputPolicy")
         self.env_kwargs = dict(env_kwargs or {})
@@ -229,7 +245,9 @@ class IndependentPPO(Team):
     def _make_env(self) -> Any:
         from sb3_pm.envs import persistent_monitoring_v0
 
-        return persistent_monitoring_v0.parallel_env(graph=self.graph, n_agents=self.n_agents, **self.env_kwargs)
+        return persistent_monitoring_v0.parallel_env(
+            graph=self.graph, n_agents=self.n_agents, **self.env_kwargs
+        )
 
     def agent_kwargs(self, agent: str) -> dict[str, Any]:
         """The algorithm's keyword arguments for ``agent``: shared hyperparameters, then its overrides,
@@ -237,10 +255,15 @@ class IndependentPPO(Team):
         merged = {**self.hyperparams, **self.per_agent.get(agent, {})}
         for key in RESERVED_KEYS:
             if key in merged and key != "policy":
-                raise ValueError(f"hyperparameter {key!r} ({agent}) is set by the team; pass it to IndependentPPO")
+                raise ValueError(
+                    f"hyperparameter {key!r} ({agent}) is set by the team; pass it to IndependentPPO"
+                )
         if "n_envs" in merged:
             if int(merged.pop("n_envs")) != self.n_envs:
-                raise ValueError(f"every learner of a team must use the same n_envs; {agent} asks for a different one than the team's {self.n_envs}")
+                raise ValueError(
+                    f"every learner of a team must use the same n_envs; {agent} asks for a different one "
+                    f"than the team's {self.n_envs}"
+                )
         for key in SCHEDULE_KEYS:
             if key in merged:
                 merged[key] = parse_schedule(merged[key], key)
@@ -258,7 +281,9 @@ class IndependentPPO(Team):
         _check_same({a: int(m.n_steps) for a, m in self.models.items()}, "n_steps")
         _check_same({a: int(m.n_envs) for a, m in self.models.items()}, "n_envs")
         if not reset_num_timesteps:
-            _check_same({a: int(m.num_timesteps) for a, m in self.models.items()}, "num_timesteps (to resume)")
+            _check_same(
+                {a: int(m.num_timesteps) for a, m in self.models.items()}, "num_timesteps (to resume)"
+            )
 
     def _callbacks(self, callback: CallbackArg) -> list[BaseCallback | None]:
         if callback is None:
@@ -334,7 +359,11 @@ class IndependentPPO(Team):
 
             rollout = self.models[self.agents[0]].n_steps * self.n_envs
             rollouts = -(-int(total_timesteps) // rollout)
-            bar = tqdm(total=rollouts * rollout * self.n_agents, unit="agent-step", desc=f"{self.algo} x{self.n_agents}")
+            bar = tqdm(
+                total=rollouts * rollout * self.n_agents,
+                unit="agent-step",
+                desc=f"{self.algo} x{self.n_agents}",
+            )
             self.hub.on_round = bar.update
         try:
             errors = learn_concurrently([self.models[a] for a in self.agents], self.hub, learn_kwargs)
@@ -367,7 +396,9 @@ class IndependentPPO(Team):
         for agent, obs in observations.items():
             model = self.models[agent]
             if uses_masks(type(model)):
-                action, _ = model.predict(obs, deterministic=deterministic, action_masks=np.asarray(obs["action_mask"], dtype=bool))
+                action, _ = model.predict(
+                    obs, deterministic=deterministic, action_masks=np.asarray(obs["action_mask"], dtype=bool)
+                )
             else:
                 action, _ = model.predict(obs, deterministic=deterministic)
             actions[agent] = int(np.asarray(action).reshape(-1)[0])
@@ -454,7 +485,8 @@ class IndependentPPO(Team):
             spec = resolve_graph(graph)
         if spec.fingerprint != saved["fingerprint"]:
             raise ValueError(
-                f"the team in {folder} was trained on graph {saved['name']!r} (fingerprint {saved['fingerprint']}), "
+                f"the team in {folder} was trained on graph {saved['name']!r} "
+                f"(fingerprint {saved['fingerprint']}), "
                 f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
             )
         zips = {agent: folder / f"{agent}.zip" for agent in manifest["agents"]}
@@ -476,7 +508,9 @@ class IndependentPPO(Team):
             _init_models=False,
         )
         for i, agent in enumerate(team.agents):
-            model = team.algo_class.load(zips[agent], env=team.hub.vec_envs[i], device=device, custom_objects=custom_objects)
+            model = team.algo_class.load(
+                zips[agent], env=team.hub.vec_envs[i], device=device, custom_objects=custom_objects
+            )
             if tensorboard_log is not None:
                 model.tensorboard_log = str(tensorboard_log)
             if verbose is not None:

@@ -29,12 +29,20 @@ def register(subparsers: Any) -> None:
         help="train an independent PPO team from a YAML config",
         description="Train one learner per agent (sharing nothing) and save the team to a run folder.",
     )
-    parser.add_argument("--config", type=Path, default=Path("zoo/ippo.yml"), help="rl-zoo style YAML (default zoo/ippo.yml)")
+    parser.add_argument(
+        "--config", type=Path, default=Path("zoo/ippo.yml"), help="rl-zoo style YAML (default zoo/ippo.yml)"
+    )
     parser.add_argument("--env", default="paper-50", help="a preset (paper-50/100/200) or a .graphml path")
-    parser.add_argument("--seed", type=int, default=0, help="seeds the env copies and every learner (default 0)")
-    parser.add_argument("--timesteps", type=int, metavar="T", help="steps per learner (default: the config's n_timesteps)")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seeds the env copies and every learner (default 0)"
+    )
+    parser.add_argument(
+        "--timesteps", type=int, metavar="T", help="steps per learner (default: the config's n_timesteps)"
+    )
     parser.add_argument("--n-envs", type=int, metavar="N", help="env copies (default: the config's n_envs)")
-    parser.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/<graph>_<algo>_s<seed>)")
+    parser.add_argument(
+        "--out", type=Path, metavar="DIR", help="run folder (default runs/<graph>_<algo>_s<seed>)"
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     parser.add_argument("--device", default="cpu", help="torch device of every learner (default cpu)")
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity of every learner (default 0)")
@@ -54,7 +62,9 @@ def prepare_run_folder(out: Path, overwrite: bool) -> None:
 
     resolved = out.resolve()
     if resolved == _package_dir() or _package_dir() in resolved.parents:
-        raise UsageError(f"run folder {out} is inside the sb3_pm package; choose a folder outside the source tree")
+        raise UsageError(
+            f"run folder {out} is inside the sb3_pm package; choose a folder outside the source tree"
+        )
     if out.exists():
         if not out.is_dir():
             raise UsageError(f"{out} exists and is not a folder")
@@ -62,7 +72,9 @@ def prepare_run_folder(out: Path, overwrite: bool) -> None:
             if not overwrite:
                 raise UsageError(f"run folder {out} already exists; pass --overwrite to replace it")
             if not any((out / marker).exists() for marker in RUN_MARKERS):
-                raise UsageError(f"{out} is not empty and does not look like a run folder; refusing to replace it")
+                raise UsageError(
+                    f"{out} is not empty and does not look like a run folder; refusing to replace it"
+                )
             shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
 
@@ -85,7 +97,11 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("runs") / f"{graph_label(args.env)}_{config.algo}_s{args.seed}"
     prepare_run_folder(out, args.overwrite)
 
-    recorded = {key: (str(value) if isinstance(value, Path) else value) for key, value in vars(args).items() if key != "func"}
+    recorded = {
+        key: (str(value) if isinstance(value, Path) else value)
+        for key, value in vars(args).items()
+        if key != "func"
+    }
     recorded["out"] = str(out)
     (out / "args.yml").write_text(yaml.safe_dump(recorded, sort_keys=True))
     resolved = {"env": str(args.env), "entry": config.entry, "source": config.source, **config.to_dict()}
@@ -99,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
         config, graph, seed=args.seed, tensorboard_log=out / "tb", verbose=args.verbose, device=args.device
     )
     print(
-        f"training {config.n_agents} x {config.algo} on {graph.name} ({graph.n_nodes} nodes, {graph.n_targets} targets), "
+        f"training {config.n_agents} x {config.algo} on {graph.name} "
+        f"({graph.n_nodes} nodes, {graph.n_targets} targets), "
         f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
     )
     team.learn(config.n_timesteps, progress_bar=not args.no_progress)

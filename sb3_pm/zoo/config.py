@@ -35,7 +35,13 @@ from typing import Any
 
 import yaml
 
-from sb3_pm.zoo.registry import DEFAULT_POLICIES, RegistryError, default_algo, resolve_algo, resolve_policy_kwargs
+from sb3_pm.zoo.registry import (
+    DEFAULT_POLICIES,
+    RegistryError,
+    default_algo,
+    resolve_algo,
+    resolve_policy_kwargs,
+)
 from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
 
 DEFAULT_ENTRY = "default"
@@ -113,7 +119,9 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     except yaml.YAMLError as error:
         raise ConfigError(f"{file}: malformed YAML: {error}".replace("\n", " ")) from error
     if not isinstance(data, dict):
-        raise ConfigError(f"{file}: expected a mapping of entries (graph name -> settings), got {type(data).__name__}")
+        raise ConfigError(
+            f"{file}: expected a mapping of entries (graph name -> settings), got {type(data).__name__}"
+        )
     for entry, value in data.items():
         if not isinstance(value, dict):
             raise ConfigError(f"{file}: entry {entry!r} must be a mapping, got {type(value).__name__}")
@@ -194,7 +202,9 @@ def _check_hyperparam(key: str, value: Any, parameter: inspect.Parameter, where:
         if value is None:
             return {}
         if not isinstance(value, dict):
-            raise ConfigError(f"{where}: expected a mapping (not a string to eval), got {type(value).__name__}")
+            raise ConfigError(
+                f"{where}: expected a mapping (not a string to eval), got {type(value).__name__}"
+            )
         try:
             resolve_policy_kwargs(value)
         except (RegistryError, ImportError) as error:
@@ -218,13 +228,17 @@ def _check_hyperparam(key: str, value: Any, parameter: inspect.Parameter, where:
     return value
 
 
-def _hyperparams(raw: Mapping[str, Any], allowed: Mapping[str, inspect.Parameter], where: str, extra: set[str]) -> dict[str, Any]:
+def _hyperparams(
+    raw: Mapping[str, Any], allowed: Mapping[str, inspect.Parameter], where: str, extra: set[str]
+) -> dict[str, Any]:
     checked: dict[str, Any] = {}
     for key, value in raw.items():
         if key in extra:
             continue
         if key not in allowed:
-            raise ConfigError(f"{where}: unknown key {key!r} (not a team key, nor an argument of the algorithm)")
+            raise ConfigError(
+                f"{where}: unknown key {key!r} (not a team key, nor an argument of the algorithm)"
+            )
         checked[key] = _check_hyperparam(key, value, allowed[key], f"{where}.{key}")
     return checked
 
@@ -258,7 +272,9 @@ def load_config(path: str | Path, env: str) -> TrainConfig:
         raise ConfigError(f"{where}.env_kwargs: expected a mapping, got {type(env_kwargs).__name__}")
     unknown_env = sorted(set(env_kwargs) - _env_args())
     if unknown_env:
-        raise ConfigError(f"{where}.env_kwargs: unknown key {unknown_env[0]!r} (not an argument of the environment)")
+        raise ConfigError(
+            f"{where}.env_kwargs: unknown key {unknown_env[0]!r} (not an argument of the environment)"
+        )
 
     hyperparams = _hyperparams(raw, allowed, where, set(TEAM_KEYS) | {"policy"})
     n_agents = _as_int(raw.get("n_agents", 4), f"{where}.n_agents")
@@ -269,12 +285,16 @@ def load_config(path: str | Path, env: str) -> TrainConfig:
     names = {f"agent_{i}" for i in range(n_agents)}
     for agent, overrides in agents_raw.items():
         if agent not in names:
-            raise ConfigError(f"{where}.agents: unknown agent {agent!r} (the team has agent_0 .. agent_{n_agents - 1})")
+            raise ConfigError(
+                f"{where}.agents: unknown agent {agent!r} (the team has agent_0 .. agent_{n_agents - 1})"
+            )
         if not isinstance(overrides, dict):
             raise ConfigError(f"{where}.agents.{agent}: expected a mapping of hyperparameters")
         forbidden = sorted(set(overrides) & AGENT_FORBIDDEN)
         if forbidden:
-            raise ConfigError(f"{where}.agents.{agent}: {forbidden[0]!r} is set for the whole team, not per agent")
+            raise ConfigError(
+                f"{where}.agents.{agent}: {forbidden[0]!r} is set for the whole team, not per agent"
+            )
         agents[agent] = _hyperparams(overrides, allowed, f"{where}.agents.{agent}", set())
 
     return TrainConfig(

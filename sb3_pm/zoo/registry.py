@@ -27,7 +27,8 @@ DEFAULT_POLICIES: dict[str, str] = {
 }
 
 ACTIVATIONS: dict[str, str] = {
-    name: f"torch.nn:{name}" for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Sigmoid", "Identity")
+    name: f"torch.nn:{name}"
+    for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Sigmoid", "Identity")
 }
 
 OPTIMIZERS: dict[str, str] = {name: f"torch.optim:{name}" for name in ("Adam", "AdamW", "RMSprop", "SGD")}
@@ -68,7 +69,9 @@ def lookup(registry: dict[str, str], name: str, kind: str) -> Any:
         return import_path(registry[name])
     if ":" in name:
         return import_path(name)
-    raise RegistryError(f"unknown {kind} {name!r}: use one of {', '.join(sorted(registry))} or 'package.module:Name'")
+    raise RegistryError(
+        f"unknown {kind} {name!r}: use one of {', '.join(sorted(registry))} or 'package.module:Name'"
+    )
 
 
 def resolve_algo(name: str) -> type:

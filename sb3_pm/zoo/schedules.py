@@ -27,7 +27,9 @@ def parse_schedule(value: Any, key: str = "value") -> Any:
             try:
                 start = float(text[len("lin_") :])
             except ValueError as error:
-                raise ValueError(f"{key}: {value!r} is not a schedule; write lin_<number>, e.g. lin_3e-4") from error
+                raise ValueError(
+                    f"{key}: {value!r} is not a schedule; write lin_<number>, e.g. lin_3e-4"
+                ) from error
             return LinearSchedule(start, 0.0, 1.0)
         try:
             return float(text)
