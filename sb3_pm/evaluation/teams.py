@@ -40,16 +40,22 @@ def resolve_team(policy: str | Path, graph: Any = None, **kwargs: Any) -> Team:
 
 
 def load_trained_team(path: Path, graph: Any = None) -> Team:
-    """``IndependentPPO.load(path)``, imported lazily so that baselines never need torch."""
+    """``IndependentPPO.load(path)`` (or ``CentralizedPPO.load`` for a centralized team's folder),
+    imported lazily so that baselines never need torch."""
     try:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.team import IndependentPPO as team_class
+        from sb3_pm.sharing.centralized import MANIFEST_FORMAT as CENTRALIZED
+        from sb3_pm.sharing.centralized import CentralizedPPO
     except ImportError as error:
         raise PolicyError(
             f"cannot load the trained team in {path}: "
             f"sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
         ) from error
+    manifest = path / "manifest.json"
+    if manifest.exists() and CENTRALIZED in manifest.read_text():
+        team_class = CentralizedPPO  # type: ignore[assignment]
     try:
-        team = IndependentPPO.load(path) if graph is None else IndependentPPO.load(path, graph=graph)
+        team = team_class.load(path) if graph is None else team_class.load(path, graph=graph)
     except (FileNotFoundError, ValueError) as error:
         raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
     return team

@@ -57,6 +57,7 @@ class Cell:
     max_cycles: int
     n_agents: int
     env_kwargs: dict[str, Any]
+    hyperparams: dict[str, Any]
 
     @property
     def done(self) -> bool:
@@ -85,6 +86,7 @@ def plan_cells(experiment: Experiment, out: Path) -> list[Cell]:
                         max_cycles=experiment.max_cycles,
                         n_agents=experiment.n_agents,
                         env_kwargs=dict(experiment.env_kwargs),
+                        hyperparams=dict(experiment.hyperparams),
                     )
                 )
     return cells
@@ -96,7 +98,8 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
 
     assert cell.config is not None
     config = load_config(cell.config, cell.graph)
-    config.hyperparams.update(variant.hyperparams)
+    config.hyperparams.update({**cell.hyperparams, **variant.hyperparams})
+    config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
     if variant.policy_kwargs:
         config.hyperparams["policy_kwargs"] = {**config.hyperparams.get("policy_kwargs", {}), **variant.policy_kwargs}
     config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
@@ -196,6 +199,7 @@ def experiment_record(experiment: Experiment) -> dict[str, Any]:
         "config": None if experiment.config is None else str(experiment.config),
         "timesteps": experiment.timesteps,
         "env_kwargs": experiment.env_kwargs,
+        "hyperparams": experiment.hyperparams,
         "evaluation_seeds": f"{EVAL_SEED_OFFSET} + seed * {SEED_STRIDE} + episode",
         "variants": {v.key: {k: val for k, val in asdict(v).items() if k != "key"} for v in experiment.variants},
     }

@@ -11,6 +11,7 @@ evaluated for a number of episodes. One file describes it::
     n_agents: 4
     config: ../ippo.yml                        # the rl-zoo style training config (relative to this file)
     timesteps: 50000                           # per learner; null = the config's n_timesteps
+    hyperparams: {}                            # merged into every learned variant's config entry
     quick: {seeds: [0], episodes: 2, max_cycles: 50, timesteps: 512}   # --quick overrides
     variants:
       proposed: {kind: independent}                     # IndependentPPO with the base config
@@ -33,7 +34,7 @@ import yaml
 
 VARIANT_KINDS = ("independent", "centralized", "baseline")
 _TOP_KEYS = {"name", "graphs", "seeds", "episodes", "max_cycles", "n_agents", "config", "timesteps", "quick",
-             "variants", "description", "env_kwargs"}
+             "variants", "description", "env_kwargs", "hyperparams"}
 _VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label"}
 
 
@@ -72,6 +73,7 @@ class Experiment:
     timesteps: int | None
     variants: tuple[Variant, ...]
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    hyperparams: dict[str, Any] = field(default_factory=dict)
     quick_overrides: dict[str, Any] = field(default_factory=dict)
     source: Path | None = None
 
@@ -175,6 +177,7 @@ def load_experiment(path: str | Path) -> Experiment:
             timesteps=None if raw.get("timesteps") is None else int(raw["timesteps"]),
             variants=tuple(variants),
             env_kwargs=dict(raw.get("env_kwargs", {}) or {}),
+            hyperparams=dict(raw.get("hyperparams", {}) or {}),
             quick_overrides=dict(quick),
             source=path,
         )

@@ -1,0 +1,201 @@
+""":class:`CentralizedPPO`: the paper's centralized comparison, as configuration of the same model.
+
+METHOD.md's ``centralized`` algorithm has one shared mental map (the union of every agent's
+observations), one shared estimator and one network acting for every agent. Here that is:
+
+- the environment option ``shared_map=True`` (every agent's map receives the team's observations);
+- parameter sharing through SuperSuit (:func:`make_parameter_sharing_vec_env`): one model, one
+  estimator, trained on every agent's transitions;
+- the same algorithm and policy classes as the decentralized team (``DCBFPPO`` + ``DCBFPolicy`` by
+  default), with the same hyperparameters from the same config file.
+
+Budgets are counted as for :class:`~sb3_pm.agents.team.IndependentPPO`: ``learn(T)`` gives the
+team ``n_agents * T`` agent-steps, so both teams see the same amount of experience.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.utils import set_random_seed
+
+from sb3_pm.agents.team import MANIFEST, _versions, check_same_graph, learn_seed
+from sb3_pm.baselines.base import Observation, Team
+from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
+from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
+from sb3_pm.zoo.registry import DEFAULT_POLICIES, algo_name, default_algo, resolve_algo, resolve_policy_kwargs, uses_masks
+from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
+
+MANIFEST_FORMAT = "sb3_pm.centralized/1"
+MODEL_FILE = "shared.zip"
+
+
+class CentralizedPPO(Team):
+    """One shared map, estimator and network acting for the whole team.
+
+    :param graph: a preset name, a ``.graphml`` path or a :class:`GraphSpec`.
+    :param n_agents: team size.
+    :param env_kwargs: environment options (``shared_map`` is forced on).
+    :param algo: as for ``IndependentPPO`` (default ``dcbf_ppo`` when importable).
+    :param policy: the policy; ``None`` uses the algorithm's default.
+    :param n_envs: env copies; the model sees ``n_envs * n_agents`` vector entries.
+    :param seed: seeds the model and the env copies.
+    :param hyperparams: the algorithm's keyword arguments (``n_steps`` counts steps per entry).
+    """
+
+    name = "centralized"
+    omniscient = False  # it sees only what its agents observe, pooled
+
+    def __init__(
+        self,
+        graph: GraphLike,
+        n_agents: int = 4,
+        env_kwargs: Mapping[str, Any] | None = None,
+        algo: str | type | None = None,
+        policy: str | type | None = None,
+        n_envs: int = 1,
+        seed: int = 0,
+        hyperparams: Mapping[str, Any] | None = None,
+        tensorboard_log: str | Path | None = None,
+        verbose: int = 0,
+        device: str = "cpu",
+        _init_model: bool = True,
+    ) -> None:
+        self.graph: GraphSpec = resolve_graph(graph)
+        self.n_agents = int(n_agents)
+        self.n_envs = int(n_envs)
+        self.seed = int(seed)
+        algo = algo or default_algo()
+        self.algo_class: type = resolve_algo(algo) if isinstance(algo, str) else algo
+        self.algo = algo if isinstance(algo, str) else algo_name(algo)
+        self.policy = policy if policy is not None else DEFAULT_POLICIES.get(self.algo, "MultiInputPolicy")
+        self.env_kwargs = {**dict(env_kwargs or {}), "shared_map": True}
+        if not uses_masks(self.algo_class):
+            self.env_kwargs.setdefault("illegal_action", "stay")
+        self.hyperparams = dict(hyperparams or {})
+        self.agents = [f"agent_{i}" for i in range(self.n_agents)]
+        self.venv = make_parameter_sharing_vec_env(self.graph, self.n_envs, self.n_agents, self.env_kwargs)
+        self.model: Any = None
+        if _init_model:
+            kwargs = dict(self.hyperparams)
+            for key in SCHEDULE_KEYS:
+                if key in kwargs:
+                    kwargs[key] = parse_schedule(kwargs[key], key)
+            if "policy_kwargs" in kwargs:
+                kwargs["policy_kwargs"] = resolve_policy_kwargs(kwargs["policy_kwargs"])
+            self.model = self.algo_class(
+                self.policy, self.venv, seed=self.seed, tensorboard_log=None if tensorboard_log is None else str(tensorboard_log),
+                verbose=verbose, device=device, **kwargs,
+            )
+
+    @classmethod
+    def from_config(cls, config: Any, graph: GraphLike, seed: int = 0, **kwargs: Any) -> CentralizedPPO:
+        """A centralized team from the same config entry the decentralized team uses.
+
+        :raises ValueError: if the entry has per-agent overrides (there is only one network).
+        """
+        if config.agents:
+            raise ValueError(f"{config.source}: per-agent overrides make no sense for a centralized team")
+        options = {**config.team_kwargs(), **kwargs}
+        options.pop("per_agent", None)
+        return cls(graph, seed=seed, **options)
+
+    @property
+    def num_timesteps(self) -> int:
+        """Agent-steps per agent taken so far (comparable with ``IndependentPPO.num_timesteps``)."""
+        return int(self.model.num_timesteps) // self.n_agents
+
+    def learn(self, total_timesteps: int, callback: Any = None, progress_bar: bool = False,
+              reset_num_timesteps: bool = True) -> CentralizedPPO:
+        """Train for ``total_timesteps`` steps per agent (``n_agents`` times that for the model)."""
+        if total_timesteps < 1:
+            raise ValueError(f"total_timesteps must be positive, got {total_timesteps}")
+        set_random_seed(learn_seed(self.seed, self.num_timesteps))
+        self.model.learn(total_timesteps * self.n_agents, callback=callback, progress_bar=progress_bar,
+                         reset_num_timesteps=reset_num_timesteps, tb_log_name="centralized")
+        return self
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Start an episode; the env must have ``shared_map=True`` for the team to see what it was trained on."""
+        super().reset(env, seed)
+        unwrapped = getattr(env, "unwrapped", env)
+        if isinstance(getattr(unwrapped, "graph", None), GraphSpec):
+            check_same_graph(self.graph, unwrapped.graph)
+        if not getattr(unwrapped, "shared_map", True):
+            raise ValueError("a centralized team needs an env with shared_map=True (its env_kwargs)")
+        if seed is not None:
+            th.manual_seed(seed)
+
+    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+        """One batched forward pass of the shared network for every agent."""
+        agents = list(observations)
+        batch = {key: np.stack([np.asarray(observations[a][key]) for a in agents]) for key in observations[agents[0]]}
+        if uses_masks(type(self.model)):
+            actions, _ = self.model.predict(batch, deterministic=deterministic, action_masks=batch["action_mask"].astype(bool))
+        else:
+            actions, _ = self.model.predict(batch, deterministic=deterministic)
+        return {agent: int(action) for agent, action in zip(agents, np.asarray(actions).reshape(-1))}
+
+    def manifest(self) -> dict[str, Any]:
+        return {
+            "format": MANIFEST_FORMAT,
+            "graph": {"name": self.graph.name, "fingerprint": self.graph.fingerprint,
+                      "n_nodes": self.graph.n_nodes, "n_targets": self.graph.n_targets},
+            "n_agents": self.n_agents,
+            "env_kwargs": self.env_kwargs,
+            "algo": self.algo,
+            "policy": self.policy if isinstance(self.policy, str) else self.policy.__name__,
+            "n_envs": self.n_envs,
+            "seed": self.seed,
+            "num_timesteps": self.num_timesteps,
+            "versions": _versions(),
+        }
+
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        folder = Path(path)
+        if (folder / MANIFEST).exists() and not overwrite:
+            raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
+        folder.mkdir(parents=True, exist_ok=True)
+        self.model.save(folder / MODEL_FILE)
+        if not (self.graph.name in PRESETS and resolve_graph(self.graph.name).same_problem(self.graph)):
+            save_graphml(self.graph, folder / "graph.graphml", overwrite=True)
+        (folder / MANIFEST).write_text(json.dumps(self.manifest(), indent=2, sort_keys=True) + "\n")
+        return folder
+
+    @classmethod
+    def load(cls, path: str | Path, graph: GraphLike | None = None, device: str = "cpu") -> CentralizedPPO:
+        """Load a team written by :meth:`save`.
+
+        :raises FileNotFoundError: for a missing folder, manifest or model.
+        :raises ValueError: if ``graph`` is not the graph the team was trained on.
+        """
+        folder = Path(path)
+        manifest_path = folder / MANIFEST
+        if not manifest_path.exists():
+            raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
+        manifest = json.loads(manifest_path.read_text())
+        if manifest.get("format") != MANIFEST_FORMAT:
+            raise ValueError(f"{folder} holds a {manifest.get('format')!r} team, not a centralized one")
+        saved = manifest["graph"]
+        graph_file = folder / "graph.graphml"
+        spec = resolve_graph(graph if graph is not None else (graph_file if graph_file.exists() else saved["name"]))
+        if spec.fingerprint != saved["fingerprint"]:
+            raise ValueError(
+                f"the team in {folder} was trained on graph {saved['name']!r} (fingerprint {saved['fingerprint']}), "
+                f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
+            )
+        if not (folder / MODEL_FILE).exists():
+            raise FileNotFoundError(f"saved team {folder} is incomplete: missing {folder / MODEL_FILE}")
+        team = cls(spec, n_agents=int(manifest["n_agents"]), env_kwargs=manifest["env_kwargs"], algo=manifest["algo"],
+                   policy=manifest["policy"], n_envs=int(manifest["n_envs"]), seed=int(manifest["seed"]),
+                   device=device, _init_model=False)
+        team.model = team.algo_class.load(folder / MODEL_FILE, env=team.venv, device=device)
+        return team
+
+    def close(self) -> None:
+        self.venv.close()

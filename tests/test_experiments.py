@@ -1,0 +1,133 @@
+"""``sb3-pm reproduce``: quick sweeps end to end, resuming, the Ray backend, and bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from sb3_pm.cli import main
+from sb3_pm.experiments import ExperimentError, load_experiment, plan_cells, reproduce
+from sb3_pm.experiments import runner as runner_module
+
+ZOO = Path(__file__).resolve().parents[1] / "zoo"
+EXPECTED_FILES = {"results.md", "results.csv", "results.tex", "anova.txt", "results.json", "uncertainty.png",
+                  "table.png", "training.png", "estimator_loss.png", "experiment.yml", "command.txt"}
+
+
+@pytest.mark.parametrize("name", ["comparison", "ablation"])
+def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
+    out = tmp_path / name
+    assert main(["reproduce", str(ZOO / "experiments" / f"{name}.yml"), "--quick", "--out", str(out),
+                 "--jobs", "1", "--no-progress"]) == 0
+    assert EXPECTED_FILES <= {p.name for p in out.iterdir()}
+    experiment = load_experiment(ZOO / "experiments" / f"{name}.yml").quick()
+    table = (out / "results.md").read_text()
+    for variant in experiment.variants:
+        assert variant.label in table
+    for cell in plan_cells(experiment, out):
+        assert (Path(cell.folder) / "DONE").exists()
+        if cell.variant["kind"] != "baseline":
+            assert (Path(cell.folder) / "team" / "manifest.json").exists()
+
+
+def tiny_experiment(tmp_path: Path) -> Path:
+    """One learned variant and one baseline on a 12-node graph, with a tiny training config."""
+    from sb3_pm.graphs import erdos_renyi, save_graphml
+
+    save_graphml(erdos_renyi(12, 0.3, n_targets=3, seed=1), tmp_path / "tiny.graphml")
+    (tmp_path / "config.yml").write_text(
+        "default:\n  n_timesteps: 64\n  n_envs: 1\n  n_steps: 32\n  batch_size: 32\n  n_epochs: 1\n"
+        "  policy_kwargs: {hidden_dim: 8, gat_heads: 1}\n"
+    )
+    (tmp_path / "experiment.yml").write_text(
+        "name: tiny\ngraphs: [tiny.graphml]\nseeds: [0, 1]\nepisodes: 2\nmax_cycles: 20\nn_agents: 2\n"
+        "config: config.yml\nvariants:\n  learned: {}\n  random: {kind: baseline, policy: random}\n"
+    )
+    return tmp_path / "experiment.yml"
+
+
+def load_tiny(tmp_path: Path):
+    experiment = load_experiment(tiny_experiment(tmp_path))
+    # Graph paths in an experiment file are taken as given; make this one absolute for the test.
+    return experiment.with_graphs([str(tmp_path / "tiny.graphml")])
+
+
+def test_resumed_sweep_retrains_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    experiment = load_tiny(tmp_path)
+    first = reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+
+    def must_not_train(*args, **kwargs):
+        raise AssertionError("a finished cell was trained again")
+
+    monkeypatch.setattr(runner_module, "_train", must_not_train)
+    second = reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    assert first.table == second.table
+
+
+def test_interrupted_sweep_runs_only_the_missing_cells(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    experiment = load_tiny(tmp_path)
+    reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    cells = plan_cells(experiment, tmp_path / "out")
+    (Path(cells[1].folder) / "DONE").unlink()  # as if the sweep had died while training this cell
+    trained = []
+    original = runner_module._train
+
+    def counting_train(cell, variant, folder):
+        trained.append((cell.variant["key"], cell.seed))
+        return original(cell, variant, folder)
+
+    monkeypatch.setattr(runner_module, "_train", counting_train)
+    reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    assert trained == [(cells[1].variant["key"], cells[1].seed)]
+
+
+def test_ray_backend_matches_local(tmp_path: Path) -> None:
+    experiment = load_tiny(tmp_path)
+    local = reproduce(experiment, tmp_path / "local", backend="local", n_jobs=1, progress=False)
+    distributed = reproduce(experiment, tmp_path / "ray", backend="ray", n_jobs=2, progress=False)
+    assert local.table == distributed.table
+    for label in local.results:
+        assert [r.to_dict() for r in local.results[label]] == [r.to_dict() for r in distributed.results[label]]
+
+
+def test_resume_refuses_a_different_experiment(tmp_path: Path) -> None:
+    path = tiny_experiment(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "experiment.yml").write_text("name: something else\n")
+    assert main(["reproduce", str(path), "--out", str(out), "--graphs", str(tmp_path / "tiny.graphml")]) == 2
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: magic}}\n", "kind must be one of"),
+        ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline}}\n", "needs 'policy'"),
+        ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {}}\n", "need 'config'"),
+        ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random}}\nbudget: 3\n", "unknown keys"),
+        ("graphs: []\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random}}\n", "'graphs' is required"),
+        ("graphs: [paper-50\n", "not valid YAML"),
+    ],
+)
+def test_malformed_experiment_files(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.yml"
+    path.write_text(text)
+    with pytest.raises(ExperimentError, match=message):
+        load_experiment(path)
+
+
+def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["reproduce", str(tmp_path / "missing.yml"), "--out", str(tmp_path / "o")]) == 2
+    assert "experiment file not found" in capsys.readouterr().err
+    assert main(["reproduce", str(ZOO / "experiments" / "comparison.yml"), "--out", str(tmp_path / "o"),
+                 "--graphs", "no-such-graph"]) == 2
+    assert "unknown graph" in capsys.readouterr().err
+
+
+def test_cell_results_are_stored(tmp_path: Path) -> None:
+    experiment = load_tiny(tmp_path)
+    reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    payload = json.loads((Path(plan_cells(experiment, tmp_path / "out")[0].folder) / "evaluation.json").read_text())
+    assert len(payload["traces"]) == 2 and len(payload["traces"][0]) == 20
