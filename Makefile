@@ -1,6 +1,9 @@
 PY ?= python
 SHARED ?= ../shared
 
+DEMO ?= runs/demo
+DEMO_STEPS ?= 10000
+
 .PHONY: setup test test-slow lint format type bench demo
 
 setup:
@@ -25,3 +28,9 @@ type:
 
 bench:
 	$(PY) benchmarks/env_speed.py
+
+# The README's main job: train a team briefly on paper-50, then evaluate it next to the baselines.
+demo:
+	sb3-pm train --config zoo/ippo.yml --env paper-50 --seed 0 --timesteps $(DEMO_STEPS) --out $(DEMO) --overwrite
+	sb3-pm compare --policies $(DEMO) random local_greedy grazing --graphs paper-50 --seeds 0 --episodes 5 \
+		--out $(DEMO)/report --overwrite
