@@ -163,7 +163,7 @@ class TestTourPatrol:
 
 class TestLocalGreedy:
     def test_dwells_and_heads_for_estimated_highest(self) -> None:
-        team = LocalGreedyTeam(u_max=100)
+        team = LocalGreedyTeam(u_max=100, commit=False)  # re-plans every step
         team.reset(None, seed=0)
         n = 4  # path 0-1-2-3 known in full; agent on 1
         adjacency = np.zeros((n, n), dtype=np.int8)
@@ -179,6 +179,25 @@ class TestLocalGreedy:
         nodes[3, 1] = 1  # now the estimate is 3 < 5
         assert team.predict({"a": obs})["a"] == 0
         nodes[1, 2], nodes[1, 0] = 1, 1  # the agent's own node is a target with u > 0: dwell
+        assert team.predict({"a": obs})["a"] == 1
+
+    def test_commits_to_its_goal_until_it_is_seen_served(self) -> None:
+        team = LocalGreedyTeam(u_max=100)
+        team.reset(None, seed=0)
+        n = 5  # path 0-1-2-3-4 known in full; agent on 2
+        adjacency = np.zeros((n, n), dtype=np.int8)
+        for i in range(n - 1):
+            adjacency[i, i + 1] = adjacency[i + 1, i] = 1
+        nodes = np.zeros((n, 5), dtype=np.float32)
+        nodes[[0, 4], 2] = 1  # targets 0 and 4
+        nodes[0, :2] = [1, 3]  # estimate 4
+        nodes[4, :2] = [2, 8]  # estimate 10: the goal
+        mask = np.array([0, 1, 1, 1, 0], dtype=np.int8)
+        obs = {"nodes": nodes, "adjacency": adjacency, "position": 2, "action_mask": mask}
+        assert team.predict({"a": obs})["a"] == 3
+        nodes[0, :2] = [50, 0]  # target 0 now looks far more urgent, but the agent keeps its goal
+        assert team.predict({"a": obs})["a"] == 3
+        nodes[4, :2] = [0, 0]  # goal seen this step with u = 0: choose again
         assert team.predict({"a": obs})["a"] == 1
 
     def test_bfs_cache_follows_the_adjacency_object(self) -> None:

@@ -8,11 +8,15 @@ Rule, per agent and step:
 
 1. On a known target whose observed ``u`` is positive: dwell (its own node is always observed
    this step, so that ``u`` is fresh).
-2. Else estimate every known target's uncertainty as ``min(u_last + age, u_max)``: ``u`` grows
-   by at most one per unobserved step. Targets seen occupied by another agent *this step*
-   (``age == 0``) are skipped, since that agent is serving them. Head for the highest estimate
-   (ties: nearest in known hops, then lowest index), one step along a shortest path over the
-   known adjacency. A target the agent cannot reach in its known graph is ignored.
+2. Else, with ``commit=True`` (the default, as for ``grazing``), keep heading for the goal chosen
+   earlier until it is reached, or is seen *this step* with ``u = 0`` or held by another agent.
+   Otherwise estimate every known target's uncertainty as ``min(u_last + age, u_max)``: ``u``
+   grows by at most one per unobserved step. Targets seen occupied by another agent this step
+   (``age == 0``) are skipped, since that agent is serving them. Choose the highest estimate
+   (ties: nearest in known hops, then lowest index) and move one step along a shortest path over
+   the known adjacency. A target the agent cannot reach in its known graph is ignored.
+   Commitment matters: re-planning every step makes agents dither as their estimates change
+   (measured on the 50-node reference graph, 2 seeds x 3 episodes: 465 without, 405 with).
 3. If it knows no reachable target: explore, heading for the nearest known node it has not
    stood on this episode (ties: observed longest ago, then lowest index); standing on a node
    is what reveals its edges. The agent remembers its own past positions, nothing else.
@@ -60,13 +64,15 @@ class LocalGreedyTeam(Team):
     """Greedy on each agent's own mental map; decentralized.
 
     :param u_max: the uncertainty cap used in the estimate; ``None`` reads the env's parameter.
+    :param commit: keep a chosen goal until it is reached or seen served (see the module docstring).
     """
 
     name = "local_greedy"
     omniscient = False
 
-    def __init__(self, u_max: float | None = None) -> None:
+    def __init__(self, u_max: float | None = None, commit: bool = True) -> None:
         self.u_max_override = u_max
+        self.commit = commit
         self._known: dict[str, _KnownGraph] = {}
 
     def reset(self, env: Any, seed: int | None = None) -> None:
@@ -74,6 +80,7 @@ class LocalGreedyTeam(Team):
         # A problem parameter, not state; the known-adjacency caches survive episodes because
         # discovered edges do too.
         self._visited: dict[str, np.ndarray] = {}
+        self._goals: dict[str, int] = {}
         self.u_max = float(self.u_max_override if self.u_max_override is not None else env.unwrapped.u_max)
 
     def known_graph(self, agent: str, adjacency: np.ndarray) -> _KnownGraph:
@@ -103,15 +110,22 @@ class LocalGreedyTeam(Team):
         visited = self._visited.setdefault(agent, np.zeros(len(nodes), dtype=bool))
         visited[position] = True
         if is_target[position] and u[position] > 0:
+            self._goals.pop(agent, None)
             return position
         known = self.known_graph(agent, obs["adjacency"])
         distance = known.dist[position]
         reachable = distance < UNREACHABLE
+        goal = self._goals.pop(agent, None) if self.commit else None
+        if goal is not None and (goal == position or (age[goal] == 0 and (u[goal] == 0 or occupied[goal]))):
+            goal = None  # reached, or seen served: choose again
         candidates = np.flatnonzero(is_target & reachable & ~(occupied & (age == 0)))
         candidates = candidates[candidates != position]
-        if len(candidates):
+        if goal is not None:
+            self._goals[agent] = goal
+        elif len(candidates):
             estimate = np.minimum(u + age, self.u_max)
             goal = int(nearest_first(candidates, distance, estimate)[0])
+            self._goals[agent] = goal
         else:
             frontier = np.flatnonzero(reachable & ~visited)
             if len(frontier) == 0:
