@@ -83,7 +83,8 @@ def make_single_agent_env(
             env_kwargs = {"n_agents": int(team.n_agents), **team_env_kwargs(team), **env_kwargs}
     else:
         raise TypeError(
-            f"teammates must be a baseline name, a saved team folder, a Team or None; got {type(teammates).__name__}"
+            "teammates must be a baseline name, a saved team folder, a Team or None; "
+            f"got {type(teammates).__name__}"
         )
     return SingleAgentMonitoringEnv(graph=graph, agent=agent, teammates=team, **env_kwargs)
 
@@ -118,4 +119,11 @@ def register_envs() -> list[str]:
     return list(ENV_IDS)
 
 
-__all__ = ["DEFAULT_TEAMMATES", "ENTRY_POINT", "ENV_IDS", "NAMESPACE", "make_single_agent_env", "register_envs"]
+__all__ = [
+    "DEFAULT_TEAMMATES",
+    "ENTRY_POINT",
+    "ENV_IDS",
+    "NAMESPACE",
+    "make_single_agent_env",
+    "register_envs",
+]

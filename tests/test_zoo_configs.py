@@ -1,0 +1,201 @@
+"""Every config in ``zoo/`` builds (issue 5), and rl-zoo trains on our ids end to end.
+
+* rl-zoo YAMLs (``zoo/<algo>.yml``, all but ``zoo/ippo.yml``): each entry is read by rl-zoo's own
+  :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
+  ``rl_zoo3.train`` would (schedules, env_kwargs, policy_kwargs, n_envs).
+* ``zoo/ippo.yml`` (our team format): each entry builds an :class:`IndependentPPO` team.
+* ``python -m rl_zoo3.train --gym-packages sb3_pm ...`` (a subprocess) and our launcher
+  ``python -m sb3_pm.zoo --algo dcbf_ppo ...`` run end to end and save a model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch as th
+import yaml
+
+from sb3_pm.envs.registration import ENV_IDS
+from sb3_pm.graphs import PRESETS
+from sb3_pm.zoo import load_config
+
+rl_zoo3 = pytest.importorskip("rl_zoo3", reason="rl-zoo is the optional extra sb3_pm[zoo]")
+
+from sb3_pm.zoo.rl_zoo import RL_ZOO_ALGOS, register_rl_zoo_algos  # noqa: E402
+
+th.set_num_threads(1)
+
+ROOT = Path(__file__).resolve().parents[1]
+ZOO = ROOT / "zoo"
+#: Files in zoo/ that are not rl-zoo hyperparameter files.
+NOT_RL_ZOO = {"ippo.yml"}
+RL_ZOO_FILES = sorted(p for p in ZOO.glob("*.yml") if p.name not in NOT_RL_ZOO)
+#: Small settings so that building (and the end-to-end runs) stay fast.
+TINY = {"n_envs": 1, "n_steps": 32, "batch_size": 32}
+
+
+def rl_zoo_entries() -> list[tuple[Path, str]]:
+    return [(path, entry) for path in RL_ZOO_FILES for entry in yaml.safe_load(path.read_text())]
+
+
+def env_id_for(path: Path, entry: str) -> str:
+    """The id rl-zoo would read ``entry`` for: the entry itself, or (``default``) an id without one."""
+    if entry != "default":
+        return entry
+    data = yaml.safe_load(path.read_text())
+    unclaimed = [env_id for env_id in ENV_IDS if env_id not in data]
+    if not unclaimed:
+        pytest.skip(f"{path.name}: every registered id has its own entry; default is unreachable")
+    return unclaimed[0]
+
+
+def test_there_are_rl_zoo_files() -> None:
+    names = {p.stem for p in RL_ZOO_FILES}
+    assert {"ppo", "maskable_ppo", "dcbf_ppo"} <= names
+
+
+@pytest.mark.parametrize("path", RL_ZOO_FILES, ids=lambda p: p.name)
+def test_rl_zoo_file_is_keyed_by_env_id(path: Path) -> None:
+    data = yaml.safe_load(path.read_text())
+    assert isinstance(data, dict) and "default" in data
+    for entry, values in data.items():
+        assert entry == "default" or entry in ENV_IDS, f"{path.name}: {entry!r} is no registered id"
+        assert isinstance(values, dict) and "n_timesteps" in values and "policy" in values
+        # rl-zoo eval()s string policy_kwargs; ours are real mappings (STYLE.md).
+        assert isinstance(values.get("policy_kwargs", {}), dict)
+
+
+@pytest.mark.parametrize(("path", "entry"), rl_zoo_entries(), ids=lambda x: getattr(x, "name", x))
+def test_rl_zoo_entry_builds(path: Path, entry: str, tmp_path: Path) -> None:
+    from rl_zoo3.exp_manager import ExperimentManager
+    from rl_zoo3.utils import ALGOS
+
+    register_rl_zoo_algos()
+    algo = path.stem  # rl-zoo convention: one file per algorithm, named after it
+    assert algo in ALGOS, f"{path.name}: no algorithm {algo!r} in rl-zoo's table"
+    manager = ExperimentManager(
+        argparse.Namespace(),
+        algo,
+        env_id_for(path, entry),
+        str(tmp_path),
+        n_timesteps=64,
+        eval_freq=-1,
+        hyperparams=dict(TINY),
+        seed=0,
+        verbose=0,
+        device="cpu",
+        config=str(path),
+    )
+    model, saved = manager.setup_experiment()
+    try:
+        assert isinstance(model, ALGOS[algo])
+        # The YAML's own values reached the model (TINY overrides only n_envs/n_steps/batch_size).
+        written = yaml.safe_load(path.read_text())[entry]
+        assert model.gamma == pytest.approx(written["gamma"])
+        assert model.n_epochs == written["n_epochs"]
+        if "policy_kwargs" in written:
+            for key, value in written["policy_kwargs"].items():
+                assert model.policy_kwargs[key] == value
+        if "teammates" in written.get("env_kwargs", {}):
+            env = model.get_env().envs[0].unwrapped
+            assert env.teammates is None or env.teammates.name == written["env_kwargs"]["teammates"]
+        assert (Path(manager.params_path) / "config.yml").is_file()  # rl-zoo's run record
+    finally:
+        model.get_env().close()
+
+
+def test_register_rl_zoo_algos_is_idempotent() -> None:
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_pm.ppo_dcbf import DCBFPPO
+
+    register_rl_zoo_algos()
+    assert register_rl_zoo_algos() == []
+    assert ALGOS["dcbf_ppo"] is DCBFPPO
+    assert set(RL_ZOO_ALGOS) <= set(ALGOS)
+
+
+@pytest.mark.parametrize(
+    "entry", list(yaml.safe_load((ZOO / "ippo.yml").read_text())), ids=lambda e: f"ippo-{e}"
+)
+def test_ippo_entry_builds_a_team(entry: str) -> None:
+    from sb3_pm.agents.team import IndependentPPO
+
+    config = load_config(ZOO / "ippo.yml", entry)
+    assert config.entry == entry
+    graph = entry if entry in PRESETS else "paper-50"
+    team = IndependentPPO.from_config(config, graph=graph, seed=0, n_envs=1)
+    try:
+        assert len(team.models) == config.n_agents
+        model = next(iter(team.models.values()))
+        assert model.n_steps == config.hyperparams.get("n_steps", model.n_steps)
+    finally:
+        team.close()
+
+
+def _run(args: list[str], cwd: Path, timeout: int = 240) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    result = subprocess.run(
+        [sys.executable, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return result
+
+
+def test_rl_zoo_train_runs_end_to_end(tmp_path: Path) -> None:
+    """The issue's command, with a tiny budget: exits 0 and saves a model."""
+    _run(
+        [
+            "-m", "rl_zoo3.train",
+            "--gym-packages", "sb3_pm",
+            "--env", "sb3_pm/PersistentMonitoring-paper50-v0",
+            "--algo", "ppo",
+            "-conf", str(ZOO / "ppo.yml"),
+            "-n", "128",
+            "-f", str(tmp_path / "logs"),
+            "--seed", "0",
+            "--eval-freq", "-1",
+            "--num-threads", "1",
+            "--device", "cpu",
+            "-params", "n_envs:1", "n_steps:64", "batch_size:64", "n_epochs:1",
+        ],
+        cwd=tmp_path,
+    )  # fmt: skip
+    run = tmp_path / "logs" / "ppo" / "sb3_pm-PersistentMonitoring-paper50-v0_1"
+    assert (run / "sb3_pm-PersistentMonitoring-paper50-v0.zip").is_file()
+    assert (run / "sb3_pm-PersistentMonitoring-paper50-v0" / "config.yml").is_file()
+
+
+def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
+    """``python -m sb3_pm.zoo --algo dcbf_ppo ...`` (rl-zoo's train with our algorithm registered)."""
+    _run(
+        [
+            "-m", "sb3_pm.zoo",
+            "--algo", "dcbf_ppo",
+            "--env", "sb3_pm/PersistentMonitoring-paper50-v0",
+            "-conf", str(ZOO / "dcbf_ppo.yml"),
+            "-n", "128",
+            "-f", str(tmp_path / "logs"),
+            "--seed", "0",
+            "--eval-freq", "64",
+            "--eval-episodes", "1",
+            "--num-threads", "1",
+            "--device", "cpu",
+            "--env-kwargs", "max_cycles:32", "teammates:'local_greedy'",
+            "-params", "n_envs:1", "n_steps:64", "batch_size:64", "n_epochs:1",
+        ],
+        cwd=tmp_path,
+    )  # fmt: skip
+    run = tmp_path / "logs" / "dcbf_ppo" / "sb3_pm-PersistentMonitoring-paper50-v0_1"
+    assert (run / "sb3_pm-PersistentMonitoring-paper50-v0.zip").is_file()
+    assert (run / "best_model.zip").is_file()  # rl-zoo's EvalCallback ran the DCBF policy
+
+    from sb3_pm.ppo_dcbf import DCBFPPO
+
+    model = DCBFPPO.load(run / "sb3_pm-PersistentMonitoring-paper50-v0.zip", device="cpu")
+    assert model.num_timesteps == 128
