@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output directory (reused to resume)")
     parser.add_argument("--quick", action="store_true", help="tiny budgets for a smoke test; its numbers are not results")
     parser.add_argument("--graphs", nargs="+", help="override the experiment's graphs (presets or .graphml paths)")
+    parser.add_argument("--seeds", nargs="+", type=int, help="override the experiment's training seeds")
+    parser.add_argument("--timesteps", type=int, help="override the training budget (steps per learner)")
     parser.add_argument("--backend", choices=["local", "ray"], default="local", help="where cells run (default local)")
     parser.add_argument("--ray-address", help="address of an existing Ray cluster (default: start a local one)")
     parser.add_argument("--jobs", type=int, help="parallel cells (default: one per core)")
@@ -39,6 +42,12 @@ def run(args: argparse.Namespace) -> int:
         experiment = experiment.quick()
     if args.graphs:
         experiment = experiment.with_graphs(args.graphs)
+    if args.seeds:
+        experiment = replace(experiment, seeds=tuple(args.seeds))
+    if args.timesteps is not None:
+        if args.timesteps < 1:
+            raise UsageError(f"--timesteps must be at least 1, got {args.timesteps}")
+        experiment = replace(experiment, timesteps=args.timesteps)
     for graph in experiment.graphs:
         resolve_graph(graph)  # every graph checked before hours of training start
     if args.jobs is not None and args.jobs < 1:
