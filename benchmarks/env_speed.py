@@ -17,7 +17,9 @@ from sb3_pm.envs import persistent_monitoring_v0
 
 
 def measure(graph: str, n_agents: int, steps: int, observation: str, seed: int = 0) -> float:
-    env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=n_agents, max_cycles=500, observation=observation)
+    env = persistent_monitoring_v0.parallel_env(
+        graph=graph, n_agents=n_agents, max_cycles=500, observation=observation
+    )
     neighbour_lists = [np.flatnonzero(row).tolist() for row in env.graph.reachable]
     rng = np.random.default_rng(seed)
     draws = rng.random((steps, n_agents)).tolist()  # pre-drawn so the policy costs almost nothing

@@ -23,7 +23,8 @@ class UsageError(Exception):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="sb3-pm", description="Decentralized, safety-aware multi-agent RL for persistent monitoring on graphs."
+        prog="sb3-pm",
+        description="Decentralized, safety-aware multi-agent RL for persistent monitoring on graphs.",
     )
     parser.add_argument("--version", action="version", version=f"sb3-pm {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")

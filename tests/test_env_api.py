@@ -14,12 +14,17 @@ SMALL = erdos_renyi(15, 0.3, n_targets=3, seed=2, name="small")
 
 @pytest.mark.parametrize("observation", ["map", "local"])
 def test_parallel_api(observation: str) -> None:
-    parallel_api_test(persistent_monitoring_v0.parallel_env(graph=SMALL, max_cycles=40, observation=observation), num_cycles=100)
+    parallel_api_test(
+        persistent_monitoring_v0.parallel_env(graph=SMALL, max_cycles=40, observation=observation),
+        num_cycles=100,
+    )
 
 
 @pytest.mark.parametrize("observation", ["map", "local"])
 def test_aec_api(observation: str) -> None:
-    api_test(persistent_monitoring_v0.env(graph=SMALL, max_cycles=40, observation=observation), num_cycles=100)
+    api_test(
+        persistent_monitoring_v0.env(graph=SMALL, max_cycles=40, observation=observation), num_cycles=100
+    )
 
 
 def rollout(seed: int, policy_seed: int = 0, steps: int = 120, **kwargs) -> tuple[list, list, list]:
@@ -81,7 +86,9 @@ def test_kept_observations_are_not_mutated_by_later_steps() -> None:
     held = observations["agent_0"]
     rng = np.random.default_rng(0)
     for _ in range(20):
-        observations, *_ = env.step({a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in observations.items()})
+        observations, *_ = env.step(
+            {a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in observations.items()}
+        )
     for key, value in kept.items():
         np.testing.assert_array_equal(np.asarray(held[key]), value, err_msg=key)
 

@@ -10,7 +10,9 @@ from tests.conftest import path_graph
 
 
 def make(graph, n_agents, positions, **kwargs):
-    env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=n_agents, initial_positions=positions, **kwargs)
+    env = persistent_monitoring_v0.parallel_env(
+        graph=graph, n_agents=n_agents, initial_positions=positions, **kwargs
+    )
     env.reset(seed=0)
     return env
 
@@ -74,7 +76,9 @@ class TestEquationOne:
 class TestIllegalActions:
     def test_raises_value_error_naming_agent_node_and_reachable_set(self) -> None:
         env = make(path_graph(4, [3]), 2, [0, 3])
-        with pytest.raises(ValueError, match=r"agent_0 on node 0 cannot move to node 2; its reachable set is \[0, 1\]"):
+        with pytest.raises(
+            ValueError, match=r"agent_0 on node 0 cannot move to node 2; its reachable set is \[0, 1\]"
+        ):
             act(env, 2, 3)
         assert issubclass(IllegalActionError, ValueError)
 
@@ -137,7 +141,9 @@ class TestBadConfiguration:
 
     def test_bad_initial_positions(self) -> None:
         with pytest.raises(ValueError, match="initial_positions"):
-            persistent_monitoring_v0.parallel_env(graph=path_graph(3, [1]), n_agents=2, initial_positions=[0, 9])
+            persistent_monitoring_v0.parallel_env(
+                graph=path_graph(3, [1]), n_agents=2, initial_positions=[0, 9]
+            )
 
     @pytest.mark.parametrize(
         ("kwargs", "message"),

@@ -11,8 +11,11 @@ from tests.conftest import path_graph
 
 def make(reward, positions, max_cycles=50, n_nodes=3, targets=(2,)):
     env = persistent_monitoring_v0.parallel_env(
-        graph=path_graph(n_nodes, list(targets)), n_agents=len(positions), initial_positions=positions,
-        reward=reward, max_cycles=max_cycles,
+        graph=path_graph(n_nodes, list(targets)),
+        n_agents=len(positions),
+        initial_positions=positions,
+        reward=reward,
+        max_cycles=max_cycles,
     )
     env.reset(seed=0)
     return env

@@ -12,15 +12,39 @@ from sb3_pm.experiments import ExperimentError, load_experiment, plan_cells, rep
 from sb3_pm.experiments import runner as runner_module
 
 ZOO = Path(__file__).resolve().parents[1] / "zoo"
-EXPECTED_FILES = {"results.md", "results.csv", "results.tex", "anova.txt", "results.json", "uncertainty.png",
-                  "table.png", "training.png", "estimator_loss.png", "experiment.yml", "command.txt"}
+EXPECTED_FILES = {
+    "results.md",
+    "results.csv",
+    "results.tex",
+    "anova.txt",
+    "results.json",
+    "uncertainty.png",
+    "table.png",
+    "training.png",
+    "estimator_loss.png",
+    "experiment.yml",
+    "command.txt",
+}
 
 
 @pytest.mark.parametrize("name", ["comparison", "ablation"])
 def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
     out = tmp_path / name
-    assert main(["reproduce", str(ZOO / "experiments" / f"{name}.yml"), "--quick", "--out", str(out),
-                 "--jobs", "1", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "reproduce",
+                str(ZOO / "experiments" / f"{name}.yml"),
+                "--quick",
+                "--out",
+                str(out),
+                "--jobs",
+                "1",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert EXPECTED_FILES <= {p.name for p in out.iterdir()}
     experiment = load_experiment(ZOO / "experiments" / f"{name}.yml").quick()
     table = (out / "results.md").read_text()
@@ -66,7 +90,9 @@ def test_resumed_sweep_retrains_nothing(tmp_path: Path, monkeypatch: pytest.Monk
     assert first.table == second.table
 
 
-def test_interrupted_sweep_runs_only_the_missing_cells(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_interrupted_sweep_runs_only_the_missing_cells(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     experiment = load_tiny(tmp_path)
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
     cells = plan_cells(experiment, tmp_path / "out")
@@ -89,7 +115,9 @@ def test_ray_backend_matches_local(tmp_path: Path) -> None:
     distributed = reproduce(experiment, tmp_path / "ray", backend="ray", n_jobs=2, progress=False)
     assert local.table == distributed.table
     for label in local.results:
-        assert [r.to_dict() for r in local.results[label]] == [r.to_dict() for r in distributed.results[label]]
+        assert [r.to_dict() for r in local.results[label]] == [
+            r.to_dict() for r in distributed.results[label]
+        ]
 
 
 def test_resume_refuses_a_different_experiment(tmp_path: Path) -> None:
@@ -106,7 +134,10 @@ def test_resume_refuses_a_different_experiment(tmp_path: Path) -> None:
         ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: magic}}\n", "kind must be one of"),
         ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline}}\n", "needs 'policy'"),
         ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {}}\n", "need 'config'"),
-        ("graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random}}\nbudget: 3\n", "unknown keys"),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random}}\nbudget: 3\n",
+            "unknown keys",
+        ),
         ("graphs: []\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random}}\n", "'graphs' is required"),
         ("graphs: [paper-50\n", "not valid YAML"),
     ],
@@ -121,13 +152,26 @@ def test_malformed_experiment_files(tmp_path: Path, text: str, message: str) -> 
 def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["reproduce", str(tmp_path / "missing.yml"), "--out", str(tmp_path / "o")]) == 2
     assert "experiment file not found" in capsys.readouterr().err
-    assert main(["reproduce", str(ZOO / "experiments" / "comparison.yml"), "--out", str(tmp_path / "o"),
-                 "--graphs", "no-such-graph"]) == 2
+    assert (
+        main(
+            [
+                "reproduce",
+                str(ZOO / "experiments" / "comparison.yml"),
+                "--out",
+                str(tmp_path / "o"),
+                "--graphs",
+                "no-such-graph",
+            ]
+        )
+        == 2
+    )
     assert "unknown graph" in capsys.readouterr().err
 
 
 def test_cell_results_are_stored(tmp_path: Path) -> None:
     experiment = load_tiny(tmp_path)
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
-    payload = json.loads((Path(plan_cells(experiment, tmp_path / "out")[0].folder) / "evaluation.json").read_text())
+    payload = json.loads(
+        (Path(plan_cells(experiment, tmp_path / "out")[0].folder) / "evaluation.json").read_text()
+    )
     assert len(payload["traces"]) == 2 and len(payload["traces"][0]) == 20

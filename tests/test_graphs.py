@@ -59,7 +59,12 @@ class TestErdosRenyi:
 class TestHyperrectangle:
     @pytest.mark.parametrize(
         ("lengths", "chunks", "counts"),
-        [((10.0,), (2.0,), (5,)), ((4, 6), (1, 2), (4, 3)), ((2, 3, 4), (1, 1, 2), (2, 3, 2)), ((6,), (6,), (1,))],
+        [
+            ((10.0,), (2.0,), (5,)),
+            ((4, 6), (1, 2), (4, 3)),
+            ((2, 3, 4), (1, 1, 2), (2, 3, 2)),
+            ((6,), (6,), (1,)),
+        ],
     )
     def test_cell_and_edge_counts(self, lengths, chunks, counts) -> None:
         if math.prod(counts) == 1:
@@ -132,7 +137,8 @@ class TestGraphML:
         path = tmp_path / "bad.graphml"
         path.write_text(
             '<?xml version="1.0"?><graphml xmlns="http://graphml.graphdrawing.org/xmlns">'
-            '<graph edgedefault="undirected"><node id="a"/><node id="b"/><edge source="a" target="b"/></graph></graphml>'
+            '<graph edgedefault="undirected"><node id="a"/><node id="b"/>'
+            '<edge source="a" target="b"/></graph></graphml>'
         )
         with pytest.raises(GraphError, match="no 'target' attribute"):
             load_graphml(path)

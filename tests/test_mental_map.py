@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
-from sb3_pm.agents.mental_map import AGE, FEATURES, OCCUPIED, SELF, TARGET, U, MentalMaps
+from sb3_pm.agents.mental_map import AGE, FEATURES, OCCUPIED, SELF, TARGET, MentalMaps, U
 from sb3_pm.envs import persistent_monitoring_v0
 from tests.conftest import path_graph
 
 
 def env_on_path(positions, **kwargs):
     # 0 - 1 - 2 - 3 - 4, targets 0 and 4
-    env = persistent_monitoring_v0.parallel_env(graph=path_graph(5, [0, 4]), n_agents=len(positions), initial_positions=positions, **kwargs)
+    env = persistent_monitoring_v0.parallel_env(
+        graph=path_graph(5, [0, 4]), n_agents=len(positions), initial_positions=positions, **kwargs
+    )
     observations, _ = env.reset(seed=0)
     return env, observations
 
@@ -87,8 +88,14 @@ def test_radius_two_sees_further_and_learns_edges_inside_the_ball() -> None:
 def test_maps_are_private() -> None:
     maps = MentalMaps(2, path_graph(3, [2]).adjacency)
     observed = np.array([[True, True, False], [False, False, False]])
-    maps.update(np.array([0, 2]), observed, np.array([5, 6, 7]), np.array([0, 0, 1]), np.array([1, 0, 1]),
-                np.array([[True, False, False], [False, False, False]]))
+    maps.update(
+        np.array([0, 2]),
+        observed,
+        np.array([5, 6, 7]),
+        np.array([0, 0, 1]),
+        np.array([1, 0, 1]),
+        np.array([[True, False, False], [False, False, False]]),
+    )
     assert maps.features[1, :, U].tolist() == [0, 0, 0]
     assert maps.adjacency[1].sum() == 0 and maps.adjacency[0].sum() == 2
 
@@ -117,5 +124,3 @@ def test_new_lifetime_forgets_edges_and_history() -> None:
     env.step({"agent_0": 1})
     obs, _ = env.reset(seed=0, options={"initial_positions": [4], "new_lifetime": True})
     assert obs["agent_0"]["adjacency"].sum() == 2  # only the edge 3-4, seen now
-    with pytest.raises(ValueError, match="unknown reset options"):
-        env.reset(options={"forget": True})

@@ -409,12 +409,7 @@ class IndependentPPO(Team):
         """What :meth:`save` writes to ``manifest.json``."""
         return {
             "format": MANIFEST_FORMAT,
-            "graph": {
-                "name": self.graph.name,
-                "fingerprint": self.graph.fingerprint,
-                "n_nodes": self.graph.n_nodes,
-                "n_targets": self.graph.n_targets,
-            },
+            "graph": graph_record(self.graph),
             "n_agents": self.n_agents,
             "agents": self.agents,
             "env_kwargs": self.env_kwargs,
@@ -439,8 +434,7 @@ class IndependentPPO(Team):
         folder.mkdir(parents=True, exist_ok=True)
         for agent in self.agents:
             self.models[agent].save(folder / f"{agent}.zip")
-        if not (self.graph.name in PRESETS and resolve_graph(self.graph.name).same_problem(self.graph)):
-            save_graphml(self.graph, folder / "graph.graphml", overwrite=True)
+        save_graph_copy(self.graph, folder)
         (folder / MANIFEST).write_text(json.dumps(self.manifest(), indent=2, sort_keys=True) + "\n")
         return folder
 
@@ -473,22 +467,8 @@ class IndependentPPO(Team):
             raise FileNotFoundError(f"no saved team at {folder} (not a folder)")
         if not manifest_path.exists():
             raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
-        try:
-            manifest = json.loads(manifest_path.read_text())
-        except json.JSONDecodeError as error:
-            raise ValueError(f"{manifest_path} is not valid JSON: {error}") from error
-        saved = manifest["graph"]
-        if graph is None:
-            graph_file = folder / "graph.graphml"
-            spec = resolve_graph(graph_file if graph_file.exists() else saved["name"])
-        else:
-            spec = resolve_graph(graph)
-        if spec.fingerprint != saved["fingerprint"]:
-            raise ValueError(
-                f"the team in {folder} was trained on graph {saved['name']!r} "
-                f"(fingerprint {saved['fingerprint']}), "
-                f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
-            )
+        manifest = read_manifest(folder)
+        spec = graph_for_saved_team(folder, manifest, graph)
         zips = {agent: folder / f"{agent}.zip" for agent in manifest["agents"]}
         missing = [str(p) for p in zips.values() if not p.exists()]
         if missing:
@@ -526,6 +506,56 @@ class IndependentPPO(Team):
             f"IndependentPPO(graph={self.graph.name!r}, n_agents={self.n_agents}, algo={self.algo!r}, "
             f"n_envs={self.n_envs}, num_timesteps={self.num_timesteps if self.models else 0})"
         )
+
+
+def graph_record(graph: GraphSpec) -> dict[str, Any]:
+    """How a saved team's manifest names its graph."""
+    return {
+        "name": graph.name,
+        "fingerprint": graph.fingerprint,
+        "n_nodes": graph.n_nodes,
+        "n_targets": graph.n_targets,
+    }
+
+
+def save_graph_copy(graph: GraphSpec, folder: Path) -> None:
+    """Keep a GraphML copy next to a saved team, unless the graph is a preset (rebuilt by name)."""
+    if not (graph.name in PRESETS and resolve_graph(graph.name).same_problem(graph)):
+        save_graphml(graph, folder / "graph.graphml", overwrite=True)
+
+
+def read_manifest(folder: Path) -> dict[str, Any]:
+    """A saved team's ``manifest.json``.
+
+    :raises FileNotFoundError: if it is missing. :raises ValueError: if it is not valid JSON.
+    """
+    path = folder / MANIFEST
+    if not path.exists():
+        raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
+    try:
+        return dict(json.loads(path.read_text()))
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path} is not valid JSON: {error}") from error
+
+
+def graph_for_saved_team(folder: Path, manifest: Mapping[str, Any], graph: GraphLike | None) -> GraphSpec:
+    """The graph to run a saved team on: ``graph`` if given, else the saved copy or preset.
+
+    :raises ValueError: if it is not the problem the team was trained on (naming both graphs).
+    """
+    saved = manifest["graph"]
+    if graph is None:
+        graph_file = folder / "graph.graphml"
+        spec = resolve_graph(graph_file if graph_file.exists() else saved["name"])
+    else:
+        spec = resolve_graph(graph)
+    if spec.fingerprint != saved["fingerprint"]:
+        raise ValueError(
+            f"the team in {folder} was trained on graph {saved['name']!r} "
+            f"(fingerprint {saved['fingerprint']}), "
+            f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
+        )
+    return spec
 
 
 def check_same_graph(expected: GraphSpec, actual: GraphSpec) -> None:

@@ -19,14 +19,24 @@ def register(subparsers: Any) -> None:
             "plots. Rerunning the same command resumes an interrupted sweep."
         ),
     )
-    parser.add_argument("experiment", type=Path, help="an experiment YAML, e.g. zoo/experiments/comparison.yml")
+    parser.add_argument(
+        "experiment", type=Path, help="an experiment YAML, e.g. zoo/experiments/comparison.yml"
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory (reused to resume)")
-    parser.add_argument("--quick", action="store_true", help="tiny budgets for a smoke test; its numbers are not results")
-    parser.add_argument("--graphs", nargs="+", help="override the experiment's graphs (presets or .graphml paths)")
+    parser.add_argument(
+        "--quick", action="store_true", help="tiny budgets for a smoke test; its numbers are not results"
+    )
+    parser.add_argument(
+        "--graphs", nargs="+", help="override the experiment's graphs (presets or .graphml paths)"
+    )
     parser.add_argument("--seeds", nargs="+", type=int, help="override the experiment's training seeds")
     parser.add_argument("--timesteps", type=int, help="override the training budget (steps per learner)")
-    parser.add_argument("--backend", choices=["local", "ray"], default="local", help="where cells run (default local)")
-    parser.add_argument("--ray-address", help="address of an existing Ray cluster (default: start a local one)")
+    parser.add_argument(
+        "--backend", choices=["local", "ray"], default="local", help="where cells run (default local)"
+    )
+    parser.add_argument(
+        "--ray-address", help="address of an existing Ray cluster (default: start a local one)"
+    )
     parser.add_argument("--jobs", type=int, help="parallel cells (default: one per core)")
     parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
     parser.set_defaults(func=run)

@@ -70,20 +70,26 @@ class MonitoringCore:
         if positions.shape != (self.n_agents,):
             raise ValueError(f"expected {self.n_agents} initial positions, got {positions.tolist()}")
         if ((positions < 0) | (positions >= self.graph.n_nodes)).any():
-            raise ValueError(f"initial positions {positions.tolist()} are not all nodes of 0..{self.graph.n_nodes - 1}")
+            raise ValueError(
+                f"initial positions {positions.tolist()} are not all nodes of 0..{self.graph.n_nodes - 1}"
+            )
         self.positions = positions.copy()
         self.uncertainty = np.zeros(self.graph.n_nodes, dtype=np.int64)
         if uncertainty is not None:
             values = np.asarray(uncertainty, dtype=np.int64)
             if values.shape != (self.graph.n_nodes,) or (values < 0).any() or (values > self.u_max).any():
-                raise ValueError(f"initial uncertainty must be {self.graph.n_nodes} integers in [0, {self.u_max}]")
+                raise ValueError(
+                    f"initial uncertainty must be {self.graph.n_nodes} integers in [0, {self.u_max}]"
+                )
             self.uncertainty[self._target_idx] = values[self._target_idx]
 
     def reachable_from(self, agent: int) -> np.ndarray:
         """Node indices agent ``agent`` may move to now (its node and its neighbours)."""
         return np.flatnonzero(self._reachable[self.positions[agent]])
 
-    def step(self, destinations: np.ndarray, illegal: str = "raise", agent_names: list[str] | None = None) -> StepOutcome:
+    def step(
+        self, destinations: np.ndarray, illegal: str = "raise", agent_names: list[str] | None = None
+    ) -> StepOutcome:
         """Move every agent at once, then update uncertainties (eq. 1 and the cap).
 
         :param destinations: ``(n_agents,)`` node indices.
@@ -100,7 +106,8 @@ class MonitoringCore:
                 agent = int(np.flatnonzero(~legal)[0])
                 name = agent_names[agent] if agent_names else f"agent {agent}"
                 raise IllegalActionError(
-                    f"{name} on node {int(self.positions[agent])} cannot move to node {int(destinations[agent])}; "
+                    f"{name} on node {int(self.positions[agent])} "
+                    f"cannot move to node {int(destinations[agent])}; "
                     f"its reachable set is {self.reachable_from(agent).tolist()}"
                 )
             destinations = np.where(legal, destinations, self.positions)
@@ -112,7 +119,9 @@ class MonitoringCore:
         u = self.uncertainty[targets]
         # eq. 1 with the cap: a visited target drops by one (u + 1 - 2p, u > 0) or stays at zero
         # (u + 1 - p, u == 0); an unvisited one grows by one up to u_max.
-        self.uncertainty[targets] = np.where(presence[targets], np.maximum(u - 1, 0), np.minimum(u + 1, self.u_max))
+        self.uncertainty[targets] = np.where(
+            presence[targets], np.maximum(u - 1, 0), np.minimum(u + 1, self.u_max)
+        )
         return StepOutcome(
             counts=counts,
             presence=presence,

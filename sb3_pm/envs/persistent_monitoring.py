@@ -63,14 +63,17 @@ class PersistentMonitoringEnv(ParallelEnv):
             if value not in allowed:
                 raise ValueError(f"{label} must be one of {allowed}, got {value!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
+            )
         self.core = MonitoringCore(self.graph, n_agents, u_max)
         n_nodes = self.graph.n_nodes
         if initial_positions is not None:
             initial_positions = [int(p) for p in initial_positions]
             if len(initial_positions) != n_agents or not all(0 <= p < n_nodes for p in initial_positions):
                 raise ValueError(
-                    f"initial_positions must list {n_agents} nodes in 0..{n_nodes - 1}, got {initial_positions}"
+                    f"initial_positions must list {n_agents} nodes in 0..{n_nodes - 1}, "
+                    f"got {initial_positions}"
                 )
         self.n_agents = n_agents
         self.max_cycles = int(max_cycles)
@@ -162,9 +165,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         options = options or {}
-        unknown = sorted(set(options) - {"initial_positions", "new_lifetime"})
-        if unknown:
-            raise ValueError(f"unknown reset options {unknown}; allowed: initial_positions, new_lifetime")
+        # Other keys are ignored, as PettingZoo expects (its API test passes arbitrary options).
         if options.get("new_lifetime"):
             # Agents that have never lived: no discovered edges, no past episodes for `change`.
             self.maps.forget_edges()
@@ -204,7 +205,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.metrics.update(self.core.uncertainty, outcome.presence, int(outcome.collided.sum()))
         last = self._step_count >= self.max_cycles
         on_target = self._targets[self.core.positions]
-        reward_values, _ = self.rewards_computer.step(outcome, on_target, last, self.maps.episode_uncertainty_sum)
+        reward_values, _ = self.rewards_computer.step(
+            outcome, on_target, last, self.maps.episode_uncertainty_sum
+        )
 
         observations = self._observations()
         rewards = {agent: float(reward_values[i]) for i, agent in enumerate(self.possible_agents)}

@@ -112,7 +112,9 @@ class EvaluationResult:
         records = []
         for row, trace in zip(payload["episodes"], traces):
             metrics = {k: v for k, v in row.items() if k not in ("episode", "seed", "team_seed")}
-            records.append(EpisodeRecord(int(row["episode"]), int(row["seed"]), int(row["team_seed"]), metrics, np.asarray(trace, dtype=float)))
+            episode, seed, seed_of_team = int(row["episode"]), int(row["seed"]), int(row["team_seed"])
+            trace_array = np.asarray(trace, dtype=float)
+            records.append(EpisodeRecord(episode, seed, seed_of_team, metrics, trace_array))
         config = payload["config"]
         return cls(policy=config["policy"], graph=config["graph"], config=config, episodes=records)
 

@@ -101,7 +101,10 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
     config.hyperparams.update({**cell.hyperparams, **variant.hyperparams})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
     if variant.policy_kwargs:
-        config.hyperparams["policy_kwargs"] = {**config.hyperparams.get("policy_kwargs", {}), **variant.policy_kwargs}
+        config.hyperparams["policy_kwargs"] = {
+            **config.hyperparams.get("policy_kwargs", {}),
+            **variant.policy_kwargs,
+        }
     config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
     config.n_agents = cell.n_agents
     timesteps = cell.timesteps or config.n_timesteps
@@ -146,7 +149,12 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         policy_name=variant.label,
     )
     payload = result.to_dict(traces=True)
-    payload["cell"] = {"variant": variant.key, "graph": cell.graph, "seed": cell.seed, "seconds": time.time() - started}
+    payload["cell"] = {
+        "variant": variant.key,
+        "graph": cell.graph,
+        "seed": cell.seed,
+        "seconds": time.time() - started,
+    }
     (folder / "evaluation.json").write_text(json.dumps(payload, indent=2))
     (folder / DONE).write_text(time.strftime("%Y-%m-%dT%H:%M:%S\n"))
     return payload
@@ -172,9 +180,19 @@ def reproduce(
     if progress and todo:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(todo), unit="cell", desc=f"{experiment.name}: {len(cells) - len(todo)} of {len(cells)} done")
-    run_jobs(run_cell, todo, backend=backend, n_jobs=n_jobs, ray_address=ray_address,
-             on_done=(lambda index, result: bar.update(1)) if bar is not None else None)
+        bar = tqdm(
+            total=len(todo),
+            unit="cell",
+            desc=f"{experiment.name}: {len(cells) - len(todo)} of {len(cells)} done",
+        )
+    run_jobs(
+        run_cell,
+        todo,
+        backend=backend,
+        n_jobs=n_jobs,
+        ray_address=ray_address,
+        on_done=(lambda index, result: bar.update(1)) if bar is not None else None,
+    )
     if bar is not None:
         bar.close()
     comparison = Comparison(config=experiment_record(experiment))
@@ -201,5 +219,7 @@ def experiment_record(experiment: Experiment) -> dict[str, Any]:
         "env_kwargs": experiment.env_kwargs,
         "hyperparams": experiment.hyperparams,
         "evaluation_seeds": f"{EVAL_SEED_OFFSET} + seed * {SEED_STRIDE} + episode",
-        "variants": {v.key: {k: val for k, val in asdict(v).items() if k != "key"} for v in experiment.variants},
+        "variants": {
+            v.key: {k: val for k, val in asdict(v).items() if k != "key"} for v in experiment.variants
+        },
     }

@@ -33,8 +33,21 @@ from typing import Any
 import yaml
 
 VARIANT_KINDS = ("independent", "centralized", "baseline")
-_TOP_KEYS = {"name", "graphs", "seeds", "episodes", "max_cycles", "n_agents", "config", "timesteps", "quick",
-             "variants", "description", "env_kwargs", "hyperparams"}
+_TOP_KEYS = {
+    "name",
+    "graphs",
+    "seeds",
+    "episodes",
+    "max_cycles",
+    "n_agents",
+    "config",
+    "timesteps",
+    "quick",
+    "variants",
+    "description",
+    "env_kwargs",
+    "hyperparams",
+}
 _VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label"}
 
 

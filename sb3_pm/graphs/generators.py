@@ -126,7 +126,9 @@ def hyperrectangle(
         raise GraphError("hyperrectangle needs exactly one of targets or n_targets")
     if targets is not None:
         for cell in targets:
-            index = int(np.ravel_multi_index(tuple(cell), counts)) if isinstance(cell, Sequence) else int(cell)
+            index = (
+                int(np.ravel_multi_index(tuple(cell), counts)) if isinstance(cell, Sequence) else int(cell)
+            )
             if not 0 <= index < n_cells:
                 raise GraphError(f"target cell {cell} is outside the {counts} grid")
             flags[index] = True

@@ -28,7 +28,9 @@ def resolve_graph(graph: GraphLike) -> GraphSpec:
         return preset(text)
     if text.lower().endswith((".graphml", ".xml")) or isinstance(graph, Path):
         return load_graphml(text)
-    raise GraphError(f"unknown graph {text!r}: use a preset ({', '.join(sorted(PRESETS))}) or a .graphml path")
+    raise GraphError(
+        f"unknown graph {text!r}: use a preset ({', '.join(sorted(PRESETS))}) or a .graphml path"
+    )
 
 
 def graph_label(graph: GraphLike) -> str:

@@ -59,13 +59,17 @@ class GraphSpec:
         if n_nodes == 0:
             raise GraphError(f"graph {self.name!r} has no nodes")
         if not (adjacency == adjacency.T).all():
-            raise GraphError(f"graph {self.name!r}: adjacency is not symmetric (the graph must be undirected)")
+            raise GraphError(
+                f"graph {self.name!r}: adjacency is not symmetric (the graph must be undirected)"
+            )
         if adjacency.diagonal().any():
             loops = np.flatnonzero(adjacency.diagonal()).tolist()
             raise GraphError(f"graph {self.name!r} has self-loops at nodes {loops[:10]}")
         targets = np.asarray(self.targets)
         if targets.shape != (n_nodes,):
-            raise GraphError(f"graph {self.name!r}: targets must have shape ({n_nodes},), got {targets.shape}")
+            raise GraphError(
+                f"graph {self.name!r}: targets must have shape ({n_nodes},), got {targets.shape}"
+            )
         if not np.isin(targets, (0, 1)).all():
             raise GraphError(f"graph {self.name!r}: target flags must be 0/1")
         targets = targets.astype(bool)
@@ -114,7 +118,7 @@ class GraphSpec:
 
     @cached_property
     def reachable(self) -> np.ndarray:
-        """``(N, N)`` bool: ``reachable[i, j]`` iff an agent on ``i`` may move to ``j`` (stay or a neighbour)."""
+        """``(N, N)`` bool: ``reachable[i, j]`` iff an agent on ``i`` may move to ``j``."""
         return _read_only(self.adjacency | np.eye(self.n_nodes, dtype=bool))
 
     @cached_property

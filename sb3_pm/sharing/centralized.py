@@ -24,11 +24,27 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.utils import set_random_seed
 
-from sb3_pm.agents.team import MANIFEST, _versions, check_same_graph, learn_seed
+from sb3_pm.agents.team import (
+    MANIFEST,
+    _versions,
+    check_same_graph,
+    graph_for_saved_team,
+    graph_record,
+    learn_seed,
+    read_manifest,
+    save_graph_copy,
+)
 from sb3_pm.baselines.base import Observation, Team
-from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
+from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
-from sb3_pm.zoo.registry import DEFAULT_POLICIES, algo_name, default_algo, resolve_algo, resolve_policy_kwargs, uses_masks
+from sb3_pm.zoo.registry import (
+    DEFAULT_POLICIES,
+    algo_name,
+    default_algo,
+    resolve_algo,
+    resolve_policy_kwargs,
+    uses_masks,
+)
 from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
 
 MANIFEST_FORMAT = "sb3_pm.centralized/1"
@@ -89,8 +105,13 @@ class CentralizedPPO(Team):
             if "policy_kwargs" in kwargs:
                 kwargs["policy_kwargs"] = resolve_policy_kwargs(kwargs["policy_kwargs"])
             self.model = self.algo_class(
-                self.policy, self.venv, seed=self.seed, tensorboard_log=None if tensorboard_log is None else str(tensorboard_log),
-                verbose=verbose, device=device, **kwargs,
+                self.policy,
+                self.venv,
+                seed=self.seed,
+                tensorboard_log=None if tensorboard_log is None else str(tensorboard_log),
+                verbose=verbose,
+                device=device,
+                **kwargs,
             )
 
     @classmethod
@@ -110,18 +131,28 @@ class CentralizedPPO(Team):
         """Agent-steps per agent taken so far (comparable with ``IndependentPPO.num_timesteps``)."""
         return int(self.model.num_timesteps) // self.n_agents
 
-    def learn(self, total_timesteps: int, callback: Any = None, progress_bar: bool = False,
-              reset_num_timesteps: bool = True) -> CentralizedPPO:
+    def learn(
+        self,
+        total_timesteps: int,
+        callback: Any = None,
+        progress_bar: bool = False,
+        reset_num_timesteps: bool = True,
+    ) -> CentralizedPPO:
         """Train for ``total_timesteps`` steps per agent (``n_agents`` times that for the model)."""
         if total_timesteps < 1:
             raise ValueError(f"total_timesteps must be positive, got {total_timesteps}")
         set_random_seed(learn_seed(self.seed, self.num_timesteps))
-        self.model.learn(total_timesteps * self.n_agents, callback=callback, progress_bar=progress_bar,
-                         reset_num_timesteps=reset_num_timesteps, tb_log_name="centralized")
+        self.model.learn(
+            total_timesteps * self.n_agents,
+            callback=callback,
+            progress_bar=progress_bar,
+            reset_num_timesteps=reset_num_timesteps,
+            tb_log_name="centralized",
+        )
         return self
 
     def reset(self, env: Any, seed: int | None = None) -> None:
-        """Start an episode; the env must have ``shared_map=True`` for the team to see what it was trained on."""
+        """Start an episode; the env needs ``shared_map=True``, the setting the team was trained in."""
         super().reset(env, seed)
         unwrapped = getattr(env, "unwrapped", env)
         if isinstance(getattr(unwrapped, "graph", None), GraphSpec):
@@ -134,9 +165,14 @@ class CentralizedPPO(Team):
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
         """One batched forward pass of the shared network for every agent."""
         agents = list(observations)
-        batch = {key: np.stack([np.asarray(observations[a][key]) for a in agents]) for key in observations[agents[0]]}
+        batch = {
+            key: np.stack([np.asarray(observations[a][key]) for a in agents])
+            for key in observations[agents[0]]
+        }
         if uses_masks(type(self.model)):
-            actions, _ = self.model.predict(batch, deterministic=deterministic, action_masks=batch["action_mask"].astype(bool))
+            actions, _ = self.model.predict(
+                batch, deterministic=deterministic, action_masks=batch["action_mask"].astype(bool)
+            )
         else:
             actions, _ = self.model.predict(batch, deterministic=deterministic)
         return {agent: int(action) for agent, action in zip(agents, np.asarray(actions).reshape(-1))}
@@ -144,8 +180,7 @@ class CentralizedPPO(Team):
     def manifest(self) -> dict[str, Any]:
         return {
             "format": MANIFEST_FORMAT,
-            "graph": {"name": self.graph.name, "fingerprint": self.graph.fingerprint,
-                      "n_nodes": self.graph.n_nodes, "n_targets": self.graph.n_targets},
+            "graph": graph_record(self.graph),
             "n_agents": self.n_agents,
             "env_kwargs": self.env_kwargs,
             "algo": self.algo,
@@ -162,8 +197,7 @@ class CentralizedPPO(Team):
             raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
         folder.mkdir(parents=True, exist_ok=True)
         self.model.save(folder / MODEL_FILE)
-        if not (self.graph.name in PRESETS and resolve_graph(self.graph.name).same_problem(self.graph)):
-            save_graphml(self.graph, folder / "graph.graphml", overwrite=True)
+        save_graph_copy(self.graph, folder)
         (folder / MANIFEST).write_text(json.dumps(self.manifest(), indent=2, sort_keys=True) + "\n")
         return folder
 
@@ -175,25 +209,23 @@ class CentralizedPPO(Team):
         :raises ValueError: if ``graph`` is not the graph the team was trained on.
         """
         folder = Path(path)
-        manifest_path = folder / MANIFEST
-        if not manifest_path.exists():
-            raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
-        manifest = json.loads(manifest_path.read_text())
+        manifest = read_manifest(folder)
         if manifest.get("format") != MANIFEST_FORMAT:
             raise ValueError(f"{folder} holds a {manifest.get('format')!r} team, not a centralized one")
-        saved = manifest["graph"]
-        graph_file = folder / "graph.graphml"
-        spec = resolve_graph(graph if graph is not None else (graph_file if graph_file.exists() else saved["name"]))
-        if spec.fingerprint != saved["fingerprint"]:
-            raise ValueError(
-                f"the team in {folder} was trained on graph {saved['name']!r} (fingerprint {saved['fingerprint']}), "
-                f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
-            )
+        spec = graph_for_saved_team(folder, manifest, graph)
         if not (folder / MODEL_FILE).exists():
             raise FileNotFoundError(f"saved team {folder} is incomplete: missing {folder / MODEL_FILE}")
-        team = cls(spec, n_agents=int(manifest["n_agents"]), env_kwargs=manifest["env_kwargs"], algo=manifest["algo"],
-                   policy=manifest["policy"], n_envs=int(manifest["n_envs"]), seed=int(manifest["seed"]),
-                   device=device, _init_model=False)
+        team = cls(
+            spec,
+            n_agents=int(manifest["n_agents"]),
+            env_kwargs=manifest["env_kwargs"],
+            algo=manifest["algo"],
+            policy=manifest["policy"],
+            n_envs=int(manifest["n_envs"]),
+            seed=int(manifest["seed"]),
+            device=device,
+            _init_model=False,
+        )
         team.model = team.algo_class.load(folder / MODEL_FILE, env=team.venv, device=device)
         return team
 
