@@ -84,6 +84,57 @@ class TestLayers:
         assert _use_dense(random_graphs(2, 60, 0.01), "dense")
         assert not _use_dense(random_graphs(2, 60, 0.2), "sparse")
 
+    @pytest.mark.parametrize("chunk", [1, 3, 64])
+    def test_chunked_attention_matches_autograd(self, chunk: int) -> None:
+        """The fused kernel's values and gradients equal plain autograd's over the unfused maths."""
+        from sb3_pm.policies.extractor import _ChunkedAttention, attention_bias, unique_graphs
+
+        th.manual_seed(0)
+        batch, heads, n, c = 10, 3, 9, 4
+        adjacency = random_graphs(batch, n, 0.3)
+        adjacency[5:] = adjacency[0]  # repeated graphs: exercised through the distinct-graph index
+        graphs, index = unique_graphs(adjacency)
+        assert len(graphs) == 5 and th.equal(graphs[index], adjacency)
+        a_dst, a_src = th.randn(batch, heads, n, requires_grad=True), th.randn(batch, heads, n, requires_grad=True)
+        h = th.randn(batch, heads, n, c, requires_grad=True)
+        scores = th.nn.functional.leaky_relu(a_dst.unsqueeze(-1) + a_src.unsqueeze(-2), 0.2)
+        expected = th.matmul(th.softmax(scores + attention_bias(adjacency), -1), h)
+        fused = _ChunkedAttention.apply(a_dst, a_src, h, attention_bias(graphs), index, 0.2, chunk)
+        th.testing.assert_close(fused, expected)
+        weight = th.randn_like(expected)
+        grads = th.autograd.grad((expected * weight).sum(), (a_dst, a_src, h))
+        fused_grads = th.autograd.grad((fused * weight).sum(), (a_dst, a_src, h))
+        for got, want in zip(fused_grads, grads):
+            th.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
+
+    def test_unique_graphs_with_equal_edge_counts(self) -> None:
+        from sb3_pm.policies.extractor import unique_graphs
+
+        adjacency = th.zeros(12, 4, 4)
+        adjacency[:6, 0, 1] = adjacency[:6, 1, 0] = 1.0
+        adjacency[6:, 2, 3] = adjacency[6:, 3, 2] = 1.0  # same edge count, different graph
+        graphs, index = unique_graphs(adjacency)
+        assert len(graphs) == 2 and th.equal(graphs[index], adjacency)
+
+    def test_encoding_per_graph_matches_concatenated_input(self) -> None:
+        """The first layer's per-distinct-graph product with the encoding equals the plain layer."""
+        from sb3_pm.policies.extractor import laplacian_rows, unique_graphs
+
+        th.manual_seed(0)
+        layer = GraphAttention(5 + 11, 8, heads=2)
+        adjacency = random_graphs(12, 11, 0.3)
+        adjacency[4:] = adjacency[1]
+        x = th.randn(12, 11, 5)
+        graphs, index = unique_graphs(adjacency)
+        full = th.cat((x, laplacian_rows(adjacency)), -1)
+        for dense in (True, False):
+            th.testing.assert_close(
+                layer(x, adjacency, dense=dense, encoding=(laplacian_rows(graphs), index)),
+                layer(full, adjacency, dense=dense),
+                atol=1e-5,
+                rtol=1e-5,
+            )
+
     def test_bad_options(self, env: SingleAgentMonitoringEnv) -> None:
         with pytest.raises(ValueError, match="laplacian"):
             GATFeaturesExtractor(env.observation_space, laplacian="full")

@@ -20,9 +20,23 @@ density on 2 CPU cores, sparse (:class:`torch_geometric.nn.GATConv`) wins below 
 A discovered adjacency starts very sparse and fills in, so the choice is made per batch rather
 than once; both kernels compute the same function (tested), so the choice never changes results
 beyond float rounding.
+
+Speed (profiled on 2 CPU cores, ``benchmarks/train_speed.py``): PPO's minibatches hold 250 maps,
+and the attention tensors ``(B, heads, N, N)`` are 10 MB on 50 nodes and 160 MB on 200 nodes, so
+autograd's dozen elementwise passes over them ran at memory speed. The dense kernel therefore
+
+* computes everything that depends only on the adjacency (the attention mask, the Laplacian and
+  its product with the first layer's weights) once per *distinct* adjacency of the batch
+  (:func:`unique_graphs`): one agent's known map changes only when it discovers an edge, so a
+  rollout holds a few distinct adjacencies, not one per step;
+* runs masked softmax attention as one autograd function (:class:`_ChunkedAttention`) over chunks
+  of the batch small enough to stay in cache, recomputing the scores in the backward pass instead
+  of storing them (as flash attention does on GPUs).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import torch as th
 from gymnasium import spaces
@@ -48,6 +62,105 @@ def _use_dense(adjacency: th.Tensor, backend: str) -> bool:
         return True
     density = float(adjacency.sum()) / max(1, adjacency.shape[0] * n * (n - 1))
     return density >= SPARSE_DENSITY
+
+
+#: Batches up to this size skip the distinct-adjacency search (a rollout step holds n_envs maps).
+UNIQUE_MIN_BATCH = 8
+#: Target size, in floats, of one chunk of attention scores ``(chunk, heads, N, N)``: about 0.5 MB,
+#: so a chunk's scores, probabilities and gradients stay in a core's L2 cache. Measured on 2 cores:
+#: 200 nodes, 4 heads, B=250: chunks of 1-2 maps are 1.65x faster than one pass over the batch.
+CHUNK_FLOATS = 131_072
+
+
+def unique_graphs(adjacency: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """The distinct adjacencies of a batch and, per map, the index of its adjacency among them.
+
+    Small batches (a rollout step) are returned as they are.
+
+    Shapes:
+        - adjacency: ``(B, N, N)``
+        - output: ``(U, N, N)`` distinct adjacencies (``U <= B``), ``(B,)`` long index into them
+    """
+    batch = adjacency.shape[0]
+    if batch <= UNIQUE_MIN_BATCH:
+        return adjacency, th.arange(batch, device=adjacency.device)
+    flat = adjacency.reshape(batch, -1)
+    # Cheap key first (edge count); one exact comparison confirms that equal keys mean equal graphs.
+    counts = flat.sum(-1)
+    keys, inverse = th.unique(counts, return_inverse=True)
+    first = th.full((len(keys),), batch, dtype=th.long, device=adjacency.device)
+    first.scatter_reduce_(0, inverse, th.arange(batch, device=adjacency.device), reduce="amin")
+    if bool((flat == flat[first[inverse]]).all()):
+        return adjacency[first], inverse
+    _, inverse = th.unique(flat, dim=0, return_inverse=True)  # graphs with equal edge counts differ
+    first = th.full((int(inverse.max()) + 1,), batch, dtype=th.long, device=adjacency.device)
+    first.scatter_reduce_(0, inverse, th.arange(batch, device=adjacency.device), reduce="amin")
+    return adjacency[first], inverse
+
+
+def _attention_chunk(
+    a_dst: th.Tensor, a_src: th.Tensor, bias: th.Tensor, slope: float
+) -> tuple[th.Tensor, th.Tensor]:
+    """Scores before the LeakyReLU and attention probabilities of one chunk.
+
+    Shapes:
+        - a_dst, a_src: ``(b, H, N)``; bias: ``(b, 1, N, N)``
+        - output: both ``(b, H, N_target, N_source)``
+    """
+    pre = a_dst.unsqueeze(-1) + a_src.unsqueeze(-2)
+    scores = nn.functional.leaky_relu(pre, slope).add_(bias)
+    return pre, th.softmax(scores, dim=-1)
+
+
+class _ChunkedAttention(th.autograd.Function):
+    """``softmax_j(LeakyReLU(a_dst_i + a_src_j) + bias_ij) @ h``, in cache-sized chunks of the batch.
+
+    Stores only its (small) inputs; the backward pass recomputes each chunk's probabilities, so no
+    ``(B, H, N, N)`` tensor ever exists. Gradients are the exact derivatives of the unfused
+    computation (softmax and LeakyReLU backward are ATen's own kernels).
+
+    Shapes:
+        - a_dst, a_src: ``(B, H, N)``; h: ``(B, H, N, C)``
+        - bias: ``(U, 1, N, N)`` additive masks of the distinct adjacencies; index: ``(B,)`` long
+        - output: ``(B, H, N, C)``
+    """
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        a_dst: th.Tensor,
+        a_src: th.Tensor,
+        h: th.Tensor,
+        bias: th.Tensor,
+        index: th.Tensor,
+        slope: float,
+        chunk: int,
+    ) -> th.Tensor:
+        out = h.new_empty(h.shape)
+        for start in range(0, h.shape[0], chunk):
+            part = slice(start, start + chunk)
+            _, alpha = _attention_chunk(a_dst[part], a_src[part], bias[index[part]], slope)
+            th.matmul(alpha, h[part], out=out[part])
+        ctx.save_for_backward(a_dst, a_src, h, bias, index)
+        ctx.slope, ctx.chunk = slope, chunk
+        return out
+
+    @staticmethod
+    def backward(ctx: Any, grad_out: th.Tensor) -> tuple[th.Tensor | None, ...]:  # type: ignore[override]
+        a_dst, a_src, h, bias, index = ctx.saved_tensors
+        slope, chunk = ctx.slope, ctx.chunk
+        grad_out = grad_out.contiguous()
+        grad_dst, grad_src, grad_h = th.empty_like(a_dst), th.empty_like(a_src), th.empty_like(h)
+        for start in range(0, h.shape[0], chunk):
+            part = slice(start, start + chunk)
+            pre, alpha = _attention_chunk(a_dst[part], a_src[part], bias[index[part]], slope)
+            grad_alpha = th.matmul(grad_out[part], h[part].transpose(-1, -2))
+            th.matmul(alpha.transpose(-1, -2), grad_out[part], out=grad_h[part])
+            grad_scores = th._softmax_backward_data(grad_alpha, alpha, -1, alpha.dtype)
+            grad_pre = th.ops.aten.leaky_relu_backward(grad_scores, pre, slope, False)
+            th.sum(grad_pre, dim=-1, out=grad_dst[part])
+            th.sum(grad_pre, dim=-2, out=grad_src[part])
+        return grad_dst, grad_src, grad_h, None, None, None, None
 
 
 def batched_edge_index(adjacency: th.Tensor) -> th.Tensor:
@@ -98,35 +211,75 @@ class GraphAttention(nn.Module):
         self.conv.reset_parameters()
 
     def forward(
-        self, x: th.Tensor, adjacency: th.Tensor, dense: bool | None = None, bias: th.Tensor | None = None
+        self,
+        x: th.Tensor,
+        adjacency: th.Tensor,
+        dense: bool | None = None,
+        bias: th.Tensor | tuple[th.Tensor, th.Tensor] | None = None,
+        encoding: tuple[th.Tensor, th.Tensor] | None = None,
     ) -> th.Tensor:
-        """:param bias: optional precomputed :func:`attention_bias` of ``adjacency`` (dense kernel)."""
+        """Attend over ``adjacency`` (plus self loops).
+
+        :param bias: dense kernel: a precomputed :func:`attention_bias` ``(B, 1, N, N)``, or the biases
+            of the batch's distinct adjacencies with each map's index, ``((U, 1, N, N), (B,))``.
+        :param encoding: extra input columns given per distinct adjacency, ``((U, N, E), (B,))``:
+            the layer's input is then ``[x, encoding[0][encoding[1]]]`` (``in_channels = F + E``),
+            and its linear map of the encoding is computed once per distinct adjacency.
+        """
         if dense is None:
             dense = _use_dense(adjacency, self.backend)
         if dense:
-            return self._dense(x, attention_bias(adjacency) if bias is None else bias)
+            if bias is None:
+                graphs, index = unique_graphs(adjacency)
+                bias = (attention_bias(graphs), index)
+            elif isinstance(bias, th.Tensor):
+                bias = (bias, th.arange(bias.shape[0], device=bias.device))
+            return self._dense(x, *bias, encoding=encoding)
+        if encoding is not None:
+            x = th.cat((x, encoding[0][encoding[1]]), dim=-1)
         batch, n, _ = x.shape
         out = self.conv(x.reshape(batch * n, -1), batched_edge_index(adjacency))
         return out.view(batch, n, -1)
 
-    def _dense(self, x: th.Tensor, bias: th.Tensor) -> th.Tensor:
+    def _project(self, x: th.Tensor, encoding: tuple[th.Tensor, th.Tensor] | None) -> th.Tensor:
+        """The layer's linear map ``W [x, encoding]``, ``(B, N, heads * C)``."""
+        if encoding is None:
+            return self.conv.lin(x)
+        weight = self.conv.lin.weight  # (heads * C, F + E); GATConv's lin has no bias
+        features = x.shape[-1]
+        per_graph = th.matmul(encoding[0], weight[:, features:].t())  # (U, N, heads * C), once per graph
+        return nn.functional.linear(x, weight[:, :features]) + per_graph[encoding[1]]
+
+    def _dense(
+        self,
+        x: th.Tensor,
+        bias: th.Tensor,
+        index: th.Tensor,
+        encoding: tuple[th.Tensor, th.Tensor] | None = None,
+    ) -> th.Tensor:
         """GAT attention as batched matrices, laid out ``(B, heads, target, source)``.
 
         The maths of :class:`~torch_geometric.nn.DenseGATConv`, with the softmax over the last,
-        contiguous axis and the adjacency mask added as a precomputed bias; profiling on 50-node
-        maps showed DenseGATConv's ``(B, N, N, heads)`` layout spending most of its time in
-        ``masked_fill``/``softmax`` over a strided axis.
+        contiguous axis and the adjacency mask added as a precomputed bias (one per distinct
+        adjacency, ``bias[index]`` per map); profiling on 50-node maps showed DenseGATConv's
+        ``(B, N, N, heads)`` layout spending most of its time in ``masked_fill``/``softmax`` over a
+        strided axis. The attention itself runs in :class:`_ChunkedAttention`.
         """
         conv = self.conv
         batch, n, _ = x.shape
         heads, channels = self.heads, self.out_channels
-        h = conv.lin(x).view(batch, n, heads, channels).transpose(1, 2)  # (B, H, N, C)
+        h = self._project(x, encoding).view(batch, n, heads, channels).transpose(1, 2).contiguous()
         alpha_src = (h * conv.att_src.view(1, heads, 1, channels)).sum(-1)  # (B, H, N)
         alpha_dst = (h * conv.att_dst.view(1, heads, 1, channels)).sum(-1)
-        scores = alpha_dst.unsqueeze(-1) + alpha_src.unsqueeze(-2)  # (B, H, N_target, N_source)
-        scores = nn.functional.leaky_relu(scores, conv.negative_slope) + bias
-        alpha = nn.functional.dropout(th.softmax(scores, dim=-1), p=conv.dropout, training=self.training)
-        out = th.matmul(alpha, h).mean(1)  # heads averaged (concat=False)
+        if self.training and conv.dropout > 0:  # attention dropout needs the probabilities: unfused
+            scores = alpha_dst.unsqueeze(-1) + alpha_src.unsqueeze(-2)  # (B, H, N_target, N_source)
+            scores = nn.functional.leaky_relu(scores, conv.negative_slope) + bias[index]
+            alpha = nn.functional.dropout(th.softmax(scores, dim=-1), p=conv.dropout, training=True)
+            out = th.matmul(alpha, h)
+        else:
+            chunk = max(1, CHUNK_FLOATS // (heads * n * n))
+            out = _ChunkedAttention.apply(alpha_dst, alpha_src, h, bias, index, conv.negative_slope, chunk)
+        out = out.mean(1)  # heads averaged (concat=False)
         return out + conv.bias if conv.bias is not None else out
 
     def __repr__(self) -> str:
@@ -292,24 +445,32 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             self.extra_gat = self.transformer = None
         self.activation = nn.ELU()
 
+    def encoding(self, adjacency: th.Tensor) -> th.Tensor | None:
+        """The positional encoding of each adjacency, ``(B, N, encoding)`` (``None`` for ``"none"``)."""
+        if self.laplacian == "rows":
+            return laplacian_rows(adjacency)
+        if self.laplacian == "eigen":
+            return laplacian_eigen(adjacency, self.laplacian_k)
+        return None
+
     def node_inputs(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         """Normalized node features with the positional encoding, ``(B, N, 5 + encoding)``."""
         x = observations["nodes"] * self.inv_high
-        adjacency = observations["adjacency"]
-        if self.laplacian == "rows":
-            x = th.cat((x, laplacian_rows(adjacency)), dim=-1)
-        elif self.laplacian == "eigen":
-            x = th.cat((x, laplacian_eigen(adjacency, self.laplacian_k)), dim=-1)
-        return x
+        encoding = self.encoding(observations["adjacency"])
+        return x if encoding is None else th.cat((x, encoding), dim=-1)
 
     def node_embeddings(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         """Per-node embeddings ``H``, ``(B, N, hidden_dim)``."""
         adjacency = observations["adjacency"]
         dense = _use_dense(adjacency, self.backend)  # one decision for all layers of this batch
-        bias = attention_bias(adjacency) if dense else None  # shared by every GAT layer
-        x = self.node_inputs(observations)
-        for layer in self.gat:
-            x = self.activation(layer(x, adjacency, dense=dense, bias=bias))
+        x = observations["nodes"] * self.inv_high
+        # Everything that depends only on the adjacency is computed once per distinct adjacency.
+        graphs, index = unique_graphs(adjacency)
+        encoding_u = self.encoding(graphs)
+        encoding = None if encoding_u is None else (encoding_u, index)
+        bias = (attention_bias(graphs), index) if dense else None  # shared by every GAT layer
+        for i, layer in enumerate(self.gat):
+            x = self.activation(layer(x, adjacency, dense=dense, bias=bias, encoding=encoding if i == 0 else None))
         if self.extra_gat is not None and self.transformer is not None:
             x = self.activation(self.extra_gat(x, adjacency, dense=dense, bias=bias))
             x = self.activation(self.transformer(x, adjacency, dense=dense))

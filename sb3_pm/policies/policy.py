@@ -40,6 +40,8 @@ from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 
 MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
+#: Logit given to masked-out actions, sb3-contrib's ``MaskableCategorical`` value.
+_HUGE_NEG = th.tensor(-1e8)
 
 
 def _mlp(in_dim: int, hidden: list[int], activation: type[nn.Module]) -> tuple[nn.Sequential, int]:
@@ -301,9 +303,17 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         u_hat = self.uncertainty(pre)
         masks = self._masks(pre, u_hat, None)
         logits, values = self._heads(pre, u_hat)
-        distribution = self._distribution(logits, masks)
-        actions = distribution.get_actions(deterministic=deterministic)
-        return actions, values, distribution.log_prob(actions), masks
+        # sb3-contrib's masked categorical, without building distribution objects: this runs once
+        # per env step with a batch of n_envs, where constructing and re-masking two Categoricals
+        # (each normalizing its logits) cost about a quarter of the step. Same masking constant,
+        # same normalization and the same multinomial draw as MaskableCategorical.sample().
+        masked = th.where(masks, logits, _HUGE_NEG.to(logits.dtype))
+        log_probs = th.log_softmax(masked, dim=-1)  # (B, N)
+        if deterministic:
+            actions = log_probs.argmax(-1)
+        else:
+            actions = th.multinomial(th.softmax(masked, dim=-1), 1, True).squeeze(-1)
+        return actions, values, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1), masks
 
     def forward(  # type: ignore[override]
         self, obs: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None

@@ -110,7 +110,9 @@ class DCBFPPO(MaskablePPO):
         dones = self._last_episode_starts
 
         for _ in range(n_rollout_steps):
-            with th.no_grad():
+            # inference_mode, not no_grad: nothing computed here is ever differentiated (the buffer
+            # stores NumPy copies), and it skips autograd's version counting on every op.
+            with th.inference_mode():
                 obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
                 actions_t, values, log_probs, masks_t = self.policy.forward_with_masks(obs_tensor)
             actions = actions_t.cpu().numpy()
@@ -128,7 +130,7 @@ class DCBFPPO(MaskablePPO):
                 terminal = infos[idx].get("terminal_observation")
                 if terminal is not None and infos[idx].get("TimeLimit.truncated", False):
                     terminal_obs = self.policy.obs_to_tensor(terminal)[0]
-                    with th.no_grad():
+                    with th.inference_mode():
                         rewards[idx] += self.gamma * self.policy.predict_values(terminal_obs)[0].item()
 
             rollout_buffer.add(
@@ -144,7 +146,7 @@ class DCBFPPO(MaskablePPO):
             self._last_episode_starts = dones
 
         assert dones is not None
-        with th.no_grad():
+        with th.inference_mode():
             last_values = self.policy.predict_values(obs_as_tensor(new_obs, self.device))  # type: ignore[arg-type]
         rollout_buffer.compute_returns_and_advantage(last_values=last_values, dones=dones)
         callback.on_rollout_end()
