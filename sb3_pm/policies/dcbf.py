@@ -124,7 +124,10 @@ def dcbf_mask_from_map(
         - output: ``(B, N)`` bool
     """
     nodes = observations["nodes"]
-    position = observations["position"].argmax(-1)
+    # The policy passes the index along; a caller with only the one-hot gets it by argmax.
+    position = observations.get("position_index")
+    if position is None:
+        position = observations["position"].argmax(-1)
     rows = th.arange(nodes.shape[0], device=nodes.device)
     here = nodes[rows, position]  # (B, 5): the own node's features
     return dcbf_mask(

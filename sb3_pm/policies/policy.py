@@ -30,7 +30,6 @@ import torch as th
 from gymnasium import spaces
 from sb3_contrib.common.maskable.distributions import MaskableDistribution
 from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
-from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
@@ -232,16 +231,25 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
 
     # ------------------------------------------------------------- pieces
     def _preprocess(self, obs: PyTorchObs) -> dict[str, th.Tensor]:
-        pre: dict[str, th.Tensor] = preprocess_obs(
-            obs, self.observation_space, normalize_images=self.normalize_images
-        )  # type: ignore[assignment]
-        # A Discrete entry sampled from a rollout buffer is stored as (B, 1), so its one-hot is
-        # (B, 1, N); fresh observations give (B, N). Bring both to (B, N).
-        batch = pre["nodes"].shape[0]
+        """SB3's preprocessing of the map, written out for its five keys (it runs on every env step).
+
+        The result is what :func:`~stable_baselines3.common.preprocessing.preprocess_obs` gives,
+        except that ``adjacency`` keeps its dtype (the env's int8 at collection time; the extractor
+        reads it as ``!= 0`` and converts only the distinct graphs it needs as floats), and
+        ``position_index`` ``(B,)`` long is added next to the one-hot ``position``.
+        """
+        assert isinstance(obs, dict)
+        nodes = obs["nodes"].float()
+        batch = nodes.shape[0]
+        # A Discrete entry sampled from a rollout buffer is stored as (B, 1) float; a fresh one is (B,).
+        position = obs["position"].reshape(batch).long()
         return {
-            **pre,
-            "position": pre["position"].reshape(batch, -1),
-            "dwell": pre["dwell"].reshape(batch, 1),
+            "nodes": nodes,
+            "adjacency": obs["adjacency"],
+            "position": nn.functional.one_hot(position, self.n_nodes).float(),
+            "position_index": position,
+            "dwell": obs["dwell"].float().reshape(batch, 1),
+            "action_mask": obs["action_mask"].float(),
         }
 
     def uncertainty(self, pre: dict[str, th.Tensor]) -> th.Tensor:
@@ -276,7 +284,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         extractor: GATFeaturesExtractor = self.features_extractor  # type: ignore[assignment]
         embeddings = extractor.node_embeddings(pre)  # (B, N, h)
         batch = embeddings.shape[0]
-        position = pre["position"].argmax(-1)
+        position = pre["position_index"] if "position_index" in pre else pre["position"].argmax(-1)
         own = embeddings[th.arange(batch, device=embeddings.device), position]  # (B, h)
         if self.use_estimator:
             embeddings = th.cat((embeddings, (u_hat / self.u_max).unsqueeze(-1)), dim=-1)
