@@ -1,38 +1,54 @@
 """Training speed of an independent team, next to stock SB3 PPO measured in the same run.
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
+                                     [--config zoo/ippo.yml] [--repeats 1] [--threads 2]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
 (MlpPolicy) on CartPole-v1 with 8 envs. Both include PPO's train() phases. Short runs: a warm-up
 rollout is not timed, so the figures are throughput, not start-up cost.
+
+The team uses the config's entry for the graph (hyperparameters and ``policy_kwargs``, as
+``sb3-pm train`` would); ``--n-envs``/``--n-steps`` override it, and ``batch_size`` follows
+``n_steps`` only when overridden. With ``--repeats R`` each team figure is the median of R timed
+runs (the CPU may be shared; the load average is printed).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
 import time
 
 import torch as th
 
 
-def team_speed(graph: str, algo: str, timesteps: int, n_envs: int, n_steps: int, threads: int) -> float:
+def team_speed(
+    graph: str, config: str, algo: str | None, timesteps: int, n_envs: int | None, n_steps: int | None
+) -> float:
+    """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.zoo.config import load_config
 
-    team = IndependentPPO(
-        graph,
-        n_agents=4,
-        env_kwargs={"max_cycles": 500},
-        algo=algo,
-        n_envs=n_envs,
-        seed=0,
-        hyperparams={"n_steps": n_steps, "batch_size": n_steps, "n_epochs": 5},
-    )
-    team.learn(n_steps * n_envs)  # warm-up: one rollout and one train() per learner
+    options = load_config(config, graph).team_kwargs()
+    options["n_agents"] = 4
+    options["env_kwargs"] = {**options["env_kwargs"], "max_cycles": 500}
+    if algo is not None:
+        options["algo"], options["policy"] = algo, None
+    if n_envs is not None:
+        options["n_envs"] = n_envs
+    if n_steps is not None:
+        options["hyperparams"] = {**options["hyperparams"], "n_steps": n_steps, "batch_size": n_steps}
+    if options["algo"] != "dcbf_ppo":  # policy_kwargs of the DCBF policy mean nothing to others
+        options["hyperparams"].pop("policy_kwargs", None)
+    team = IndependentPPO(graph, seed=0, **options)
+    rollout = team.models[team.agents[0]].n_steps * team.n_envs
+    team.learn(rollout)  # warm-up: one rollout and one train() per learner
     start = time.perf_counter()
     team.learn(timesteps, reset_num_timesteps=False)
     elapsed = time.perf_counter() - start
-    return team.n_agents * (team.num_timesteps - n_steps * n_envs) / elapsed
+    return team.n_agents * (team.num_timesteps - rollout) / elapsed
 
 
 def cartpole_speed(timesteps: int) -> float:
@@ -55,28 +71,36 @@ def main() -> None:
     )
     parser.add_argument("--graphs", nargs="+", default=["paper-50", "paper-200"])
     parser.add_argument(
-        "--algo", default=None, help="dcbf_ppo | maskable_ppo | ppo (default: the team's default)"
+        "--algo", default=None, help="dcbf_ppo | maskable_ppo | ppo (default: the config's)"
     )
-    parser.add_argument("--n-envs", type=int, default=2)
-    parser.add_argument("--n-steps", type=int, default=250)
+    parser.add_argument("--config", default="zoo/ippo.yml", help="team config (default zoo/ippo.yml)")
+    parser.add_argument("--n-envs", type=int, default=None, help="override the config's n_envs")
+    parser.add_argument("--n-steps", type=int, default=None, help="override n_steps (and batch_size)")
     parser.add_argument("--threads", type=int, default=th.get_num_threads(), help="torch threads")
+    parser.add_argument("--repeats", type=int, default=1, help="timed runs per graph (median printed)")
     args = parser.parse_args()
     th.set_num_threads(args.threads)
-    from sb3_pm.zoo.registry import default_algo
-
-    algo = args.algo or default_algo()
     print(
-        f"torch threads: {args.threads}; team: 4 agents x {algo}, "
-        f"n_envs={args.n_envs}, n_steps={args.n_steps}"
+        f"torch threads: {args.threads}; team: 4 agents, config {args.config}"
+        + (f", algo {args.algo}" if args.algo else "")
+        + (f", n_envs={args.n_envs}" if args.n_envs else "")
+        + (f", n_steps={args.n_steps}" if args.n_steps else "")
+        + f"; load average {os.getloadavg()[0]:.2f}"
     )
     cartpole = cartpole_speed(args.cartpole_timesteps)
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<48} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
-        speed = team_speed(graph, algo, args.timesteps, args.n_envs, args.n_steps, args.threads)
+        runs = [
+            team_speed(graph, args.config, args.algo, args.timesteps, args.n_envs, args.n_steps)
+            for _ in range(args.repeats)
+        ]
+        speed = statistics.median(runs)
         paper = 4 * 50_000 / speed
+        spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
+        label = f"team {graph} ({args.algo or 'config'})"
         print(
-            f"{f'team {graph} ({algo})':<48} {speed:>10.0f} agent-steps/s   "
-            f"paper budget (4 x 50,000): {paper / 60:.1f} min"
+            f"{label:<48} {speed:>10.0f} agent-steps/s   "
+            f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"
         )
 
 
