@@ -79,8 +79,9 @@ class TestLayers:
     def test_auto_backend_follows_density(self) -> None:
         from sb3_pm.policies.extractor import _use_dense
 
-        assert _use_dense(random_graphs(16, 60, 0.2), "auto")
-        assert not _use_dense(random_graphs(16, 60, 0.01), "auto")
+        assert _use_dense(random_graphs(16, 80, 0.2), "auto")
+        assert not _use_dense(random_graphs(16, 80, 0.01), "auto")
+        assert _use_dense(random_graphs(16, 60, 0.01), "auto")  # small graphs: always dense
         assert _use_dense(random_graphs(16, 60, 0.01), "dense")
         assert not _use_dense(random_graphs(16, 60, 0.2), "sparse")
         # A rollout step's few maps always run dense under "auto" (faster whatever the density).
