@@ -240,6 +240,21 @@ class TestPolicy:
         actions, _ = policy.predict({k: v.numpy() for k, v in obs.items()}, deterministic=True)
         assert masks[th.arange(16), th.as_tensor(actions)].all()
 
+    def test_actor_first_layer_split_matches_concatenation(self, env: SingleAgentMonitoringEnv) -> None:
+        policy = make_policy(env)
+        embeddings, own = th.randn(3, N, 33), th.randn(3, 32)
+        expanded = th.cat((embeddings, own.unsqueeze(1).expand(-1, N, -1)), dim=-1)
+        th.testing.assert_close(policy._actor_hidden(embeddings, own), policy.actor_body(expanded))
+
+    def test_collection_sampling_matches_the_masked_distribution(self, env: SingleAgentMonitoringEnv) -> None:
+        """forward_with_masks' inline sampling: same log-probabilities as MaskableCategorical."""
+        policy = make_policy(env)
+        obs = observation_batch(env)
+        actions, _, log_probs, masks = policy.forward_with_masks(obs)
+        assert masks.gather(-1, actions.unsqueeze(-1)).all()
+        _, expected, _ = policy.evaluate_actions(obs, actions, action_masks=masks)
+        th.testing.assert_close(log_probs, expected)
+
     def test_rejects_other_spaces(self) -> None:
         from gymnasium import spaces
 
