@@ -159,6 +159,16 @@ class TestExtractor:
         assert extractor.node_embeddings(pre).shape == (8, N, 16)
         assert th.isfinite(out).all()
 
+    def test_collection_cache_follows_the_adjacency(self, env: SingleAgentMonitoringEnv) -> None:
+        """Gradient-free small batches reuse the last graph inputs only while the adjacency is unchanged."""
+        extractor = GATFeaturesExtractor(env.observation_space, hidden_dim=8)
+        pre = preprocess_obs(observation_batch(env, steps=4), env.observation_space)
+        changed = {**pre, "adjacency": random_graphs(4, N, 0.3, seed=3)}
+        for batch in (pre, changed, pre):
+            expected = extractor.node_embeddings(batch)  # gradients on: never cached
+            with th.no_grad():
+                th.testing.assert_close(extractor.node_embeddings(batch), expected)
+
     def test_node_features_are_normalized(self, env: SingleAgentMonitoringEnv) -> None:
         extractor = GATFeaturesExtractor(env.observation_space, laplacian="none")
         pre = preprocess_obs(observation_batch(env, steps=20), env.observation_space)

@@ -459,6 +459,8 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         else:
             self.extra_gat = self.transformer = None
         self.activation = nn.ELU()
+        #: (adjacencies, dense, encoding, bias) of the last gradient-free small batch, see _graph_inputs.
+        self._graph_cache: tuple[th.Tensor, bool, th.Tensor | None, th.Tensor | None] | None = None
 
     def encoding(self, adjacency: th.Tensor) -> th.Tensor | None:
         """The positional encoding of each adjacency, ``(B, N, encoding)`` (``None`` for ``"none"``)."""
@@ -474,6 +476,29 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         encoding = self.encoding(observations["adjacency"])
         return x if encoding is None else th.cat((x, encoding), dim=-1)
 
+    def _graph_inputs(self, graphs: th.Tensor, dense: bool) -> tuple[th.Tensor | None, th.Tensor | None]:
+        """Positional encoding and (dense kernel) attention bias of distinct adjacencies.
+
+        During collection (no gradients, a batch of ``n_envs`` maps) an agent's known adjacency
+        changes only when it discovers an edge, so the last result is kept and reused while the
+        adjacencies are unchanged; with gradients on, nothing is cached (the cached tensors may be
+        inference tensors, which autograd refuses to save).
+
+        Shapes:
+            - graphs: ``(U, N, N)``
+            - output: ``(U, N, encoding)`` or ``None``, ``(U, 1, N, N)`` or ``None``
+        """
+        cacheable = not th.is_grad_enabled() and graphs.shape[0] <= UNIQUE_MIN_BATCH
+        cached = self._graph_cache
+        if cacheable and cached is not None and cached[1] == dense and cached[0].shape == graphs.shape:
+            if cached[0].dtype == graphs.dtype and th.equal(cached[0], graphs):
+                return cached[2], cached[3]
+        encoding = self.encoding(graphs)
+        bias = attention_bias(graphs) if dense else None
+        if cacheable:
+            self._graph_cache = (graphs.clone(), dense, encoding, bias)
+        return encoding, bias
+
     def node_embeddings(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         """Per-node embeddings ``H``, ``(B, N, hidden_dim)``."""
         adjacency = observations["adjacency"]
@@ -481,9 +506,9 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         x = observations["nodes"] * self.inv_high
         # Everything that depends only on the adjacency is computed once per distinct adjacency.
         graphs, index = unique_graphs(adjacency)
-        encoding_u = self.encoding(graphs)
+        encoding_u, bias_u = self._graph_inputs(graphs, dense)
         encoding = None if encoding_u is None else (encoding_u, index)
-        bias = (attention_bias(graphs), index) if dense else None  # shared by every GAT layer
+        bias = None if bias_u is None else (bias_u, index)  # shared by every GAT layer
         for i, layer in enumerate(self.gat):
             x = self.activation(layer(x, adjacency, dense=dense, bias=bias, encoding=encoding if i == 0 else None))
         if self.extra_gat is not None and self.transformer is not None:
