@@ -70,9 +70,7 @@ def main() -> None:
         "--cartpole-timesteps", type=int, default=20480, help="timed CartPole steps (default 20480)"
     )
     parser.add_argument("--graphs", nargs="+", default=["paper-50", "paper-200"])
-    parser.add_argument(
-        "--algo", default=None, help="dcbf_ppo | maskable_ppo | ppo (default: the config's)"
-    )
+    parser.add_argument("--algo", default=None, help="dcbf_ppo | maskable_ppo | ppo (default: the config's)")
     parser.add_argument("--config", default="zoo/ippo.yml", help="team config (default zoo/ippo.yml)")
     parser.add_argument("--n-envs", type=int, default=None, help="override the config's n_envs")
     parser.add_argument("--n-steps", type=int, default=None, help="override n_steps (and batch_size)")

@@ -99,7 +99,10 @@ class TestLayers:
         adjacency[5:] = adjacency[0]  # repeated graphs: exercised through the distinct-graph index
         graphs, index = unique_graphs(adjacency)
         assert len(graphs) == 5 and th.equal(graphs[index], adjacency)
-        a_dst, a_src = th.randn(batch, heads, n, requires_grad=True), th.randn(batch, heads, n, requires_grad=True)
+        a_dst, a_src = (
+            th.randn(batch, heads, n, requires_grad=True),
+            th.randn(batch, heads, n, requires_grad=True),
+        )
         h = th.randn(batch, heads, n, c, requires_grad=True)
         scores = th.nn.functional.leaky_relu(a_dst.unsqueeze(-1) + a_src.unsqueeze(-2), 0.2)
         expected = th.matmul(th.softmax(scores + attention_bias(adjacency), -1), h)
