@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -96,7 +97,11 @@ def test_interrupted_sweep_runs_only_the_missing_cells(
     experiment = load_tiny(tmp_path)
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
     cells = plan_cells(experiment, tmp_path / "out")
-    (Path(cells[1].folder) / "DONE").unlink()  # as if the sweep had died while training this cell
+    # As if the sweep had died while training cell 1 (no team saved yet) ...
+    (Path(cells[1].folder) / "DONE").unlink()
+    shutil.rmtree(Path(cells[1].folder) / "team")
+    # ... and after training cell 0 (team saved, evaluation not finished): only evaluated again.
+    (Path(cells[0].folder) / "DONE").unlink()
     trained = []
     original = runner_module._train
 
@@ -107,6 +112,7 @@ def test_interrupted_sweep_runs_only_the_missing_cells(
     monkeypatch.setattr(runner_module, "_train", counting_train)
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
     assert trained == [(cells[1].variant["key"], cells[1].seed)]
+    assert (Path(cells[0].folder) / "DONE").exists()
 
 
 def test_ray_backend_matches_local(tmp_path: Path) -> None:

@@ -7,7 +7,8 @@ Layout of the output folder::
       experiment.yml            the experiment as run (after --quick and --graphs)
       command.txt
       cells/<variant>/<graph>/seed<k>/
-          team/                 the trained team (learned variants)
+          team/                 the trained team (learned variants); saved before evaluation, so a
+                                sweep stopped during evaluation resumes without retraining
           tb/                   TensorBoard logs of its training
           evaluation.json       the cell's evaluation (EvaluationResult.to_dict())
           DONE                  written last: a cell with DONE is never run again
@@ -118,6 +119,15 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
     return team
 
 
+def _load_finished_team(folder: Path) -> Any:
+    """A team this cell already trained and saved (the sweep stopped during its evaluation), or None."""
+    if not (folder / "manifest.json").exists():
+        return None
+    from sb3_pm.evaluation.teams import load_trained_team
+
+    return load_trained_team(folder)
+
+
 def run_cell(cell: Cell) -> dict[str, Any]:
     """Train (if learned) and evaluate one cell; write ``evaluation.json`` and then ``DONE``."""
     import torch
@@ -130,7 +140,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
     variant = Variant(**cell.variant)
     started = time.time()
     if variant.learned:
-        team = _train(cell, variant, folder)
+        team = _load_finished_team(folder / "team") or _train(cell, variant, folder)
         env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}
     else:
         from sb3_pm.baselines import make_team
