@@ -83,7 +83,7 @@ class SingleAgentMonitoringEnv(gym.Env):
         self._observations, infos = self.env.reset(seed=seed, options=options)
         if self.teammates is not None:
             self.teammates.reset(self.env, seed=team_seed)
-        return self._observations[self.agent], infos[self.agent]
+        return self._learner_observation(), infos[self.agent]
 
     def _teammate_actions(self) -> dict[str, int]:
         observations = {a: self._observations[a] for a in self.teammate_names}
@@ -100,12 +100,23 @@ class SingleAgentMonitoringEnv(gym.Env):
         self._observations, rewards, terminations, truncations, infos = self.env.step(actions)
         info = dict(infos[self.agent])
         return (
-            self._observations[self.agent],
+            self._learner_observation(),
             rewards[self.agent],
             terminations[self.agent],
             truncations[self.agent],
             info,
         )
+
+    def _learner_observation(self) -> dict[str, Any]:
+        """The learner's observation with its own copy of the known adjacency.
+
+        The parallel env hands out one read-only adjacency array until the map gains an edge (a
+        zero-copy fast path for the team). A Gymnasium env should return new data on every call,
+        so this single-agent view copies it.
+        """
+        observation = dict(self._observations[self.agent])
+        observation["adjacency"] = np.array(observation["adjacency"], copy=True)
+        return observation
 
     def action_masks(self) -> np.ndarray:
         """The learner's reachable set, ``(N,)`` bool."""
