@@ -407,19 +407,7 @@ class IndependentPPO(Team):
     # ---------------------------------------------------------- save / load
     def manifest(self) -> dict[str, Any]:
         """What :meth:`save` writes to ``manifest.json``."""
-        return {
-            "format": MANIFEST_FORMAT,
-            "graph": graph_record(self.graph),
-            "n_agents": self.n_agents,
-            "agents": self.agents,
-            "env_kwargs": self.env_kwargs,
-            "algo": self.algo,
-            "policy": self.policy if isinstance(self.policy, str) else self.policy.__name__,
-            "n_envs": self.n_envs,
-            "seed": self.seed,
-            "num_timesteps": self.num_timesteps,
-            "versions": _versions(),
-        }
+        return {**team_manifest(self, MANIFEST_FORMAT), "agents": self.agents}
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Save the team to the folder ``path`` (created if needed).
@@ -506,6 +494,22 @@ class IndependentPPO(Team):
             f"IndependentPPO(graph={self.graph.name!r}, n_agents={self.n_agents}, algo={self.algo!r}, "
             f"n_envs={self.n_envs}, num_timesteps={self.num_timesteps if self.models else 0})"
         )
+
+
+def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
+    """The manifest fields every saved team kind records (graph, sizes, env, algorithm, versions)."""
+    return {
+        "format": manifest_format,
+        "graph": graph_record(team.graph),
+        "n_agents": team.n_agents,
+        "env_kwargs": team.env_kwargs,
+        "algo": team.algo,
+        "policy": team.policy if isinstance(team.policy, str) else team.policy.__name__,
+        "n_envs": team.n_envs,
+        "seed": team.seed,
+        "num_timesteps": team.num_timesteps,
+        "versions": _versions(),
+    }
 
 
 def graph_record(graph: GraphSpec) -> dict[str, Any]:

@@ -26,13 +26,12 @@ from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.team import (
     MANIFEST,
-    _versions,
     check_same_graph,
     graph_for_saved_team,
-    graph_record,
     learn_seed,
     read_manifest,
     save_graph_copy,
+    team_manifest,
 )
 from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
@@ -178,18 +177,8 @@ class CentralizedPPO(Team):
         return {agent: int(action) for agent, action in zip(agents, np.asarray(actions).reshape(-1))}
 
     def manifest(self) -> dict[str, Any]:
-        return {
-            "format": MANIFEST_FORMAT,
-            "graph": graph_record(self.graph),
-            "n_agents": self.n_agents,
-            "env_kwargs": self.env_kwargs,
-            "algo": self.algo,
-            "policy": self.policy if isinstance(self.policy, str) else self.policy.__name__,
-            "n_envs": self.n_envs,
-            "seed": self.seed,
-            "num_timesteps": self.num_timesteps,
-            "versions": _versions(),
-        }
+        """What :meth:`save` writes to ``manifest.json``."""
+        return team_manifest(self, MANIFEST_FORMAT)
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         folder = Path(path)
