@@ -62,7 +62,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         ):
             if value not in allowed:
                 raise ValueError(f"{label} must be one of {allowed}, got {value!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+        render_modes = list(self.metadata["render_modes"])  # type: ignore[call-overload]
+        if render_mode is not None and render_mode not in render_modes:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
             )

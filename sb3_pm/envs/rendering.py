@@ -31,7 +31,7 @@ class GraphRenderer:
         self.figure, self.axes = plt.subplots(figsize=(size_inches, size_inches), dpi=80)
         self.axes.set_axis_off()
         rows, cols = np.nonzero(np.triu(graph.adjacency))
-        segments = np.stack([self.xy[rows], self.xy[cols]], axis=1)
+        segments = list(np.stack([self.xy[rows], self.xy[cols]], axis=1))
         self.axes.add_collection(LineCollection(segments, colors="0.85", linewidths=0.5, zorder=1))
         others = ~graph.targets
         self.axes.scatter(self.xy[others, 0], self.xy[others, 1], s=12, c="0.6", zorder=2)
@@ -64,7 +64,8 @@ class GraphRenderer:
         total = int(uncertainty[self.graph.targets].sum())
         self.title.set_text(f"{self.graph.name}  step {step}  sum of target u = {total}")
         self.figure.canvas.draw()
-        return np.asarray(self.figure.canvas.buffer_rgba())[:, :, :3].copy()
+        # Agg canvas (forced above) has buffer_rgba; the base class does not declare it.
+        return np.asarray(self.figure.canvas.buffer_rgba())[:, :, :3].copy()  # type: ignore[attr-defined]
 
     def show(self) -> None:
         import matplotlib.pyplot as plt

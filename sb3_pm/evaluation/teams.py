@@ -43,7 +43,7 @@ def load_trained_team(path: Path, graph: Any = None) -> Team:
     """``IndependentPPO.load(path)`` (or ``CentralizedPPO.load`` for a centralized team's folder),
     imported lazily so that baselines never need torch."""
     try:
-        from sb3_pm.agents.team import IndependentPPO as team_class
+        from sb3_pm.agents.team import IndependentPPO
         from sb3_pm.sharing.centralized import MANIFEST_FORMAT as CENTRALIZED
         from sb3_pm.sharing.centralized import CentralizedPPO
     except ImportError as error:
@@ -52,8 +52,8 @@ def load_trained_team(path: Path, graph: Any = None) -> Team:
             f"sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
         ) from error
     manifest = path / "manifest.json"
-    if manifest.exists() and CENTRALIZED in manifest.read_text():
-        team_class = CentralizedPPO  # type: ignore[assignment]
+    centralized = manifest.exists() and CENTRALIZED in manifest.read_text()
+    team_class: Any = CentralizedPPO if centralized else IndependentPPO
     try:
         team = team_class.load(path) if graph is None else team_class.load(path, graph=graph)
     except (FileNotFoundError, ValueError) as error:

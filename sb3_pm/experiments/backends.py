@@ -23,14 +23,14 @@ def default_jobs() -> int:
 
 
 def run_jobs(
-    function: Callable[[dict[str, Any]], Any],
-    jobs: Sequence[dict[str, Any]],
+    function: Callable[[Any], Any],
+    jobs: Sequence[Any],
     backend: str = "local",
     n_jobs: int | None = None,
     ray_address: str | None = None,
     on_done: Callable[[int, Any], None] | None = None,
 ) -> list[Any]:
-    """Run ``function(job)`` for every job; results come back in the order of ``jobs``.
+    """Run ``function(job)`` for every (picklable) job; results come back in the order of ``jobs``.
 
     :param backend: ``"local"`` (a process pool of ``n_jobs`` workers; ``n_jobs=1`` runs in this
         process, which keeps tracebacks simple) or ``"ray"`` (a local Ray instance, or the cluster
@@ -64,8 +64,8 @@ def run_jobs(
 
 
 def _run_ray(
-    function: Callable[[dict[str, Any]], Any],
-    jobs: Sequence[dict[str, Any]],
+    function: Callable[[Any], Any],
+    jobs: Sequence[Any],
     n_jobs: int | None,
     ray_address: str | None,
     on_done: Callable[[int, Any], None] | None,

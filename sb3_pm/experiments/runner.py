@@ -109,10 +109,10 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
     config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
     config.n_agents = cell.n_agents
     timesteps = cell.timesteps or config.n_timesteps
-    if variant.kind == "centralized":
-        from sb3_pm.sharing.centralized import CentralizedPPO as team_class
-    else:
-        from sb3_pm.agents.team import IndependentPPO as team_class
+    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.sharing.centralized import CentralizedPPO
+
+    team_class: Any = CentralizedPPO if variant.kind == "centralized" else IndependentPPO
     team = team_class.from_config(config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"))
     team.learn(timesteps)
     team.save(folder / "team", overwrite=True)

@@ -61,6 +61,7 @@ def erdos_renyi(
             targets = np.zeros(n_nodes, dtype=bool)
             targets[rng.choice(n_nodes, size=n_targets, replace=False)] = True
         else:
+            assert target_prob is not None  # checked above
             targets = rng.random(n_nodes) < target_prob
         n_components, _ = connected_components(csr_matrix(adjacency), directed=False)
         if n_components == 1 and targets.any():

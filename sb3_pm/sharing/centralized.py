@@ -86,7 +86,7 @@ class CentralizedPPO(Team):
         self.n_envs = int(n_envs)
         self.seed = int(seed)
         algo = algo or default_algo()
-        self.algo_class: type = resolve_algo(algo) if isinstance(algo, str) else algo
+        self.algo_class: Any = resolve_algo(algo) if isinstance(algo, str) else algo
         self.algo = algo if isinstance(algo, str) else algo_name(algo)
         self.policy = policy if policy is not None else DEFAULT_POLICIES.get(self.algo, "MultiInputPolicy")
         self.env_kwargs = {**dict(env_kwargs or {}), "shared_map": True}
