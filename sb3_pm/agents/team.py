@@ -264,12 +264,7 @@ class IndependentPPO(Team):
                     f"every learner of a team must use the same n_envs; {agent} asks for a different one "
                     f"than the team's {self.n_envs}"
                 )
-        for key in SCHEDULE_KEYS:
-            if key in merged:
-                merged[key] = parse_schedule(merged[key], key)
-        if "policy_kwargs" in merged:
-            merged["policy_kwargs"] = resolve_policy_kwargs(merged["policy_kwargs"])
-        return merged
+        return resolve_hyperparams(merged)
 
     # ------------------------------------------------------------- training
     @property
@@ -494,6 +489,18 @@ class IndependentPPO(Team):
             f"IndependentPPO(graph={self.graph.name!r}, n_agents={self.n_agents}, algo={self.algo!r}, "
             f"n_envs={self.n_envs}, num_timesteps={self.num_timesteps if self.models else 0})"
         )
+
+
+def resolve_hyperparams(hyperparams: Mapping[str, Any]) -> dict[str, Any]:
+    """Config values -> algorithm keyword arguments: ``lin_`` schedules become SB3 schedules and
+    ``policy_kwargs`` class names become classes."""
+    resolved = dict(hyperparams)
+    for key in SCHEDULE_KEYS:
+        if key in resolved:
+            resolved[key] = parse_schedule(resolved[key], key)
+    if "policy_kwargs" in resolved:
+        resolved["policy_kwargs"] = resolve_policy_kwargs(resolved["policy_kwargs"])
+    return resolved
 
 
 def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:

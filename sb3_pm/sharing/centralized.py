@@ -30,6 +30,7 @@ from sb3_pm.agents.team import (
     graph_for_saved_team,
     learn_seed,
     read_manifest,
+    resolve_hyperparams,
     save_graph_copy,
     team_manifest,
 )
@@ -41,10 +42,8 @@ from sb3_pm.zoo.registry import (
     algo_name,
     default_algo,
     resolve_algo,
-    resolve_policy_kwargs,
     uses_masks,
 )
-from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
 
 MANIFEST_FORMAT = "sb3_pm.centralized/1"
 MODEL_FILE = "shared.zip"
@@ -97,12 +96,7 @@ class CentralizedPPO(Team):
         self.venv = make_parameter_sharing_vec_env(self.graph, self.n_envs, self.n_agents, self.env_kwargs)
         self.model: Any = None
         if _init_model:
-            kwargs = dict(self.hyperparams)
-            for key in SCHEDULE_KEYS:
-                if key in kwargs:
-                    kwargs[key] = parse_schedule(kwargs[key], key)
-            if "policy_kwargs" in kwargs:
-                kwargs["policy_kwargs"] = resolve_policy_kwargs(kwargs["policy_kwargs"])
+            kwargs = resolve_hyperparams(self.hyperparams)
             self.model = self.algo_class(
                 self.policy,
                 self.venv,
