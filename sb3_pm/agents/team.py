@@ -192,18 +192,11 @@ class IndependentPPO(Team):
         self.verbose = verbose
         self.device = device
         self.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
-        if algo is None:
-            algo = default_algo()
-        self.algo_class: type[BaseAlgorithm] = resolve_algo(algo) if isinstance(algo, str) else algo
-        self.algo = algo if isinstance(algo, str) else algo_name(algo)
-        self.policy = policy if policy is not None else DEFAULT_POLICIES.get(self.algo, "MultiInputPolicy")
-        self.env_kwargs = dict(env_kwargs or {})
+        self.algo_class: type[BaseAlgorithm]
+        self.algo_class, self.algo, self.policy, self.env_kwargs = resolve_learner(algo, policy, env_kwargs)
         for key in ("graph", "n_agents"):
             if key in self.env_kwargs:
                 raise ValueError(f"env_kwargs must not hold {key!r}: pass it to IndependentPPO itself")
-        if not uses_masks(self.algo_class):
-            # Without masks a learner may pick any node; the env's default ("raise") would end training.
-            self.env_kwargs.setdefault("illegal_action", "stay")
         self.hyperparams = dict(hyperparams or {})
         self.per_agent = {agent: dict(values) for agent, values in (per_agent or {}).items()}
 
@@ -489,6 +482,26 @@ class IndependentPPO(Team):
             f"IndependentPPO(graph={self.graph.name!r}, n_agents={self.n_agents}, algo={self.algo!r}, "
             f"n_envs={self.n_envs}, num_timesteps={self.num_timesteps if self.models else 0})"
         )
+
+
+def resolve_learner(
+    algo: str | type | None, policy: str | type | None, env_kwargs: Mapping[str, Any] | None
+) -> tuple[Any, str, str | type, dict[str, Any]]:
+    """The algorithm class and its registry name, the policy (the algorithm's default when None),
+    and the env kwargs a learner of that algorithm needs.
+
+    ``algo=None`` picks ``dcbf_ppo`` when importable. An algorithm without action masks may pick
+    any node, and the env's default ``illegal_action="raise"`` would end training: such learners
+    get ``illegal_action="stay"`` unless the caller set it.
+    """
+    algo = algo if algo is not None else default_algo()
+    algo_class = resolve_algo(algo) if isinstance(algo, str) else algo
+    name = algo if isinstance(algo, str) else algo_name(algo)
+    policy = policy if policy is not None else DEFAULT_POLICIES.get(name, "MultiInputPolicy")
+    kwargs = dict(env_kwargs or {})
+    if not uses_masks(algo_class):
+        kwargs.setdefault("illegal_action", "stay")
+    return algo_class, name, policy, kwargs
 
 
 def resolve_hyperparams(hyperparams: Mapping[str, Any]) -> dict[str, Any]:

@@ -31,6 +31,7 @@ from sb3_pm.agents.team import (
     learn_seed,
     read_manifest,
     resolve_hyperparams,
+    resolve_learner,
     save_graph_copy,
     team_manifest,
 )
@@ -38,10 +39,6 @@ from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
 from sb3_pm.zoo.registry import (
-    DEFAULT_POLICIES,
-    algo_name,
-    default_algo,
-    resolve_algo,
     uses_masks,
 )
 
@@ -84,13 +81,9 @@ class CentralizedPPO(Team):
         self.n_agents = int(n_agents)
         self.n_envs = int(n_envs)
         self.seed = int(seed)
-        algo = algo or default_algo()
-        self.algo_class: Any = resolve_algo(algo) if isinstance(algo, str) else algo
-        self.algo = algo if isinstance(algo, str) else algo_name(algo)
-        self.policy = policy if policy is not None else DEFAULT_POLICIES.get(self.algo, "MultiInputPolicy")
-        self.env_kwargs = {**dict(env_kwargs or {}), "shared_map": True}
-        if not uses_masks(self.algo_class):
-            self.env_kwargs.setdefault("illegal_action", "stay")
+        self.algo_class, self.algo, self.policy, self.env_kwargs = resolve_learner(
+            algo, policy, {**dict(env_kwargs or {}), "shared_map": True}
+        )
         self.hyperparams = dict(hyperparams or {})
         self.agents = [f"agent_{i}" for i in range(self.n_agents)]
         self.venv = make_parameter_sharing_vec_env(self.graph, self.n_envs, self.n_agents, self.env_kwargs)
