@@ -181,3 +181,14 @@ def test_cell_results_are_stored(tmp_path: Path) -> None:
         (Path(plan_cells(experiment, tmp_path / "out")[0].folder) / "evaluation.json").read_text()
     )
     assert len(payload["traces"]) == 2 and len(payload["traces"][0]) == 20
+
+
+def test_cells_are_scheduled_longest_first(tmp_path: Path) -> None:
+    experiment = load_experiment(ZOO / "experiments" / "comparison.yml")
+    cells = plan_cells(experiment, tmp_path)
+    order = runner_module.schedule(cells)
+    assert sorted(map(id, order)) == sorted(map(id, cells))  # a permutation: nothing lost or doubled
+    learned = [runner_module.Variant(**cell.variant).learned for cell in order]
+    assert learned == sorted(learned, reverse=True)  # every learned cell before any baseline
+    first = order[0]
+    assert first.graph == "paper-200" and runner_module.Variant(**first.variant).learned

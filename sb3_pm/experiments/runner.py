@@ -128,6 +128,23 @@ def _load_finished_team(folder: Path) -> Any:
     return load_trained_team(folder)
 
 
+def schedule(cells: list[Cell]) -> list[Cell]:
+    """The cells in the order to submit them: the longest first.
+
+    A pool that starts the short baseline cells and the small graphs first ends with one worker
+    training a 200-node team while the others sit idle; longest-first keeps every worker busy until
+    the end. Cost is estimated as (learned, node count); results do not depend on the order.
+    """
+    from sb3_pm.graphs import resolve_graph
+
+    sizes = {graph: resolve_graph(graph).n_nodes for graph in {cell.graph for cell in cells}}
+
+    def cost(cell: Cell) -> tuple[bool, int]:
+        return Variant(**cell.variant).learned, sizes[cell.graph]
+
+    return sorted(cells, key=cost, reverse=True)  # stable: table order within equal costs
+
+
 def run_cell(cell: Cell) -> dict[str, Any]:
     """Train (if learned) and evaluate one cell; write ``evaluation.json`` and then ``DONE``."""
     import torch
@@ -185,7 +202,7 @@ def reproduce(
     (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
     cells = plan_cells(experiment, out)
-    todo = [cell for cell in cells if not cell.done]
+    todo = schedule([cell for cell in cells if not cell.done])
     bar = None
     if progress and todo:
         from tqdm.auto import tqdm
