@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import sys
-import types
 
 import pytest
 
@@ -81,9 +80,9 @@ class TestEvaluate:
                 team.n_agents, team.env_kwargs = 4, {"obs_radius": 2, "max_cycles": 7}
                 return team
 
-        module = types.ModuleType("sb3_pm.agents.team")
-        module.IndependentPPO = FakePPO
-        monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", module)
+        # Patch the class, not the module: the loader also imports the centralized team's module,
+        # which reads other names from sb3_pm.agents.team.
+        monkeypatch.setattr("sb3_pm.agents.team.IndependentPPO", FakePPO)
         team_dir = tmp_path / "my_team"
         team_dir.mkdir()
         argv = ["evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1"]
@@ -120,6 +119,8 @@ class TestCompare:
             "table.csv",
             "table.tex",
             "anova.txt",
+            "by_graph.md",
+            "effects.md",
             "results.json",
             "uncertainty.png",
             "table.png",

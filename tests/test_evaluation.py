@@ -16,8 +16,12 @@ from sb3_pm.evaluation import (
     Summary,
     anova,
     anova_text,
+    by_graph_markdown,
     compare,
     csv_table,
+    effect,
+    effects,
+    effects_markdown,
     evaluate,
     latex_table,
     markdown_table,
@@ -26,6 +30,7 @@ from sb3_pm.evaluation import (
     record_gif,
     resolve_team,
     summarize,
+    summarize_by_graph,
     team_seed,
 )
 from sb3_pm.evaluation.harness import EpisodeRecord, EvaluationResult
@@ -169,6 +174,56 @@ class TestStatistics:
         assert (result.df_between, result.df_within) == (2, 6)
         assert result.groups == ("a", "b", "c")
 
+    def test_paired_effect_by_hand(self) -> None:
+        # Same env seeds (0, 1, 2) on the same graph: paired. Differences 1, 2, 3 -> mean 2, SD 1.
+        policy, reference = fake_result("p", [11, 22, 33]), fake_result("r", [10, 20, 30])
+        e = effect([policy], [reference], "g", "avg_uncertainty", names=("p", "r"))
+        assert e.paired and e.n == 3
+        assert e.difference == pytest.approx(2.0) and e.ratio == pytest.approx(22 / 20)
+        assert e.cohens_d == pytest.approx(2.0)  # mean difference / SD of differences
+        half_width = stats.t.ppf(0.975, 2) * 1.0 / math.sqrt(3)
+        assert (e.ci_low, e.ci_high) == pytest.approx((2 - half_width, 2 + half_width))
+        assert e.p_value == pytest.approx(stats.ttest_rel([11, 22, 33], [10, 20, 30]).pvalue)
+
+    def test_unpaired_effect_uses_welch(self) -> None:
+        policy = fake_result("p", [1, 2, 3])
+        reference = EvaluationResult(
+            "r",
+            "g",
+            {},
+            [
+                EpisodeRecord(i, 100 + i, 0, {"avg_uncertainty": v}, np.zeros(1))
+                for i, v in enumerate([5, 7, 9, 11])
+            ],
+        )
+        e = effect([policy], [reference], "g", "avg_uncertainty")
+        assert not e.paired
+        assert e.difference == pytest.approx(2.0 - 8.0)
+        expected = stats.ttest_ind([1, 2, 3], [5, 7, 9, 11], equal_var=False)
+        assert e.p_value == pytest.approx(expected.pvalue)
+        assert e.ci_low < e.difference < e.ci_high
+
+    def test_effects_keep_graphs_apart(self) -> None:
+        def on(graph: str, policy: str, values: list[float]) -> EvaluationResult:
+            result = fake_result(policy, values)
+            result.graph = graph
+            return result
+
+        by_policy = {
+            "ref": [on("small", "ref", [10, 12]), on("large", "ref", [100, 120])],
+            "other": [on("small", "other", [5, 6]), on("large", "other", [200, 240])],
+        }
+        rows = effects(by_policy, "ref")
+        assert [(e.graph, e.policy) for e in rows] == [("small", "other"), ("large", "other")]
+        assert [e.ratio for e in rows] == pytest.approx([0.5, 2.0])
+        by_graph = summarize_by_graph(by_policy)
+        assert by_graph["other"]["large"] == Summary(220.0, pytest.approx(math.sqrt(800)), 2)
+        with pytest.raises(ValueError, match="unknown reference"):
+            effects(by_policy, "nobody")
+        assert "Difference" in effects_markdown(rows) and "small" in by_graph_markdown(
+            {"avg_uncertainty": by_graph}
+        )
+
     def test_anova_undefined_cases(self) -> None:
         assert math.isnan(anova({"a": [fake_result("a", [1, 2])]}, "avg_uncertainty").statistic)
         assert math.isnan(
@@ -244,12 +299,18 @@ class TestCompareAndResolve:
             "table.csv",
             "table.tex",
             "anova.txt",
+            "by_graph.md",
+            "effects.md",
             "results.json",
             "uncertainty.png",
             "table.png",
         }
         payload = json.loads((tmp_path / "results.json").read_text())
         assert payload["table"]["random"]["avg_uncertainty"]["n"] == 4
+        # Both policies ran on the same episodes, so grazing is compared with random (the first) paired.
+        [grazing] = payload["effects"]
+        assert grazing["policy"] == "grazing" and grazing["reference"] == "random"
+        assert grazing["paired"] and grazing["n"] == 4
 
     def test_resolve_team(self, tmp_path) -> None:
         assert resolve_team("tour_patrol").name == "tour_patrol"

@@ -18,6 +18,8 @@ EXPECTED_FILES = {
     "results.csv",
     "results.tex",
     "anova.txt",
+    "by_graph.md",
+    "effects.md",
     "results.json",
     "uncertainty.png",
     "table.png",

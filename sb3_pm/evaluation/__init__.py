@@ -8,8 +8,26 @@ from sb3_pm.evaluation.comparison import SEED_STRIDE, Comparison, compare
 from sb3_pm.evaluation.gif import record_gif
 from sb3_pm.evaluation.harness import EpisodeRecord, EvaluationResult, evaluate, run_episode, team_seed
 from sb3_pm.evaluation.plots import plot_table, plot_uncertainty
-from sb3_pm.evaluation.reports import anova_text, csv_table, latex_table, markdown_table
-from sb3_pm.evaluation.statistics import TABLE_METRICS, AnovaResult, Summary, anova, pooled_values, summarize
+from sb3_pm.evaluation.reports import (
+    anova_text,
+    by_graph_markdown,
+    csv_table,
+    effects_markdown,
+    latex_table,
+    markdown_table,
+)
+from sb3_pm.evaluation.statistics import (
+    TABLE_METRICS,
+    AnovaResult,
+    Effect,
+    Summary,
+    anova,
+    effect,
+    effects,
+    pooled_values,
+    summarize,
+    summarize_by_graph,
+)
 from sb3_pm.evaluation.teams import PolicyError, policy_label, resolve_team
 
 __all__ = [
@@ -17,14 +35,19 @@ __all__ = [
     "TABLE_METRICS",
     "AnovaResult",
     "Comparison",
+    "Effect",
     "EpisodeRecord",
     "EvaluationResult",
     "PolicyError",
     "Summary",
     "anova",
     "anova_text",
+    "by_graph_markdown",
     "compare",
     "csv_table",
+    "effect",
+    "effects",
+    "effects_markdown",
     "evaluate",
     "latex_table",
     "markdown_table",
@@ -36,5 +59,6 @@ __all__ = [
     "resolve_team",
     "run_episode",
     "summarize",
+    "summarize_by_graph",
     "team_seed",
 ]

@@ -15,8 +15,24 @@ from typing import Any
 from sb3_pm.baselines.base import Team
 from sb3_pm.evaluation.harness import EvaluationResult, evaluate
 from sb3_pm.evaluation.plots import plot_table, plot_uncertainty
-from sb3_pm.evaluation.reports import anova_text, csv_table, latex_table, markdown_table
-from sb3_pm.evaluation.statistics import TABLE_METRICS, AnovaResult, Summary, anova, summarize
+from sb3_pm.evaluation.reports import (
+    anova_text,
+    by_graph_markdown,
+    csv_table,
+    effects_markdown,
+    latex_table,
+    markdown_table,
+)
+from sb3_pm.evaluation.statistics import (
+    TABLE_METRICS,
+    AnovaResult,
+    Effect,
+    Summary,
+    anova,
+    effects,
+    summarize,
+    summarize_by_graph,
+)
 from sb3_pm.evaluation.teams import team_env_kwargs
 
 SEED_STRIDE = 1000
@@ -24,10 +40,15 @@ SEED_STRIDE = 1000
 
 @dataclass
 class Comparison:
-    """All results of a grid, by policy label, plus the derived table and ANOVAs."""
+    """All results of a grid, by policy label, plus the derived tables, ANOVAs and effects.
+
+    :ivar reference: the algorithm the others are measured against in ``effects.md`` (default: the
+        first one, e.g. the proposed method in an experiment's table order).
+    """
 
     results: dict[str, list[EvaluationResult]] = field(default_factory=dict)
     config: dict[str, Any] = field(default_factory=dict)
+    reference: str | None = None
 
     @property
     def table(self) -> dict[str, dict[str, Summary]]:
@@ -37,18 +58,33 @@ class Comparison:
     def anovas(self) -> list[AnovaResult]:
         return [anova(self.results, metric) for metric in TABLE_METRICS]
 
+    @property
+    def by_graph(self) -> dict[str, dict[str, dict[str, Summary]]]:
+        """``{metric: {policy: {graph: Summary}}}``."""
+        return {metric: summarize_by_graph(self.results, metric) for metric in TABLE_METRICS}
+
+    @property
+    def effects(self) -> list[Effect]:
+        """Every algorithm against :attr:`reference` on ``avg_uncertainty``, graph by graph."""
+        if not self.results:
+            return []
+        return effects(self.results, self.reference or next(iter(self.results)))
+
     def write(self, out: str | Path) -> list[Path]:
-        """Write ``table.md``, ``table.csv``, ``table.tex``, ``anova.txt``, ``results.json``,
-        ``uncertainty.png`` and ``table.png`` into ``out`` (created if needed)."""
+        """Write ``table.md``, ``table.csv``, ``table.tex``, ``anova.txt``, ``by_graph.md``,
+        ``effects.md``, ``results.json``, ``uncertainty.png`` and ``table.png`` into ``out``
+        (created if needed)."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        table = self.table
+        table, effect_rows = self.table, self.effects
         written = []
         for name, text in (
             ("table.md", markdown_table(table)),
             ("table.csv", csv_table(table)),
             ("table.tex", latex_table(table, caption="Average uncertainty and neglect time")),
             ("anova.txt", anova_text(self.anovas)),
+            ("by_graph.md", by_graph_markdown(self.by_graph)),
+            ("effects.md", effects_markdown(effect_rows)),
         ):
             (out / name).write_text(text)
             written.append(out / name)
@@ -56,6 +92,7 @@ class Comparison:
             "config": self.config,
             "table": {p: {m: vars(s) for m, s in row.items()} for p, row in table.items()},
             "anova": [vars(a) | {"groups": list(a.groups)} for a in self.anovas],
+            "effects": [vars(e) for e in effect_rows],
             "results": {p: [r.to_dict() for r in rs] for p, rs in self.results.items()},
         }
         (out / "results.json").write_text(json.dumps(payload, indent=2, allow_nan=True))

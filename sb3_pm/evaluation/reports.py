@@ -11,7 +11,7 @@ import io
 import math
 from collections.abc import Mapping, Sequence
 
-from sb3_pm.evaluation.statistics import AnovaResult, Summary
+from sb3_pm.evaluation.statistics import AnovaResult, Effect, Summary
 
 HEADER = ("Algorithm", "Avg. Uncertainty", "SD", "Avg. Neglect Time", "SD")
 
@@ -79,4 +79,52 @@ def anova_text(results: Sequence[AnovaResult]) -> str:
             dof = f"F({result.df_between}, {result.df_within})"
             verdict = f"{dof} = {result.statistic:.4g}, p = {result.p_value:.3g}"
         lines.append(f"{result.metric}: {verdict}  [{', '.join(result.groups)}]")
+    return "\n".join(lines) + "\n"
+
+
+def by_graph_markdown(tables: Mapping[str, Mapping[str, Mapping[str, Summary]]], digits: int = 1) -> str:
+    """One Markdown table per metric: algorithms x graphs, each cell ``mean ± sd (n)``.
+
+    :param tables: ``{metric: {policy: {graph: Summary}}}`` (see ``summarize_by_graph``).
+    """
+    parts = []
+    for metric, table in tables.items():
+        graphs = list(next(iter(table.values()), {}))
+        lines = [f"**{metric}** (mean ± SD over seeds × episodes, per graph)", ""]
+        lines.append("| Algorithm | " + " | ".join(graphs) + " |")
+        lines.append("|---|" + "---:|" * len(graphs))
+        for policy, row in table.items():
+            cells = [
+                "–" if s.n == 0 else f"{s.mean:.{digits}f} ± {s.sd:.{digits}f} ({s.n})" for s in row.values()
+            ]
+            lines.append(f"| {policy} | " + " | ".join(cells) + " |")
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts) + "\n"
+
+
+def _p(value: float) -> str:
+    return "–" if math.isnan(value) else ("< 1e-4" if value < 1e-4 else f"{value:.2g}")
+
+
+def effects_markdown(effects: Sequence[Effect], digits: int = 1) -> str:
+    """Differences from the reference algorithm, one row per (graph, algorithm)."""
+    if not effects:
+        return "No other algorithm to compare with the reference.\n"
+    first = effects[0]
+    lines = [
+        f"**{first.metric}**: each algorithm minus **{first.reference}**, per graph "
+        "(negative = less than the reference). 95% CI and p from a paired t-test over the same "
+        "episodes (Welch's test where the episodes differ); d = Cohen's d.",
+        "",
+        "| Graph | Algorithm | Mean | Reference | Difference [95% CI] | Ratio | d | p | n | test |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for e in effects:
+        interval = "" if math.isnan(e.ci_low) else f" [{e.ci_low:.{digits}f}, {e.ci_high:.{digits}f}]"
+        d = "–" if math.isnan(e.cohens_d) else f"{e.cohens_d:.2f}"
+        lines.append(
+            f"| {e.graph} | {e.policy} | {e.mean:.{digits}f} | {e.reference_mean:.{digits}f} | "
+            f"{e.difference:+.{digits}f}{interval} | {e.ratio:.2f} | {d} | {_p(e.p_value)} | {e.n} | "
+            f"{'paired' if e.paired else 'Welch'} |"
+        )
     return "\n".join(lines) + "\n"

@@ -84,3 +84,134 @@ def anova(by_policy: Mapping[str, Sequence[EvaluationResult]], metric: str) -> A
             result = stats.f_oneway(*groups.values())
         statistic, p_value = float(result.statistic), float(result.pvalue)
     return AnovaResult(metric, statistic, p_value, names, df_between, df_within)
+
+
+@dataclass(frozen=True)
+class Effect:
+    """How one algorithm differs from a reference algorithm on one graph, for one metric.
+
+    ``difference`` is ``mean(policy) - mean(reference)`` (negative: the policy has less of the
+    metric); ``ci_low``/``ci_high`` bound it at 95% and ``p_value`` tests it against 0. When both
+    algorithms were evaluated on exactly the same episodes (same graph and env seeds: the sweep
+    runner's and ``sb3-pm compare``'s layout) the test is paired (``scipy.stats.ttest_rel``) and
+    ``cohens_d`` is the mean difference over the SD of the differences (d_z); otherwise Welch's test
+    (``scipy.stats.ttest_ind(equal_var=False)``) and d over the pooled SD. NaN where undefined
+    (fewer than two points, or no variance).
+    """
+
+    policy: str
+    reference: str
+    graph: str
+    metric: str
+    mean: float
+    reference_mean: float
+    difference: float
+    ci_low: float
+    ci_high: float
+    ratio: float
+    cohens_d: float
+    p_value: float
+    n: int
+    paired: bool
+
+
+def _by_episode(results: Sequence[EvaluationResult], graph: str, metric: str) -> dict[int, float]:
+    """``{env seed: value}`` of one metric over the episodes of ``results`` on ``graph``."""
+    return {
+        record.seed: float(record.metrics[metric])
+        for result in results
+        if result.graph == graph
+        for record in result.episodes
+    }
+
+
+def effect(
+    policy: Sequence[EvaluationResult],
+    reference: Sequence[EvaluationResult],
+    graph: str,
+    metric: str,
+    names: tuple[str, str] = ("policy", "reference"),
+) -> Effect:
+    """The :class:`Effect` of ``policy`` against ``reference`` on ``graph``."""
+    ours, theirs = _by_episode(policy, graph, metric), _by_episode(reference, graph, metric)
+    if not ours or not theirs:
+        raise ValueError(f"no episodes of {names[0] if not ours else names[1]!r} on graph {graph!r}")
+    paired = ours.keys() == theirs.keys()
+    a = np.array(list(ours.values()))
+    b = np.array([theirs[k] for k in ours] if paired else list(theirs.values()))
+    difference = float(a.mean() - b.mean())
+    low = high = d = p = math.nan
+    with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore")  # constant samples: scipy warns and returns nan, reported as is
+        if paired and len(a) >= 2:
+            test = stats.ttest_rel(a, b)
+            spread = float((a - b).std(ddof=1))
+        elif not paired and len(a) >= 2 and len(b) >= 2:
+            test = stats.ttest_ind(a, b, equal_var=False)
+            spread = math.sqrt((a.var(ddof=1) + b.var(ddof=1)) / 2)
+        else:
+            test = None
+        if test is not None:
+            p = float(test.pvalue)
+            interval = test.confidence_interval(0.95)
+            low, high = float(interval.low), float(interval.high)
+            d = difference / spread if spread > 0 else math.nan
+    ratio = float(a.mean() / b.mean()) if b.mean() != 0 else math.nan
+    return Effect(
+        policy=names[0],
+        reference=names[1],
+        graph=graph,
+        metric=metric,
+        mean=float(a.mean()),
+        reference_mean=float(b.mean()),
+        difference=difference,
+        ci_low=low,
+        ci_high=high,
+        ratio=ratio,
+        cohens_d=d,
+        p_value=p,
+        n=len(a),
+        paired=paired,
+    )
+
+
+def graphs_of(by_policy: Mapping[str, Sequence[EvaluationResult]]) -> list[str]:
+    """The graph labels of a comparison, in first-seen order."""
+    seen: dict[str, None] = {}
+    for results in by_policy.values():
+        for result in results:
+            seen.setdefault(result.graph, None)
+    return list(seen)
+
+
+def effects(
+    by_policy: Mapping[str, Sequence[EvaluationResult]], reference: str, metric: str = "avg_uncertainty"
+) -> list[Effect]:
+    """Every other algorithm against ``reference``, graph by graph (rows in table order).
+
+    Graphs are kept apart because their scales differ (a 200-node graph's uncertainty is several
+    times a 50-node graph's), so a difference pooled over graphs would mostly measure the largest.
+    """
+    if reference not in by_policy:
+        raise ValueError(f"unknown reference algorithm {reference!r}; have {sorted(by_policy)}")
+    rows = []
+    for graph in graphs_of(by_policy):
+        for policy, results in by_policy.items():
+            if policy == reference or not _by_episode(results, graph, metric):
+                continue
+            rows.append(effect(results, by_policy[reference], graph, metric, names=(policy, reference)))
+    return rows
+
+
+def summarize_by_graph(
+    by_policy: Mapping[str, Sequence[EvaluationResult]], metric: str = "avg_uncertainty"
+) -> dict[str, dict[str, Summary]]:
+    """``{policy: {graph: Summary}}``: one algorithm's points on each graph (seeds x episodes)."""
+    graphs = graphs_of(by_policy)
+    return {
+        policy: {
+            graph: Summary.of(pooled_values([r for r in results if r.graph == graph], metric))
+            for graph in graphs
+        }
+        for policy, results in by_policy.items()
+    }
