@@ -44,6 +44,9 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    # The command line as typed, for the records commands write (a run's command.txt); from the
+    # arguments given rather than sys.argv, so that main([...]) called from Python records its own.
+    args.command_line = ["sb3-pm", *(sys.argv[1:] if argv is None else argv)]
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2

@@ -19,6 +19,7 @@ EXPECTED_FILES = {
     "results.tex",
     "anova.txt",
     "by_graph.md",
+    "report.md",
     "effects.md",
     "results.json",
     "uncertainty.png",
@@ -53,6 +54,10 @@ def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
     table = (out / "results.md").read_text()
     for variant in experiment.variants:
         assert variant.label in table
+    report = (out / "report.md").read_text()
+    assert table.strip() in report and (out / "effects.md").read_text().strip() in report
+    assert "reproduce" in report and "--quick" in report  # the command that made it
+    assert "sb3_pm " in report and "![" in report  # the code version and the figures
     for cell in plan_cells(experiment, out):
         assert (Path(cell.folder) / "DONE").exists()
         if cell.variant["kind"] != "baseline":

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         max_cycles=args.steps,
         progress=False if args.no_progress else None,
     )
-    comparison.config["command"] = "sb3-pm " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    comparison.config["command"] = shlex.join(getattr(args, "command_line", ["sb3-pm", *sys.argv[1:]]))
     written = comparison.write(args.out)
     print(markdown_table(comparison.table), end="")
     print(f"wrote {len(written)} files to {args.out}", file=sys.stderr)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -85,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         n_jobs=args.jobs,
         ray_address=args.ray_address,
         progress=not args.no_progress,
-        command=["sb3-pm", *sys.argv[1:]] if sys.argv and sys.argv[0].endswith("sb3-pm") else None,
+        command=getattr(args, "command_line", None),
     )
     from sb3_pm.evaluation import markdown_table
 

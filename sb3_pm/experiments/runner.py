@@ -12,8 +12,9 @@ Layout of the output folder::
           tb/                   TensorBoard logs of its training
           evaluation.json       the cell's evaluation (EvaluationResult.to_dict())
           DONE                  written last: a cell with DONE is never run again
-      results.md results.csv results.tex anova.txt results.json
+      results.md results.csv results.tex anova.txt by_graph.md effects.md results.json
       uncertainty.png table.png training.png estimator_loss.png
+      report.md                 all of the above on one page, with the code version and compute
 
 A cell is one job; jobs run on a local process pool or on Ray (:mod:`.backends`). An interrupted
 sweep resumes where it stopped: finished cells (those with ``DONE``) are read back, not re-run.
@@ -36,6 +37,7 @@ import yaml
 from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
 from sb3_pm.experiments.backends import run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
+from sb3_pm.experiments.report import write_report
 from sb3_pm.experiments.spec import Experiment, Variant
 from sb3_pm.graphs import graph_label
 
@@ -230,6 +232,7 @@ def reproduce(
     for name in ("table.md", "table.csv", "table.tex"):  # the names for the paper's table
         (out / name).replace(out / name.replace("table", "results"))
     plot_training_curves(cells, out)
+    write_report(out, experiment_record(experiment), cells, reference=next(iter(comparison.results)))
     return comparison
 
 
