@@ -13,6 +13,7 @@ from scipy import stats
 
 from sb3_pm.baselines import Team, make_team
 from sb3_pm.evaluation import (
+    Comparison,
     Summary,
     anova,
     anova_text,
@@ -213,6 +214,10 @@ class TestStatistics:
             "ref": [on("small", "ref", [10, 12]), on("large", "ref", [100, 120])],
             "other": [on("small", "other", [5, 6]), on("large", "other", [200, 240])],
         }
+        comparison = Comparison(results=by_policy)
+        within = comparison.anovas_by_graph["large"][0]
+        assert within.statistic == pytest.approx(stats.f_oneway([100, 120], [200, 240]).statistic)
+        assert "within small:" in comparison.anova_report()
         rows = effects(by_policy, "ref")
         assert [(e.graph, e.policy) for e in rows] == [("small", "other"), ("large", "other")]
         assert [e.ratio for e in rows] == pytest.approx([0.5, 2.0])

@@ -30,6 +30,7 @@ from sb3_pm.evaluation.statistics import (
     Summary,
     anova,
     effects,
+    graphs_of,
     summarize,
     summarize_by_graph,
 )
@@ -56,7 +57,28 @@ class Comparison:
 
     @property
     def anovas(self) -> list[AnovaResult]:
+        """The paper's ANOVAs: every graph, seed and episode of an algorithm pooled into one group."""
         return [anova(self.results, metric) for metric in TABLE_METRICS]
+
+    @property
+    def anovas_by_graph(self) -> dict[str, list[AnovaResult]]:
+        """The ANOVAs within each graph: pooled groups mix graphs whose scales differ several-fold,
+        so their within-group variance is mostly the spread between graphs."""
+        by_graph: dict[str, list[AnovaResult]] = {}
+        for graph in graphs_of(self.results):
+            per_graph = {p: [r for r in rs if r.graph == graph] for p, rs in self.results.items()}
+            per_graph = {p: rs for p, rs in per_graph.items() if rs}
+            by_graph[graph] = [anova(per_graph, metric) for metric in TABLE_METRICS]
+        return by_graph
+
+    def anova_report(self) -> str:
+        """``anova.txt``: the pooled ANOVAs, then (with several graphs) those within each graph."""
+        text = anova_text(self.anovas)
+        by_graph = self.anovas_by_graph
+        if len(by_graph) > 1:
+            for graph, results in by_graph.items():
+                text += f"\nwithin {graph}:\n" + anova_text(results)
+        return text
 
     @property
     def by_graph(self) -> dict[str, dict[str, dict[str, Summary]]]:
@@ -82,7 +104,7 @@ class Comparison:
             ("table.md", markdown_table(table)),
             ("table.csv", csv_table(table)),
             ("table.tex", latex_table(table, caption="Average uncertainty and neglect time")),
-            ("anova.txt", anova_text(self.anovas)),
+            ("anova.txt", self.anova_report()),
             ("by_graph.md", by_graph_markdown(self.by_graph)),
             ("effects.md", effects_markdown(effect_rows)),
         ):
@@ -92,6 +114,10 @@ class Comparison:
             "config": self.config,
             "table": {p: {m: vars(s) for m, s in row.items()} for p, row in table.items()},
             "anova": [vars(a) | {"groups": list(a.groups)} for a in self.anovas],
+            "anova_by_graph": {
+                graph: [vars(a) | {"groups": list(a.groups)} for a in results]
+                for graph, results in self.anovas_by_graph.items()
+            },
             "effects": [vars(e) for e in effect_rows],
             "results": {p: [r.to_dict() for r in rs] for p, rs in self.results.items()},
         }

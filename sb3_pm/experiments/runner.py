@@ -37,7 +37,7 @@ import yaml
 from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
 from sb3_pm.experiments.backends import run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
-from sb3_pm.experiments.report import write_report
+from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant
 from sb3_pm.graphs import graph_label
 
@@ -183,6 +183,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         "graph": cell.graph,
         "seed": cell.seed,
         "seconds": time.time() - started,
+        "code": code_version(),
     }
     (folder / "evaluation.json").write_text(json.dumps(payload, indent=2))
     (folder / DONE).write_text(time.strftime("%Y-%m-%dT%H:%M:%S\n"))
