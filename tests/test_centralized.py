@@ -59,3 +59,19 @@ def test_needs_a_shared_map_env() -> None:
     env.reset(seed=0)
     with pytest.raises(ValueError, match="shared_map=True"):
         team.reset(env, seed=0)
+
+
+def test_logs_episode_metrics_like_the_decentralized_team(tmp_path: Path) -> None:
+    from sb3_pm.experiments.curves import read_scalars
+
+    team = CentralizedPPO(
+        GRAPH,
+        n_agents=2,
+        env_kwargs={"max_cycles": 20},
+        seed=0,
+        hyperparams=HYPER,
+        tensorboard_log=str(tmp_path),
+    )
+    team.learn(40)  # two 20-step episodes per agent
+    [(steps, values)] = read_scalars(tmp_path, "metrics/avg_uncertainty")
+    assert len(steps) >= 1 and (values >= 0).all()

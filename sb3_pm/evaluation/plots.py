@@ -25,25 +25,36 @@ def plot_uncertainty(
 ) -> Path:
     """Summed target uncertainty per step, one line per policy (mean over its episodes, ±1 SD band).
 
-    Episodes of different lengths are cut to the shortest, so every line covers the same steps.
+    One panel per graph: graphs' scales differ several-fold, and a band pooled over them would
+    mostly show the spread between graphs. Episodes of different lengths are cut to the shortest,
+    so every line of a panel covers the same steps.
     """
     plt = _pyplot()
-    figure, axes = plt.subplots(figsize=(7, 4), dpi=100)
-    for policy, results in by_policy.items():
-        traces = [record.trace for result in results for record in result.episodes]
-        if not traces:
-            continue
-        length = min(len(trace) for trace in traces)
-        stacked = np.stack([trace[:length] for trace in traces])
-        mean, sd = stacked.mean(axis=0), stacked.std(axis=0)
-        steps = np.arange(1, length + 1)
-        (line,) = axes.plot(steps, mean, label=policy, linewidth=1.2)
-        axes.fill_between(steps, mean - sd, mean + sd, color=line.get_color(), alpha=0.15, linewidth=0)
-    axes.set_xlabel("step")
-    axes.set_ylabel("summed target uncertainty")
-    axes.set_title(title or "Target uncertainty over an episode")
-    axes.legend(loc="best", fontsize="small")
-    axes.grid(alpha=0.3)
+    graphs = list(dict.fromkeys(result.graph for results in by_policy.values() for result in results))
+    figure, axes_row = plt.subplots(1, max(1, len(graphs)), figsize=(5 * max(1, len(graphs)) + 2, 4), dpi=100)
+    axes_list = np.atleast_1d(axes_row)
+    for axes, graph in zip(axes_list, graphs):
+        for policy, results in by_policy.items():
+            traces = [
+                record.trace for result in results if result.graph == graph for record in result.episodes
+            ]
+            if not traces:
+                continue
+            length = min(len(trace) for trace in traces)
+            stacked = np.stack([trace[:length] for trace in traces])
+            mean, sd = stacked.mean(axis=0), stacked.std(axis=0)
+            steps = np.arange(1, length + 1)
+            (line,) = axes.plot(steps, mean, label=policy, linewidth=1.2)
+            axes.fill_between(steps, mean - sd, mean + sd, color=line.get_color(), alpha=0.15, linewidth=0)
+        axes.set_xlabel("step")
+        axes.set_ylabel("summed target uncertainty")
+        axes.set_title(
+            graph if len(graphs) > 1 else (title or f"Target uncertainty over an episode ({graph})")
+        )
+        axes.grid(alpha=0.3)
+    axes_list[-1].legend(loc="best", fontsize="small")
+    if len(graphs) > 1:
+        figure.suptitle(title or "Target uncertainty over an episode")
     figure.tight_layout()
     path = Path(path)
     figure.savefig(path)

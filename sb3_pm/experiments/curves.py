@@ -1,8 +1,8 @@
 """Training curves of a sweep, read back from the cells' TensorBoard logs.
 
 Two figures: ``training.png`` (the episode metric ``metrics/avg_uncertainty`` against each
-learner's timesteps) and ``estimator_loss.png`` (``estimator/loss``), one line per variant: the
-mean over its graphs, seeds and agents at each logged step.
+learner's timesteps) and ``estimator_loss.png`` (``estimator/loss``), one panel per graph and one
+line per variant: the mean over its seeds and agents at each logged step.
 """
 
 from __future__ import annotations
@@ -41,31 +41,50 @@ def _mean_curve(series: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.nda
     return steps, np.array([np.mean(by_step[s]) for s in steps])
 
 
+def _steps_per_learner(cell: Any) -> int:
+    """What one logged step is worth in steps per learner: a centralized model logs the steps of all
+    ``n_agents`` agents, a decentralized learner its own."""
+    return cell.n_agents if cell.variant.get("kind") == "centralized" else 1
+
+
 def plot_training_curves(cells: Sequence[Any], out: Path) -> list[Path]:
-    """Write the figures of :data:`CURVES` for the learned cells that logged them."""
+    """Write the figures of :data:`CURVES` for the learned cells that logged them.
+
+    One panel per graph (their scales differ several-fold), one line per variant: the mean over
+    its seeds and agents, against steps per learner (a centralized model's steps divided by its
+    agents, so both kinds of team share the axis).
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    from sb3_pm.graphs import graph_label
+
     written = []
     for filename, tag in CURVES.items():
-        per_variant: dict[str, list[tuple[np.ndarray, np.ndarray]]] = defaultdict(list)
+        panels: dict[str, dict[str, list[tuple[np.ndarray, np.ndarray]]]] = defaultdict(
+            lambda: defaultdict(list)
+        )
         for cell in cells:
             log_dir = Path(cell.folder) / "tb"
             if log_dir.is_dir():
-                per_variant[cell.variant["label"]].extend(read_scalars(log_dir, tag))
-        per_variant = {label: series for label, series in per_variant.items() if series}
-        if not per_variant:
+                scale = _steps_per_learner(cell)
+                series = [(steps // scale, values) for steps, values in read_scalars(log_dir, tag)]
+                if series:
+                    panels[graph_label(cell.graph)][cell.variant["label"]].extend(series)
+        if not panels:
             continue
-        figure, axes = plt.subplots(figsize=(7, 4))
-        for label, series in per_variant.items():
-            steps, values = _mean_curve(series)
-            axes.plot(steps, values, label=label)
-        axes.set_xlabel("timesteps per learner")
-        axes.set_ylabel(tag)
-        axes.set_title(f"{tag} during training (mean over graphs, seeds and agents)")
-        axes.legend(fontsize=8)
+        figure, axes_row = plt.subplots(1, len(panels), figsize=(5 * len(panels) + 1, 4), squeeze=False)
+        for axes, (graph, per_variant) in zip(axes_row[0], panels.items()):
+            for label, series in per_variant.items():
+                steps, values = _mean_curve(series)
+                axes.plot(steps, values, label=label)
+            axes.set_xlabel("timesteps per learner")
+            axes.set_ylabel(tag)
+            axes.set_title(graph)
+            axes.legend(fontsize=8)
+        figure.suptitle(f"{tag} during training (mean over seeds and agents)")
         figure.tight_layout()
         figure.savefig(out / filename, dpi=100)
         plt.close(figure)
