@@ -186,6 +186,22 @@ class TestStatistics:
         assert (e.ci_low, e.ci_high) == pytest.approx((2 - half_width, 2 + half_width))
         assert e.p_value == pytest.approx(stats.ttest_rel([11, 22, 33], [10, 20, 30]).pvalue)
 
+    def test_run_level_test_pairs_the_runs_means(self) -> None:
+        def run(policy: str, seed: int, values: list[float]) -> EvaluationResult:
+            records = [
+                EpisodeRecord(i, seed + i, 0, {"avg_uncertainty": v}, np.zeros(1))
+                for i, v in enumerate(values)
+            ]
+            return EvaluationResult(policy, "g", {"seed": seed}, records)
+
+        policy = [run("p", 0, [11, 11]), run("p", 1000, [21, 21]), run("p", 2000, [33, 33])]
+        reference = [run("r", 0, [10, 10]), run("r", 1000, [19, 19]), run("r", 2000, [30, 30])]
+        e = effect(policy, reference, "g", "avg_uncertainty")
+        assert e.paired and e.n == 6 and e.n_runs == 3
+        # Run means 11, 21, 33 against 10, 19, 30.
+        assert e.p_value_runs == pytest.approx(stats.ttest_rel([11, 21, 33], [10, 19, 30]).pvalue)
+        assert e.p_value_runs > e.p_value  # 3 replicates say less than 6 episodes seem to
+
     def test_unpaired_effect_uses_welch(self) -> None:
         policy = fake_result("p", [1, 2, 3])
         reference = EvaluationResult(

@@ -114,17 +114,20 @@ def effects_markdown(effects: Sequence[Effect], digits: int = 1) -> str:
     lines = [
         f"**{first.metric}**: each algorithm minus **{first.reference}**, per graph "
         "(negative = less than the reference). 95% CI and p from a paired t-test over the same "
-        "episodes (Welch's test where the episodes differ); d = Cohen's d.",
+        "episodes (Welch's test where the episodes differ); d = Cohen's d. Episodes of one trained "
+        "team are not independent training replicates: *p (runs)* repeats the paired test on the "
+        "per-run means (one run per training seed), the test to read for a training change.",
         "",
-        "| Graph | Algorithm | Mean | Reference | Difference [95% CI] | Ratio | d | p | n | test |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
+        "| Graph | Algorithm | Mean | Reference | Difference [95% CI] | Ratio | d | p | n "
+        "| p (runs) | runs |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for e in effects:
         interval = "" if math.isnan(e.ci_low) else f" [{e.ci_low:.{digits}f}, {e.ci_high:.{digits}f}]"
         d = "–" if math.isnan(e.cohens_d) else f"{e.cohens_d:.2f}"
         lines.append(
             f"| {e.graph} | {e.policy} | {e.mean:.{digits}f} | {e.reference_mean:.{digits}f} | "
-            f"{e.difference:+.{digits}f}{interval} | {e.ratio:.2f} | {d} | {_p(e.p_value)} | {e.n} | "
-            f"{'paired' if e.paired else 'Welch'} |"
+            f"{e.difference:+.{digits}f}{interval} | {e.ratio:.2f} | {d} | {_p(e.p_value)} | {e.n}"
+            f"{'' if e.paired else ' (Welch)'} | {_p(e.p_value_runs)} | {e.n_runs} |"
         )
     return "\n".join(lines) + "\n"

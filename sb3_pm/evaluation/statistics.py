@@ -11,6 +11,7 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -97,6 +98,12 @@ class Effect:
     ``cohens_d`` is the mean difference over the SD of the differences (d_z); otherwise Welch's test
     (``scipy.stats.ttest_ind(equal_var=False)``) and d over the pooled SD. NaN where undefined
     (fewer than two points, or no variance).
+
+    Episodes of one trained team are not independent replicates of *training*: a learned variant
+    has as many independent replicates as training seeds. ``p_value_runs`` therefore repeats the
+    paired test on the per-run means (one run = one :class:`EvaluationResult`, i.e. one (graph,
+    seed) cell, paired by its evaluation seed), with ``n_runs`` pairs; trust it over ``p_value``
+    when asking whether a *training* change matters.
     """
 
     policy: str
@@ -113,6 +120,17 @@ class Effect:
     p_value: float
     n: int
     paired: bool
+    p_value_runs: float = math.nan
+    n_runs: int = 0
+
+
+def _run_means(results: Sequence[EvaluationResult], graph: str, metric: str) -> dict[Any, float]:
+    """``{evaluation seed of the run: mean of its episodes}`` for the runs of ``results`` on ``graph``."""
+    return {
+        result.config.get("seed", index): float(result.values(metric).mean())
+        for index, result in enumerate(results)
+        if result.graph == graph and result.episodes
+    }
 
 
 def _by_episode(results: Sequence[EvaluationResult], graph: str, metric: str) -> dict[int, float]:
@@ -157,6 +175,15 @@ def effect(
             low, high = float(interval.low), float(interval.high)
             d = difference / spread if spread > 0 else math.nan
     ratio = float(a.mean() / b.mean()) if b.mean() != 0 else math.nan
+    runs_ours, runs_theirs = _run_means(policy, graph, metric), _run_means(reference, graph, metric)
+    shared = [key for key in runs_ours if key in runs_theirs]
+    p_runs = math.nan
+    if paired and len(shared) >= 2:
+        with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
+            warnings.simplefilter("ignore")
+            p_runs = float(
+                stats.ttest_rel([runs_ours[k] for k in shared], [runs_theirs[k] for k in shared]).pvalue
+            )
     return Effect(
         policy=names[0],
         reference=names[1],
@@ -172,6 +199,8 @@ def effect(
         p_value=p,
         n=len(a),
         paired=paired,
+        p_value_runs=p_runs,
+        n_runs=len(shared) if paired else 0,
     )
 
 
