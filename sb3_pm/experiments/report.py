@@ -80,7 +80,8 @@ def write_report(out: Path, record: dict[str, Any], cells: Sequence[Any], refere
         "- training budget: "
         + (f"{budget} steps per learner" if budget else "the config's `n_timesteps`")
         + (f" (config `{record['config']}`)" if record.get("config") else ""),
-        f"- code: {code_version()}",
+        f"- code that wrote this report: {code_version()} (each cell's evaluation.json records the code "
+        "that ran it)",
         f"- compute: {seconds / 3600:.2f} h summed over {counted} cells (training + evaluation, "
         "as each cell recorded it)",
         "",
