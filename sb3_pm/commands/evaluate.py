@@ -28,6 +28,11 @@ def register(subparsers: Any) -> None:
         "--json", type=Path, metavar="FILE", help="write episodes, mean, std and config as JSON"
     )
     parser.add_argument("--gif", type=Path, metavar="FILE", help="save the first episode as an animated GIF")
+    parser.add_argument(
+        "--stochastic",
+        action="store_true",
+        help="sample a learned team's actions instead of taking the most likely (seeded, reproducible)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
     parser.set_defaults(func=run)
 
@@ -96,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         env_kwargs=env_kwargs,
         progress=None if long_run and not args.no_progress else False,
         policy_name=label,
+        deterministic=not args.stochastic,
     )
     result.config["graph"] = str(args.graph)
     print_summary(result)

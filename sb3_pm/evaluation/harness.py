@@ -133,6 +133,7 @@ def evaluate(
     env_kwargs: Mapping[str, Any] | None = None,
     progress: bool | None = False,
     policy_name: str | None = None,
+    deterministic: bool = True,
 ) -> EvaluationResult:
     """Run ``team`` for ``episodes`` full episodes on ``graph`` and collect their metrics.
 
@@ -145,6 +146,8 @@ def evaluate(
     :param env_kwargs: further arguments of the environment (``obs_radius``, ``u_max``, ...).
     :param progress: show a tqdm bar on stderr; ``None`` shows it only on a terminal.
     :param policy_name: the label in reports; defaults to ``team.name``.
+    :param deterministic: passed to ``team.predict``; ``False`` samples a learned team's actions
+        (from the team's own seeded stream, so still reproducible). Baselines ignore it.
     :raises ValueError: for ``episodes < 1`` or bad environment arguments.
     """
     from sb3_pm.envs import persistent_monitoring_v0
@@ -163,7 +166,7 @@ def evaluate(
     try:
         for episode in range(episodes):
             env_seed = seed + episode
-            records.append(run_episode(team, env, env_seed, bar))
+            records.append(run_episode(team, env, env_seed, bar, deterministic=deterministic))
             records[-1].episode = episode
     finally:
         if bar is not None:
@@ -178,12 +181,18 @@ def evaluate(
         "episodes": episodes,
         "seed": seed,
         "env_kwargs": kwargs,
+        "deterministic": deterministic,
     }
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
 
 
 def run_episode(
-    team: Team, env: Any, env_seed: int, bar: Any = None, frames: list | None = None
+    team: Team,
+    env: Any,
+    env_seed: int,
+    bar: Any = None,
+    frames: list | None = None,
+    deterministic: bool = True,
 ) -> EpisodeRecord:
     """Play one episode of ``env`` with ``team``; append rendered frames to ``frames`` if given."""
     observations, _ = env.reset(seed=env_seed)
@@ -194,7 +203,7 @@ def run_episode(
     infos: dict[str, dict] = {}
     steps = 0
     while env.agents:
-        actions = team.predict(observations, deterministic=True)
+        actions = team.predict(observations, deterministic=deterministic)
         observations, _, _, _, infos = env.step(actions)
         steps += 1
         if frames is not None:
