@@ -88,6 +88,17 @@ class EpisodeMetricsCallback(BaseCallback):
                 self.logger.record(f"metrics/{key}", float(np.mean(values)))
 
 
+def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> CallbackList:
+    """A learner's callbacks: an :class:`EpisodeMetricsCallback` first, then the caller's (one, a
+    list, or none)."""
+    callbacks: list[BaseCallback] = [EpisodeMetricsCallback()]
+    if isinstance(callback, list):
+        callbacks += callback
+    elif callback is not None:
+        callbacks.append(callback)
+    return CallbackList(callbacks)
+
+
 def _versions() -> dict[str, str]:
     """Versions of the packages a saved team depends on (recorded in the manifest)."""
     import gymnasium
@@ -328,13 +339,10 @@ class IndependentPPO(Team):
         user_callbacks = self._callbacks(callback)
         learn_kwargs = []
         for agent, user in zip(self.agents, user_callbacks):
-            callbacks: list[BaseCallback] = [EpisodeMetricsCallback()]
-            if user is not None:
-                callbacks.append(user)
             learn_kwargs.append(
                 {
                     "total_timesteps": int(total_timesteps),
-                    "callback": CallbackList(callbacks),
+                    "callback": with_episode_metrics(user),
                     "log_interval": log_interval,
                     "tb_log_name": f"{tb_log_name or ''}{agent}",
                     "reset_num_timesteps": reset_num_timesteps,

@@ -30,7 +30,7 @@ from sb3_pm.evaluation.statistics import (
     Summary,
     anova,
     effects,
-    graphs_of,
+    split_by_graph,
     summarize,
     summarize_by_graph,
 )
@@ -64,12 +64,10 @@ class Comparison:
     def anovas_by_graph(self) -> dict[str, list[AnovaResult]]:
         """The ANOVAs within each graph: pooled groups mix graphs whose scales differ several-fold,
         so their within-group variance is mostly the spread between graphs."""
-        by_graph: dict[str, list[AnovaResult]] = {}
-        for graph in graphs_of(self.results):
-            per_graph = {p: [r for r in rs if r.graph == graph] for p, rs in self.results.items()}
-            per_graph = {p: rs for p, rs in per_graph.items() if rs}
-            by_graph[graph] = [anova(per_graph, metric) for metric in TABLE_METRICS]
-        return by_graph
+        return {
+            graph: [anova(on_graph, metric) for metric in TABLE_METRICS]
+            for graph, on_graph in split_by_graph(self.results).items()
+        }
 
     def anova_report(self) -> str:
         """``anova.txt``: the pooled ANOVAs, then (with several graphs) those within each graph."""
@@ -86,11 +84,15 @@ class Comparison:
         return {metric: summarize_by_graph(self.results, metric) for metric in TABLE_METRICS}
 
     @property
+    def reference_policy(self) -> str | None:
+        """:attr:`reference`, or the first algorithm when unset (None without results)."""
+        return self.reference or next(iter(self.results), None)
+
+    @property
     def effects(self) -> list[Effect]:
-        """Every algorithm against :attr:`reference` on ``avg_uncertainty``, graph by graph."""
-        if not self.results:
-            return []
-        return effects(self.results, self.reference or next(iter(self.results)))
+        """Every algorithm against :attr:`reference_policy` on ``avg_uncertainty``, graph by graph."""
+        reference = self.reference_policy
+        return [] if reference is None else effects(self.results, reference)
 
     def write(self, out: str | Path) -> list[Path]:
         """Write ``table.md``, ``table.csv``, ``table.tex``, ``anova.txt``, ``by_graph.md``,

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from sb3_pm.evaluation.harness import EvaluationResult
-from sb3_pm.evaluation.statistics import Summary
+from sb3_pm.evaluation.statistics import Summary, split_by_graph
 
 
 def _pyplot():  # type: ignore[no-untyped-def]
@@ -30,14 +30,13 @@ def plot_uncertainty(
     so every line of a panel covers the same steps.
     """
     plt = _pyplot()
-    graphs = list(dict.fromkeys(result.graph for results in by_policy.values() for result in results))
+    split = split_by_graph(by_policy)
+    graphs = list(split)
     figure, axes_row = plt.subplots(1, max(1, len(graphs)), figsize=(5 * max(1, len(graphs)) + 2, 4), dpi=100)
     axes_list = np.atleast_1d(axes_row)
     for axes, graph in zip(axes_list, graphs):
-        for policy, results in by_policy.items():
-            traces = [
-                record.trace for result in results if result.graph == graph for record in result.episodes
-            ]
+        for policy, results in split[graph].items():
+            traces = [record.trace for result in results for record in result.episodes]
             if not traces:
                 continue
             length = min(len(trace) for trace in traces)

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,6 +21,15 @@ from sb3_pm.evaluation.harness import EvaluationResult
 
 #: The paper's two Table I metrics.
 TABLE_METRICS = ("avg_uncertainty", "max_neglect")
+
+
+@contextmanager
+def _undefined_as_nan() -> Iterator[None]:
+    """Silence scipy's and NumPy's warnings for degenerate samples (constant groups, zero variance):
+    the tests then return NaN or inf, which the reports show as undefined."""
+    with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore")
+        yield
 
 
 def pooled_values(results: Sequence[EvaluationResult], metric: str) -> np.ndarray:
@@ -79,9 +89,7 @@ def anova(by_policy: Mapping[str, Sequence[EvaluationResult]], metric: str) -> A
     df_between, df_within = len(groups) - 1, n_total - len(groups)
     statistic = p_value = math.nan
     if len(groups) >= 2 and all(len(values) >= 2 for values in groups.values()):
-        with warnings.catch_warnings():
-            # Constant groups make F undefined; scipy warns and returns nan/inf, which we report as is.
-            warnings.simplefilter("ignore")
+        with _undefined_as_nan():
             result = stats.f_oneway(*groups.values())
         statistic, p_value = float(result.statistic), float(result.pvalue)
     return AnovaResult(metric, statistic, p_value, names, df_between, df_within)
@@ -159,8 +167,7 @@ def effect(
     b = np.array([theirs[k] for k in ours] if paired else list(theirs.values()))
     difference = float(a.mean() - b.mean())
     low = high = d = p = math.nan
-    with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
-        warnings.simplefilter("ignore")  # constant samples: scipy warns and returns nan, reported as is
+    with _undefined_as_nan():
         if paired and len(a) >= 2:
             test = stats.ttest_rel(a, b)
             spread = float((a - b).std(ddof=1))
@@ -179,8 +186,7 @@ def effect(
     shared = [key for key in runs_ours if key in runs_theirs]
     p_runs = math.nan
     if paired and len(shared) >= 2:
-        with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
-            warnings.simplefilter("ignore")
+        with _undefined_as_nan():
             p_runs = float(
                 stats.ttest_rel([runs_ours[k] for k in shared], [runs_theirs[k] for k in shared]).pvalue
             )
@@ -213,6 +219,18 @@ def graphs_of(by_policy: Mapping[str, Sequence[EvaluationResult]]) -> list[str]:
     return list(seen)
 
 
+def split_by_graph(
+    by_policy: Mapping[str, Sequence[EvaluationResult]],
+) -> dict[str, dict[str, list[EvaluationResult]]]:
+    """``{graph: {policy: its results on that graph}}``, graphs in first-seen order; a policy with
+    no result on a graph is left out of that graph's mapping."""
+    split: dict[str, dict[str, list[EvaluationResult]]] = {graph: {} for graph in graphs_of(by_policy)}
+    for policy, results in by_policy.items():
+        for result in results:
+            split[result.graph].setdefault(policy, []).append(result)
+    return split
+
+
 def effects(
     by_policy: Mapping[str, Sequence[EvaluationResult]], reference: str, metric: str = "avg_uncertainty"
 ) -> list[Effect]:
@@ -224,11 +242,10 @@ def effects(
     if reference not in by_policy:
         raise ValueError(f"unknown reference algorithm {reference!r}; have {sorted(by_policy)}")
     rows = []
-    for graph in graphs_of(by_policy):
-        for policy, results in by_policy.items():
-            if policy == reference or not _by_episode(results, graph, metric):
-                continue
-            rows.append(effect(results, by_policy[reference], graph, metric, names=(policy, reference)))
+    for graph, on_graph in split_by_graph(by_policy).items():
+        for policy, results in on_graph.items():
+            if policy != reference and any(result.episodes for result in results):
+                rows.append(effect(results, by_policy[reference], graph, metric, names=(policy, reference)))
     return rows
 
 
@@ -236,11 +253,11 @@ def summarize_by_graph(
     by_policy: Mapping[str, Sequence[EvaluationResult]], metric: str = "avg_uncertainty"
 ) -> dict[str, dict[str, Summary]]:
     """``{policy: {graph: Summary}}``: one algorithm's points on each graph (seeds x episodes)."""
-    graphs = graphs_of(by_policy)
+    split = split_by_graph(by_policy)
     return {
         policy: {
-            graph: Summary.of(pooled_values([r for r in results if r.graph == graph], metric))
-            for graph in graphs
+            graph: Summary.of(pooled_values(on_graph.get(policy, []), metric))
+            for graph, on_graph in split.items()
         }
-        for policy, results in by_policy.items()
+        for policy in by_policy
     }

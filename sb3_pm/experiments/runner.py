@@ -233,7 +233,7 @@ def reproduce(
     for name in ("table.md", "table.csv", "table.tex"):  # the names for the paper's table
         (out / name).replace(out / name.replace("table", "results"))
     plot_training_curves(cells, out)
-    write_report(out, experiment_record(experiment), cells, reference=next(iter(comparison.results)))
+    write_report(out, experiment_record(experiment), cells, reference=comparison.reference_policy or "")
     return comparison
 
 

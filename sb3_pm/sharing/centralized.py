@@ -22,12 +22,10 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.team import (
     MANIFEST,
-    EpisodeMetricsCallback,
     check_same_graph,
     graph_for_saved_team,
     learn_seed,
@@ -36,6 +34,7 @@ from sb3_pm.agents.team import (
     resolve_learner,
     save_graph_copy,
     team_manifest,
+    with_episode_metrics,
 )
 from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
@@ -130,15 +129,10 @@ class CentralizedPPO(Team):
         if total_timesteps < 1:
             raise ValueError(f"total_timesteps must be positive, got {total_timesteps}")
         set_random_seed(learn_seed(self.seed, self.num_timesteps))
-        # Episode metrics in TensorBoard, as the decentralized learners log them (metrics/<name>).
-        callbacks: list[BaseCallback] = [EpisodeMetricsCallback()]
-        if isinstance(callback, list):
-            callbacks += callback
-        elif callback is not None:
-            callbacks.append(callback)
         self.model.learn(
             total_timesteps * self.n_agents,
-            callback=CallbackList(callbacks),
+            # Episode metrics in TensorBoard, as the decentralized learners log them (metrics/<name>).
+            callback=with_episode_metrics(callback),
             progress_bar=progress_bar,
             reset_num_timesteps=reset_num_timesteps,
             tb_log_name="centralized",
