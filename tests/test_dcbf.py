@@ -57,6 +57,16 @@ class TestEmptySetFallback:
         assert run([3, 1, 3, 0, 0, 50], reachable=[0, 1, 2]) == [0, 2]
 
 
+class TestWithoutBarrier:
+    def test_whole_reachable_set(self) -> None:
+        # The barrier would keep node 1 only; without it every reachable node is allowed.
+        assert run([1, 3, 2, 0, 0, 50], reachable=[0, 1, 2], barrier=False) == [0, 1, 2]
+
+    def test_freeze_and_rule_6_still_apply(self) -> None:
+        assert run([0, 9, 0, 0, 0, 0], reachable=[0, 1], on_target=True, u_here=4, barrier=False) == [0]
+        assert run([0] * N, reachable=[0, 1, 2], occupied=[1], avoid_collisions=True, barrier=False) == [0, 2]
+
+
 class TestFreeze:
     def test_freeze_on_arrival_at_a_target(self) -> None:
         assert run([0, 50, 0, 0, 0, 0], reachable=[0, 1], on_target=True, u_here=4, dwell=0) == [0]

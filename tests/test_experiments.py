@@ -181,6 +181,19 @@ def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "unknown graph" in capsys.readouterr().err
 
 
+def test_variants_option_runs_a_subset(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tiny_experiment(tmp_path)
+    out = tmp_path / "out"
+    graph = str(tmp_path / "tiny.graphml")
+    args = ["reproduce", str(path), "--out", str(out), "--no-progress", "--jobs", "1", "--graphs", graph]
+    assert main([*args, "--variants", "random"]) == 0
+    assert [p.name for p in (out / "cells").iterdir()] == ["random"]
+    assert "random" in (out / "experiment.yml").read_text()
+    assert "learned" not in (out / "experiment.yml").read_text()
+    assert main([*args, "--variants", "nope"]) == 2
+    assert "unknown variant(s) ['nope']" in capsys.readouterr().err
+
+
 def test_cell_results_are_stored(tmp_path: Path) -> None:
     experiment = load_tiny(tmp_path)
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)

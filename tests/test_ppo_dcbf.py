@@ -56,6 +56,7 @@ ABLATIONS = [
     {"use_estimator": False},
     {"use_dcbf": False, "use_estimator": False},
     {"avoid_collisions": True},
+    {"dcbf_barrier": False, "avoid_collisions": True},
     {"extra_attention": True},
     {"estimator_target": "observed", "laplacian": "eigen"},
     {"laplacian": "none", "gamma_threshold": 5.0, "gat_backend": "sparse"},
@@ -198,12 +199,13 @@ def test_same_seed_same_parameters() -> None:
 
 
 def test_save_load_round_trip(tmp_path: Path) -> None:
-    model = make_model(avoid_collisions=True, extra_attention=True)
+    model = make_model(avoid_collisions=True, extra_attention=True, dcbf_barrier=False)
     model.learn(32)
     path = tmp_path / "dcbf.zip"
     model.save(path)
     loaded = DCBFPPO.load(path, env=make_env())
     assert loaded.policy.avoid_collisions and loaded.policy.extra_attention
+    assert not loaded.policy.dcbf_config.barrier
     env = make_env()
     obs, _ = env.reset(seed=5)
     for _ in range(20):

@@ -31,6 +31,13 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, help="override the experiment's training seeds")
     parser.add_argument("--timesteps", type=int, help="override the training budget (steps per learner)")
     parser.add_argument(
+        "--variants",
+        nargs="+",
+        metavar="KEY",
+        help="run only these variants (keys of the file's 'variants', in the file's order; the first "
+        "one kept is the reference of effects.md)",
+    )
+    parser.add_argument(
         "--backend", choices=["local", "ray"], default="local", help="where cells run (default local)"
     )
     parser.add_argument(
@@ -53,6 +60,14 @@ def run(args: argparse.Namespace) -> int:
         experiment = experiment.with_graphs(args.graphs)
     if args.seeds:
         experiment = replace(experiment, seeds=tuple(args.seeds))
+    if args.variants:
+        known = [variant.key for variant in experiment.variants]
+        unknown = [key for key in args.variants if key not in known]
+        if unknown:
+            raise UsageError(f"--variants: unknown variant(s) {unknown}; {args.experiment} has {known}")
+        experiment = replace(
+            experiment, variants=tuple(v for v in experiment.variants if v.key in set(args.variants))
+        )
     if args.timesteps is not None:
         if args.timesteps < 1:
             raise UsageError(f"--timesteps must be at least 1, got {args.timesteps}")

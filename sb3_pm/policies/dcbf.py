@@ -19,6 +19,11 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
 7. activation threshold ``γ``: rules 2-6 apply only where ``max_m û_m ≥ γ``; elsewhere the mask is
    ``R`` (default ``γ = 0``: always, as in the paper's experiments).
 
+``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
+among all reachable nodes but still dwells on a target until it is cleared. This is not in the
+paper; it exists because rules 2-4 leave a single allowed action on almost every step (measured in
+docs/RESULTS.md), so the learned actor barely acts.
+
 Decisions where METHOD.md is silent: γ gates the whole filter including the freeze (the freeze is
 rule 5 of the filter); rule 6 also applies to the frozen ``{φ}`` but can never empty it. A final
 guard makes every row non-empty even for malformed input (falls back to ``R``, then to all nodes).
@@ -41,12 +46,14 @@ class DCBFConfig:
     :param freeze_steps: length of the freeze of rule 5 (0 disables it).
     :param avoid_collisions: apply rule 6.
     :param gamma_threshold: the activation threshold ``γ`` of rule 7, in units of ``u``.
+    :param barrier: apply rules 2-4 (off: ``S = R`` before the freeze and rule 6).
     """
 
     eta: float = 0.1
     freeze_steps: int = 10
     avoid_collisions: bool = False
     gamma_threshold: float = 0.0
+    barrier: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
@@ -95,7 +102,7 @@ def dcbf_mask(
     # Rule 4: best reachable nodes, ties kept.
     u_reachable = u_hat.masked_fill(~reachable, very_low)
     best = reachable & (u_reachable >= u_reachable.amax(-1, keepdim=True))
-    safe = _non_empty(safe, best)
+    safe = _non_empty(safe, best) if config.barrier else reachable
     # Rule 5: freeze on a target until dwell reaches freeze_steps or u is observed at 0.
     own = th.nn.functional.one_hot(position.long(), u_hat.shape[-1]).bool()
     frozen = on_target.bool() & (dwell < config.freeze_steps) & (u_here > 0)

@@ -72,6 +72,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param freeze_steps: DCBF rule 5 (0 disables the freeze).
     :param eta: DCBF margin ``η``.
     :param gamma_threshold: DCBF activation threshold ``γ``.
+    :param dcbf_barrier: DCBF rules 2-4 (off: the filter keeps only feasibility, the freeze and
+        rule 6; see :mod:`sb3_pm.policies.dcbf`).
     :param laplacian: ``"rows"``, ``"eigen"`` or ``"none"``.
     :param gat_heads: heads per GAT layer.
     :param hidden_dim: node embedding size ``h``.
@@ -105,6 +107,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         freeze_steps: int = 10,
         eta: float = 0.1,
         gamma_threshold: float = 0.0,
+        dcbf_barrier: bool = True,
         laplacian: str = "rows",
         gat_heads: int = 4,
         hidden_dim: int = 32,
@@ -132,7 +135,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self.use_dcbf, self.use_estimator = bool(use_dcbf), bool(use_estimator)
         self.avoid_collisions, self.extra_attention = bool(avoid_collisions), bool(extra_attention)
         self.estimator_target = estimator_target
-        self.dcbf_config = DCBFConfig(eta, int(freeze_steps), bool(avoid_collisions), float(gamma_threshold))
+        self.dcbf_config = DCBFConfig(
+            eta, int(freeze_steps), bool(avoid_collisions), float(gamma_threshold), bool(dcbf_barrier)
+        )
         self.estimator_hidden = [int(w) for w in estimator_hidden]
         self.estimator_lr, self.estimator_epochs = float(estimator_lr), int(estimator_epochs)
         self.estimator_batch_size = int(estimator_batch_size)
@@ -217,6 +222,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             freeze_steps=self.dcbf_config.freeze_steps,
             eta=self.dcbf_config.eta,
             gamma_threshold=self.dcbf_config.gamma_threshold,
+            dcbf_barrier=self.dcbf_config.barrier,
             laplacian=self._encoder_kwargs["laplacian"],
             gat_heads=self._encoder_kwargs["gat_heads"],
             hidden_dim=self._encoder_kwargs["hidden_dim"],
