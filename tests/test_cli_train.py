@@ -94,3 +94,27 @@ def test_train_user_errors(setup, capsys) -> None:
         main(["train", "--config", str(config), "--env", str(graph), "--timesteps", "0", "--out", str(out)])
         == 2
     )
+
+
+def test_train_overrides_rl_zoo_style(setup, capsys) -> None:
+    config, graph, out = setup
+    argv = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "16", "--out", str(out)]
+    overrides = ["--hyperparams", "learning_rate:5e-4", "n_steps:8", "--env-kwargs", "reward:reduction"]
+    assert main([*argv, *overrides, "--no-progress"]) == 0
+    resolved = yaml.safe_load((out / "config.yml").read_text())
+    assert resolved["learning_rate"] == 5e-4 and resolved["n_steps"] == 8
+    # env_kwargs merge key by key: the file's max_cycles stays.
+    assert resolved["env_kwargs"] == {"max_cycles": 10, "reward": "reduction"}
+    assert (
+        "--hyperparams learning_rate:5e-4 n_steps:8 --env-kwargs reward:reduction"
+        in (out / "command.txt").read_text()
+    )
+    capsys.readouterr()
+    for bad, message in (
+        (["--hyperparams", "n_stepz:3"], "unknown key 'n_stepz'"),
+        (["--hyperparams", "n_steps"], "expected KEY:VALUE"),
+        (["--hyperparams", "n_steps:[3"], "not valid YAML"),
+        (["--env-kwargs", "rewardz:paper"], "unknown key 'rewardz'"),
+    ):
+        assert main([*argv, *bad, "--out", str(out.parent / "other")]) == 2
+        assert message in capsys.readouterr().err

@@ -150,3 +150,22 @@ def test_repository_config_is_valid() -> None:
         config = load_config(path, env)
         assert config.n_agents == 4
     assert load_config(path, "paper-50").n_timesteps == 50_000
+
+
+def test_overrides_merge_kwargs_and_replace_the_rest(tmp_path) -> None:
+    from sb3_pm.zoo.config import apply_overrides
+
+    raw = {"n_steps": 16, "policy_kwargs": {"gat_heads": 1}, "env_kwargs": {"max_cycles": 10}}
+    merged = apply_overrides(raw, {"n_steps": 8, "policy_kwargs": {"avoid_collisions": True}})
+    assert merged == {
+        "n_steps": 8,
+        "policy_kwargs": {"gat_heads": 1, "avoid_collisions": True},
+        "env_kwargs": {"max_cycles": 10},
+    }
+    assert raw["policy_kwargs"] == {"gat_heads": 1}  # the input is not modified
+    path = tmp_path / "c.yml"
+    path.write_text("default:\n  n_steps: 16\n  policy_kwargs: {gat_heads: 1}\n")
+    config = load_config(path, "paper-50", {"policy_kwargs": {"dcbf_barrier": False}})
+    assert config.hyperparams["policy_kwargs"] == {"gat_heads": 1, "dcbf_barrier": False}
+    with pytest.raises(ConfigError, match="command-line overrides"):
+        load_config(path, "paper-50", {"n_stepz": 3})

@@ -43,6 +43,21 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--out", type=Path, metavar="DIR", help="run folder (default runs/<graph>_<algo>_s<seed>)"
     )
+    parser.add_argument(
+        "--hyperparams",
+        nargs="+",
+        default=[],
+        metavar="KEY:VALUE",
+        help="override entries of the config, rl-zoo style; VALUE is YAML, e.g. learning_rate:1e-4 "
+        "'policy_kwargs:{avoid_collisions: true}' (policy_kwargs and env_kwargs merge key by key)",
+    )
+    parser.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        default=[],
+        metavar="KEY:VALUE",
+        help="override environment arguments, e.g. reward:reduction max_cycles:200",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     parser.add_argument("--device", default="cpu", help="torch device of every learner (default cpu)")
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity of every learner (default 0)")
@@ -89,7 +104,11 @@ def run(args: argparse.Namespace) -> int:
         if value is not None and value < 1:
             raise UsageError(f"--{flag.replace('_', '-')} must be at least 1, got {value}")
     graph = resolve_graph(args.env)
-    config = load_config(args.config, args.env)
+    overrides = parse_overrides(args.hyperparams, "--hyperparams")
+    env_overrides = parse_overrides(args.env_kwargs, "--env-kwargs")
+    if env_overrides:
+        overrides["env_kwargs"] = {**overrides.get("env_kwargs", {}), **env_overrides}
+    config = load_config(args.config, args.env, overrides)
     if args.timesteps is not None:
         config.n_timesteps = args.timesteps
     if args.n_envs is not None:
@@ -127,12 +146,35 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:
+    """``["key:value", ...]`` -> ``{key: YAML-parsed value}`` (rl-zoo's ``--hyperparams`` syntax,
+    with YAML instead of Python ``eval`` for the values)."""
+    from sb3_pm.cli import UsageError
+
+    parsed: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition(":")
+        if not sep or not key.strip():
+            raise UsageError(f"{flag}: expected KEY:VALUE, got {item!r}")
+        try:
+            parsed[key.strip()] = yaml.safe_load(text) if text.strip() else None
+        except yaml.YAMLError as error:
+            raise UsageError(f"{flag}: the value of {key!r} is not valid YAML ({error})") from None
+        if parsed[key.strip()] is None:
+            raise UsageError(f"{flag}: {key!r} has no value")
+    return parsed
+
+
 def _argv_from(args: argparse.Namespace, out: Path) -> list[str]:
     """The command line that reproduces this run (``command.txt``)."""
     argv = ["--config", str(args.config), "--env", str(args.env), "--seed", str(args.seed), "--out", str(out)]
     for flag, value in (("--timesteps", args.timesteps), ("--n-envs", args.n_envs)):
         if value is not None:
             argv += [flag, str(value)]
+    if args.hyperparams:
+        argv += ["--hyperparams", *args.hyperparams]
+    if args.env_kwargs:
+        argv += ["--env-kwargs", *args.env_kwargs]
     if args.device != "cpu":
         argv += ["--device", args.device]
     if args.overwrite:

@@ -243,17 +243,36 @@ def _hyperparams(
     return checked
 
 
-def load_config(path: str | Path, env: str) -> TrainConfig:
+#: Mapping-valued keys that command-line overrides merge into (key by key) instead of replacing.
+MERGED_KEYS = ("policy_kwargs", "env_kwargs")
+
+
+def apply_overrides(raw: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``raw`` with ``overrides`` on top: ``policy_kwargs`` and ``env_kwargs`` merge key by key (so
+    ``policy_kwargs: {avoid_collisions: true}`` keeps the file's other policy kwargs), anything else
+    is replaced, as rl-zoo's ``--hyperparams`` does."""
+    merged = dict(raw)
+    for key, value in overrides.items():
+        if key in MERGED_KEYS and isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = {**merged[key], **value}
+        else:
+            merged[key] = value
+    return merged
+
+
+def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
     """Load the entry of ``path`` for graph ``env`` (a preset name or a GraphML path).
 
+    :param overrides: entry keys to set on top of the file's (see :func:`apply_overrides`); they
+        are validated like the file's own keys.
     :raises FileNotFoundError: if the file does not exist.
     :raises ConfigError: for malformed YAML, unknown keys or wrong types (naming file and key).
     """
     source = str(path)
     data = read_yaml(path)
     entry = entry_for(data, env, source)
-    raw = dict(data[entry])
-    where = f"{source}: {entry}"
+    raw = apply_overrides(data[entry], overrides or {})
+    where = f"{source}: {entry}" + (" (with command-line overrides)" if overrides else "")
 
     algo = raw.get("algo") or default_algo()
     if not isinstance(algo, str):
@@ -311,4 +330,12 @@ def load_config(path: str | Path, env: str) -> TrainConfig:
     )
 
 
-__all__ = ["DEFAULT_ENTRY", "ConfigError", "TrainConfig", "entry_for", "load_config", "read_yaml"]
+__all__ = [
+    "DEFAULT_ENTRY",
+    "ConfigError",
+    "TrainConfig",
+    "apply_overrides",
+    "entry_for",
+    "load_config",
+    "read_yaml",
+]
