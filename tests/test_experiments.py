@@ -212,3 +212,45 @@ def test_cells_are_scheduled_longest_first(tmp_path: Path) -> None:
     assert learned == sorted(learned, reverse=True)  # every learned cell before any baseline
     first = order[0]
     assert first.graph == "paper-200" and runner_module.Variant(**first.variant).learned
+
+
+def test_untrained_variant_evaluates_the_initial_policy(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tiny_experiment(tmp_path)
+    text = path.read_text().replace("  learned: {}\n", "  learned: {}\n  untrained: {train: false}\n")
+    path.write_text(text)
+    experiment = load_experiment(path).with_graphs([str(tmp_path / "tiny.graphml")])
+    from sb3_pm.agents.team import IndependentPPO
+
+    learned_seeds = []
+    original = IndependentPPO.learn
+
+    def recording_learn(self, *args, **kwargs):
+        learned_seeds.append(self.seed)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(IndependentPPO, "learn", recording_learn)
+    comparison = reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    assert len(learned_seeds) == len(experiment.seeds)  # only the trained variant's cells learned
+    assert "untrained" in comparison.results and "learned" in comparison.results
+    assert "train: false" in (tmp_path / "out" / "experiment.yml").read_text()
+    # The untrained cells saved their teams as built (no step taken); the trained ones did learn.
+    for cell in plan_cells(experiment, tmp_path / "out"):
+        if cell.variant["kind"] == "baseline":
+            continue
+        team = IndependentPPO.load(Path(cell.folder) / "team")
+        steps = {model.num_timesteps for model in team.models.values()}
+        assert (steps == {0}) == (cell.variant["key"] == "untrained"), (cell.variant["key"], steps)
+
+
+def test_train_false_is_checked(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yml"
+    path.write_text(
+        "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random, train: false}}\n"
+    )
+    with pytest.raises(ExperimentError, match="'train' applies to learned variants"):
+        load_experiment(path)
+    path.write_text("graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {train: maybe}}\n")
+    with pytest.raises(ExperimentError, match="'train' must be true or false"):
+        load_experiment(path)

@@ -116,7 +116,8 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
 
     team_class: Any = CentralizedPPO if variant.kind == "centralized" else IndependentPPO
     team = team_class.from_config(config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"))
-    team.learn(timesteps)
+    if variant.train:
+        team.learn(timesteps)
     team.save(folder / "team", overwrite=True)
     return team
 
@@ -250,7 +251,9 @@ def experiment_record(experiment: Experiment) -> dict[str, Any]:
         "env_kwargs": experiment.env_kwargs,
         "hyperparams": experiment.hyperparams,
         "evaluation_seeds": f"{EVAL_SEED_OFFSET} + seed * {SEED_STRIDE} + episode",
+        # ``train`` is recorded only when false, so folders written before the key existed resume.
         "variants": {
-            v.key: {k: val for k, val in asdict(v).items() if k != "key"} for v in experiment.variants
+            v.key: {k: val for k, val in asdict(v).items() if k != "key" and not (k == "train" and val)}
+            for v in experiment.variants
         },
     }

@@ -21,7 +21,10 @@ evaluated for a number of episodes. One file describes it::
 
 Variant keys: ``kind`` (``independent``, ``centralized`` or ``baseline``), ``policy`` (baselines:
 a baseline name), ``policy_kwargs`` / ``hyperparams`` / ``env_kwargs`` (learned variants:
-overrides merged over the base config), ``label`` (the name in tables; defaults to the key).
+overrides merged over the base config), ``train`` (learned variants, default true; ``false``
+builds the team and evaluates its *initial* policy without training it: the control that tells how
+much of a learned row comes from training rather than from the DCBF filter around an untrained
+actor), ``label`` (the name in tables; defaults to the key).
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ _TOP_KEYS = {
     "env_kwargs",
     "hyperparams",
 }
-_VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label"}
+_VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label", "train"}
 
 
 class ExperimentError(ValueError):
@@ -66,6 +69,7 @@ class Variant:
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    train: bool = True
 
     @property
     def learned(self) -> bool:
@@ -157,6 +161,11 @@ def load_experiment(path: str | Path) -> Experiment:
         for mapping in ("policy_kwargs", "hyperparams", "env_kwargs"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
+        train = settings.get("train", True)
+        if not isinstance(train, bool):
+            raise _fail(path, f"variant {key!r}: 'train' must be true or false, got {train!r}")
+        if not train and kind == "baseline":
+            raise _fail(path, f"variant {key!r}: 'train' applies to learned variants, not baselines")
         variants.append(
             Variant(
                 key=str(key),
@@ -166,6 +175,7 @@ def load_experiment(path: str | Path) -> Experiment:
                 policy_kwargs=dict(settings.get("policy_kwargs", {})),
                 hyperparams=dict(settings.get("hyperparams", {})),
                 env_kwargs=dict(settings.get("env_kwargs", {})),
+                train=train,
             )
         )
     config = raw.get("config")
