@@ -9,7 +9,9 @@ The extractor turns one SB3-preprocessed mental-map observation (see
    ``"rows"`` (the paper's: node ``m`` gets row ``m`` of ``L``, scaled by the largest degree so its
    entries stay in ``[-1, 1]``), ``"eigen"`` (the ``laplacian_k`` eigenvectors of ``L`` with the
    smallest eigenvalues, sign-fixed) or ``"none"``;
-3. ``gat_layers`` GAT layers over the known adjacency with self loops (ELU between layers, heads
+3. with ``derived_features=True``, two derived features per node (projected uncertainty and hop
+   closeness, :mod:`sb3_pm.policies.features`);
+4. ``gat_layers`` GAT layers over the known adjacency with self loops (ELU between layers, heads
    averaged), then with ``extra_attention=True`` one more single-head GAT layer and one
    graph-transformer layer (the paper's "extra attention" ablation).
 
@@ -48,6 +50,9 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 from torch_geometric.nn import GATConv, TransformerConv
+
+from sb3_pm.agents.mental_map import U
+from sb3_pm.policies.features import DERIVED_FEATURES, derived_node_features
 
 LAPLACIAN_MODES = ("rows", "eigen", "none")
 BACKENDS = ("auto", "dense", "sparse")
@@ -411,9 +416,12 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
     :param laplacian_k: eigenvectors kept by ``laplacian="eigen"``.
     :param extra_attention: add one single-head GAT layer and one graph-transformer layer.
     :param backend: ``"auto"`` (per batch, by size and density), ``"dense"`` or ``"sparse"``.
+    :param derived_features: append the projected uncertainty and hop closeness of every node
+        (:mod:`sb3_pm.policies.features`) to its input features.
 
     Shapes:
-        - input: the preprocessed dict, ``nodes`` ``(B, N, 5)``, ``adjacency`` ``(B, N, N)``
+        - input: the preprocessed dict, ``nodes`` ``(B, N, 5)``, ``adjacency`` ``(B, N, N)``,
+          ``position`` ``(B, N)`` one-hot
         - output: ``(B, N * hidden_dim)``; :meth:`node_embeddings` gives ``(B, N, hidden_dim)``
     """
 
@@ -427,6 +435,7 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         laplacian_k: int = 8,
         extra_attention: bool = False,
         backend: str = "auto",
+        derived_features: bool = False,
     ) -> None:
         if laplacian not in LAPLACIAN_MODES:
             raise ValueError(f"laplacian must be one of {LAPLACIAN_MODES}, got {laplacian!r}")
@@ -446,12 +455,14 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             laplacian_k,
         )
         self.extra_attention, self.backend = extra_attention, backend
+        self.derived_features = bool(derived_features)
+        self.u_max = float(nodes_space.high[:, U].max())
         self.inv_high: th.Tensor
         # 1 / high per (node, feature): every node column scaled to [0, 1] (highs of 0 left as is).
         high = th.as_tensor(nodes_space.high, dtype=th.float32)
         self.register_buffer("inv_high", th.where(high > 0, 1.0 / high.clamp(min=1e-12), th.ones_like(high)))
         encoding_dim = {"rows": n_nodes, "eigen": laplacian_k, "none": 0}[laplacian]
-        in_dim = n_features + encoding_dim
+        in_dim = n_features + encoding_dim + (len(DERIVED_FEATURES) if self.derived_features else 0)
         self.gat = nn.ModuleList(
             GraphAttention(in_dim if i == 0 else hidden_dim, hidden_dim, heads=gat_heads, backend=backend)
             for i in range(gat_layers)
@@ -475,9 +486,19 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             return laplacian_eigen(adjacency, self.laplacian_k)
         return None
 
-    def node_inputs(self, observations: dict[str, th.Tensor]) -> th.Tensor:
-        """Normalized node features with the positional encoding, ``(B, N, 5 + encoding)``."""
+    def node_features(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        """Normalized node features, then the derived ones if enabled, ``(B, N, 5 [+ 2])``."""
         x = observations["nodes"] * self.inv_high
+        if not self.derived_features:
+            return x
+        derived = derived_node_features(
+            observations["nodes"], observations["adjacency"], observations["position"], self.u_max
+        )
+        return th.cat((x, derived), dim=-1)
+
+    def node_inputs(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        """Node features with the positional encoding, ``(B, N, 5 [+ 2] + encoding)``."""
+        x = self.node_features(observations)
         encoding = self.encoding(observations["adjacency"])
         return x if encoding is None else th.cat((x, encoding), dim=-1)
 
@@ -508,7 +529,7 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         """Per-node embeddings ``H``, ``(B, N, hidden_dim)``."""
         adjacency = observations["adjacency"]
         dense = _use_dense(adjacency, self.backend)  # one decision for all layers of this batch
-        x = observations["nodes"] * self.inv_high
+        x = self.node_features(observations)
         # Everything that depends only on the adjacency is computed once per distinct adjacency.
         graphs, index = unique_graphs(adjacency)
         encoding_u, bias_u = self._graph_inputs(graphs, dense)

@@ -75,6 +75,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param dcbf_barrier: DCBF rules 2-4 (off: the filter keeps only feasibility, the freeze and
         rule 6; see :mod:`sb3_pm.policies.dcbf`).
     :param laplacian: ``"rows"``, ``"eigen"`` or ``"none"``.
+    :param derived_features: feed the encoder each node's projected uncertainty and hop closeness
+        (:mod:`sb3_pm.policies.features`; not in the paper).
     :param gat_heads: heads per GAT layer.
     :param hidden_dim: node embedding size ``h``.
     :param gat_layers: number of multi-head GAT layers.
@@ -109,6 +111,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         gamma_threshold: float = 0.0,
         dcbf_barrier: bool = True,
         laplacian: str = "rows",
+        derived_features: bool = False,
         gat_heads: int = 4,
         hidden_dim: int = 32,
         gat_layers: int = 2,
@@ -143,6 +146,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self.estimator_batch_size = int(estimator_batch_size)
         self._encoder_kwargs = dict(
             laplacian=laplacian,
+            derived_features=bool(derived_features),
             gat_heads=gat_heads,
             hidden_dim=hidden_dim,
             gat_layers=gat_layers,
@@ -224,6 +228,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             gamma_threshold=self.dcbf_config.gamma_threshold,
             dcbf_barrier=self.dcbf_config.barrier,
             laplacian=self._encoder_kwargs["laplacian"],
+            derived_features=self._encoder_kwargs["derived_features"],
             gat_heads=self._encoder_kwargs["gat_heads"],
             hidden_dim=self._encoder_kwargs["hidden_dim"],
             gat_layers=self._encoder_kwargs["gat_layers"],
