@@ -254,3 +254,21 @@ def test_train_false_is_checked(tmp_path: Path) -> None:
     path.write_text("graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {train: maybe}}\n")
     with pytest.raises(ExperimentError, match="'train' must be true or false"):
         load_experiment(path)
+
+
+def test_improved_variant_is_the_improved_config(tmp_path: Path) -> None:
+    """improvements.yml's ``improved`` row trains exactly what zoo/ippo_improved.yml describes."""
+    from sb3_pm.zoo.config import load_config
+
+    experiment = load_experiment(ZOO / "experiments" / "improvements.yml")
+    cell = next(c for c in plan_cells(experiment, tmp_path) if c.variant["key"] == "improved")
+    merged = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+    direct = load_config(ZOO / "ippo_improved.yml", cell.graph)
+    assert merged.hyperparams == direct.hyperparams
+    assert merged.env_kwargs == direct.env_kwargs
+    assert (merged.n_envs, merged.n_agents, merged.algo, merged.policy) == (
+        direct.n_envs,
+        direct.n_agents,
+        direct.algo,
+        direct.policy,
+    )

@@ -1,9 +1,9 @@
 """Every config in ``zoo/`` builds (issue 5), and rl-zoo trains on our ids end to end.
 
-* rl-zoo YAMLs (``zoo/<algo>.yml``, all but ``zoo/ippo.yml``): each entry is read by rl-zoo's own
+* rl-zoo YAMLs (``zoo/<algo>.yml``, all but the team files ``zoo/ippo*.yml``): each entry is read by rl-zoo's own
   :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
   ``rl_zoo3.train`` would (schedules, env_kwargs, policy_kwargs, n_envs).
-* ``zoo/ippo.yml`` (our team format): each entry builds an :class:`IndependentPPO` team.
+* ``zoo/ippo.yml`` and ``zoo/ippo_improved.yml`` (our team format): each entry builds an :class:`IndependentPPO` team.
 * ``python -m rl_zoo3.train --gym-packages sb3_pm ...`` (a subprocess) and our launcher
   ``python -m sb3_pm.zoo --algo dcbf_ppo ...`` run end to end and save a model.
 """
@@ -33,7 +33,7 @@ th.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]
 ZOO = ROOT / "zoo"
 #: Files in zoo/ that are not rl-zoo hyperparameter files.
-NOT_RL_ZOO = {"ippo.yml"}
+NOT_RL_ZOO = {"ippo.yml", "ippo_improved.yml"}
 RL_ZOO_FILES = sorted(p for p in ZOO.glob("*.yml") if p.name not in NOT_RL_ZOO)
 #: Small settings so that building (and the end-to-end runs) stay fast.
 TINY = {"n_envs": 1, "n_steps": 32, "batch_size": 32}
@@ -120,13 +120,16 @@ def test_register_rl_zoo_algos_is_idempotent() -> None:
     assert set(RL_ZOO_ALGOS) <= set(ALGOS)
 
 
-@pytest.mark.parametrize(
-    "entry", list(yaml.safe_load((ZOO / "ippo.yml").read_text())), ids=lambda e: f"ippo-{e}"
-)
-def test_ippo_entry_builds_a_team(entry: str) -> None:
+TEAM_ENTRIES = [
+    (name, entry) for name in sorted(NOT_RL_ZOO) for entry in yaml.safe_load((ZOO / name).read_text())
+]
+
+
+@pytest.mark.parametrize(("name", "entry"), TEAM_ENTRIES, ids=lambda value: str(value))
+def test_ippo_entry_builds_a_team(name: str, entry: str) -> None:
     from sb3_pm.agents.team import IndependentPPO
 
-    config = load_config(ZOO / "ippo.yml", entry)
+    config = load_config(ZOO / name, entry)
     assert config.entry == entry
     graph = entry if entry in PRESETS else "paper-50"
     team = IndependentPPO.from_config(config, graph=graph, seed=0, n_envs=1)

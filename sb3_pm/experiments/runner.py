@@ -95,8 +95,9 @@ def plan_cells(experiment: Experiment, out: Path) -> list[Cell]:
     return cells
 
 
-def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
-    """Train the learned team of a cell and save it to ``folder/team``."""
+def cell_config(cell: Cell, variant: Variant) -> Any:
+    """The training config of a learned cell: the base config's entry for the cell's graph, with the
+    experiment's and then the variant's overrides merged over it (``policy_kwargs`` key by key)."""
     from sb3_pm.zoo.config import load_config
 
     assert cell.config is not None
@@ -110,6 +111,12 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
         }
     config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
     config.n_agents = cell.n_agents
+    return config
+
+
+def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
+    """Train the learned team of a cell and save it to ``folder/team``."""
+    config = cell_config(cell, variant)
     timesteps = cell.timesteps or config.n_timesteps
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.sharing.centralized import CentralizedPPO
