@@ -1,9 +1,10 @@
 """Every config in ``zoo/`` builds (issue 5), and rl-zoo trains on our ids end to end.
 
-* rl-zoo YAMLs (``zoo/<algo>.yml``, all but the team files ``zoo/ippo*.yml``): each entry is read by rl-zoo's own
-  :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
+* rl-zoo YAMLs (``zoo/<algo>.yml``, all but the team files ``zoo/ippo*.yml``): each entry is read
+  by rl-zoo's own :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
   ``rl_zoo3.train`` would (schedules, env_kwargs, policy_kwargs, n_envs).
-* ``zoo/ippo.yml`` and ``zoo/ippo_improved.yml`` (our team format): each entry builds an :class:`IndependentPPO` team.
+* ``zoo/ippo.yml`` and ``zoo/ippo_improved.yml`` (our team format): each entry builds an
+  :class:`IndependentPPO` team.
 * ``python -m rl_zoo3.train --gym-packages sb3_pm ...`` (a subprocess) and our launcher
   ``python -m sb3_pm.zoo --algo dcbf_ppo ...`` run end to end and save a model.
 """
