@@ -118,3 +118,33 @@ def test_train_overrides_rl_zoo_style(setup, capsys) -> None:
     ):
         assert main([*argv, *bad, "--out", str(out.parent / "other")]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_train_threads_option(setup, capsys) -> None:
+    """--threads sets torch's thread count (default 1, the bit-for-bit reproducible setting)."""
+    config, graph, out = setup
+    args = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "16", "--no-progress"]
+    try:
+        assert main([*args, "--out", str(out / "two"), "--threads", "2"]) == 0
+        assert th.get_num_threads() == 2
+        assert "--threads 2" in (out / "two" / "command.txt").read_text()
+        assert main([*args, "--out", str(out / "one")]) == 0
+        assert th.get_num_threads() == 1
+    finally:
+        th.set_num_threads(1)
+    assert main([*args, "--out", str(out / "zero"), "--threads", "0"]) == 2
+    assert "--threads must be at least 1" in capsys.readouterr().err
+
+
+def test_train_same_seed_same_parameters(setup) -> None:
+    """Two DCBF-PPO runs from the same seed save identical learners."""
+    import zipfile
+
+    config, graph, out = setup
+    args = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "32", "--no-progress"]
+    args += ["--hyperparams", "algo:dcbf_ppo", "policy_kwargs:{gat_heads: 1, hidden_dim: 8}"]
+    for name in ("a", "b"):
+        assert main([*args, "--out", str(out / name)]) == 0
+    for agent in ("agent_0", "agent_1"):
+        saved = [zipfile.ZipFile(out / name / "team" / f"{agent}.zip").read("policy.pth") for name in "ab"]
+        assert saved[0] == saved[1]
