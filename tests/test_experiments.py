@@ -272,3 +272,45 @@ def test_improved_variant_is_the_improved_config(tmp_path: Path) -> None:
         direct.algo,
         direct.policy,
     )
+
+
+@pytest.mark.parametrize(
+    ("key", "changed"),
+    [
+        ("improved_paper_reward", ("env_kwargs", "reward", "paper")),
+        ("improved_barrier", ("policy_kwargs", "dcbf_barrier", True)),
+        ("improved_freeze10", ("policy_kwargs", "freeze_steps", 10)),
+        ("improved_collisions_allowed", ("policy_kwargs", "avoid_collisions", False)),
+        ("improved_derived", ("policy_kwargs", "derived_features", True)),
+    ],
+)
+def test_improved_ablations_change_one_key(tmp_path: Path, key: str, changed: tuple) -> None:
+    """Each ``improved_*`` variant is zoo/ippo_improved.yml (its own ``config:``) with one key changed."""
+    from sb3_pm.zoo.config import load_config
+
+    experiment = load_experiment(ZOO / "experiments" / "improvements.yml")
+    cell = next(c for c in plan_cells(experiment, tmp_path) if c.variant["key"] == key)
+    merged = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+    direct = load_config(ZOO / "ippo_improved.yml", cell.graph)
+    where, name, value = changed
+    if where == "env_kwargs":
+        direct.env_kwargs[name] = value
+    else:
+        direct.hyperparams["policy_kwargs"] = {**direct.hyperparams["policy_kwargs"], name: value}
+    assert merged.hyperparams == direct.hyperparams
+    assert merged.env_kwargs == direct.env_kwargs
+
+
+def test_variant_config_is_checked(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yml"
+    path.write_text(
+        "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random, config: x.yml}}\n"
+    )
+    with pytest.raises(ExperimentError, match="'config' applies to learned variants"):
+        load_experiment(path)
+    (tmp_path / "base.yml").write_text("default: {}\n")
+    path.write_text(
+        "graphs: [paper-50]\nseeds: [0]\nconfig: base.yml\nvariants: {a: {config: missing.yml}}\n"
+    )
+    with pytest.raises(ExperimentError, match="training config not found"):
+        load_experiment(path)

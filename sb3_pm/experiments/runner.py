@@ -100,8 +100,9 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     experiment's and then the variant's overrides merged over it (``policy_kwargs`` key by key)."""
     from sb3_pm.zoo.config import load_config
 
-    assert cell.config is not None
-    config = load_config(cell.config, cell.graph)
+    source = variant.config or cell.config
+    assert source is not None
+    config = load_config(source, cell.graph)
     config.hyperparams.update({**cell.hyperparams, **variant.hyperparams})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
     if variant.policy_kwargs:
@@ -245,6 +246,10 @@ def reproduce(
     return comparison
 
 
+#: Variant fields left out of the record when they hold these defaults.
+_RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None}
+
+
 def experiment_record(experiment: Experiment) -> dict[str, Any]:
     return {
         "name": experiment.name,
@@ -258,9 +263,14 @@ def experiment_record(experiment: Experiment) -> dict[str, Any]:
         "env_kwargs": experiment.env_kwargs,
         "hyperparams": experiment.hyperparams,
         "evaluation_seeds": f"{EVAL_SEED_OFFSET} + seed * {SEED_STRIDE} + episode",
-        # ``train`` is recorded only when false, so folders written before the key existed resume.
+        # ``train`` and ``config`` are recorded only when set, so folders written before these keys
+        # existed resume.
         "variants": {
-            v.key: {k: val for k, val in asdict(v).items() if k != "key" and not (k == "train" and val)}
+            v.key: {
+                k: val
+                for k, val in asdict(v).items()
+                if k != "key" and not (k in _RECORD_DEFAULTS and val == _RECORD_DEFAULTS[k])
+            }
             for v in experiment.variants
         },
     }

@@ -24,7 +24,9 @@ a baseline name), ``policy_kwargs`` / ``hyperparams`` / ``env_kwargs`` (learned 
 overrides merged over the base config), ``train`` (learned variants, default true; ``false``
 builds the team and evaluates its *initial* policy without training it: the control that tells how
 much of a learned row comes from training rather than from the DCBF filter around an untrained
-actor), ``label`` (the name in tables; defaults to the key).
+actor), ``config`` (learned variants: another team config to start from, relative to this file,
+instead of the experiment's; the variant's overrides then merge over that one), ``label`` (the name
+in tables; defaults to the key).
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ _TOP_KEYS = {
     "env_kwargs",
     "hyperparams",
 }
-_VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label", "train"}
+_VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label", "train", "config"}
 
 
 class ExperimentError(ValueError):
@@ -70,6 +72,7 @@ class Variant:
     hyperparams: dict[str, Any] = field(default_factory=dict)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     train: bool = True
+    config: str | None = None
 
     @property
     def learned(self) -> bool:
@@ -166,6 +169,13 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"variant {key!r}: 'train' must be true or false, got {train!r}")
         if not train and kind == "baseline":
             raise _fail(path, f"variant {key!r}: 'train' applies to learned variants, not baselines")
+        variant_config = settings.get("config")
+        if variant_config is not None and kind == "baseline":
+            raise _fail(path, f"variant {key!r}: 'config' applies to learned variants, not baselines")
+        if variant_config is not None and not (path.parent / str(variant_config)).is_file():
+            raise _fail(
+                path, f"variant {key!r}: training config not found: {path.parent / str(variant_config)}"
+            )
         variants.append(
             Variant(
                 key=str(key),
@@ -176,6 +186,7 @@ def load_experiment(path: str | Path) -> Experiment:
                 hyperparams=dict(settings.get("hyperparams", {})),
                 env_kwargs=dict(settings.get("env_kwargs", {})),
                 train=train,
+                config=None if variant_config is None else str(path.parent / str(variant_config)),
             )
         )
     config = raw.get("config")
