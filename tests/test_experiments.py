@@ -153,6 +153,23 @@ def test_resume_refuses_a_different_experiment(tmp_path: Path) -> None:
         ),
         ("graphs: []\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random}}\n", "'graphs' is required"),
         ("graphs: [paper-50\n", "not valid YAML"),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random, train: false}}\n",
+            "'train' applies to learned variants",
+        ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {train: maybe}}\n",
+            "'train' must be true",
+        ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\n"
+            "variants: {a: {kind: baseline, policy: random, config: x.yml}}\n",
+            "'config' applies to learned variants",
+        ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {config: missing.yml}}\n",
+            "training config not found",
+        ),
     ],
 )
 def test_malformed_experiment_files(tmp_path: Path, text: str, message: str) -> None:
@@ -244,36 +261,6 @@ def test_untrained_variant_evaluates_the_initial_policy(
         assert (steps == {0}) == (cell.variant["key"] == "untrained"), (cell.variant["key"], steps)
 
 
-def test_train_false_is_checked(tmp_path: Path) -> None:
-    path = tmp_path / "bad.yml"
-    path.write_text(
-        "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random, train: false}}\n"
-    )
-    with pytest.raises(ExperimentError, match="'train' applies to learned variants"):
-        load_experiment(path)
-    path.write_text("graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {train: maybe}}\n")
-    with pytest.raises(ExperimentError, match="'train' must be true or false"):
-        load_experiment(path)
-
-
-def test_improved_variant_is_the_improved_config(tmp_path: Path) -> None:
-    """improvements.yml's ``improved`` row trains exactly what zoo/ippo_improved.yml describes."""
-    from sb3_pm.zoo.config import load_config
-
-    experiment = load_experiment(ZOO / "experiments" / "improvements.yml")
-    cell = next(c for c in plan_cells(experiment, tmp_path) if c.variant["key"] == "improved")
-    merged = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
-    direct = load_config(ZOO / "ippo_improved.yml", cell.graph)
-    assert merged.hyperparams == direct.hyperparams
-    assert merged.env_kwargs == direct.env_kwargs
-    assert (merged.n_envs, merged.n_agents, merged.algo, merged.policy) == (
-        direct.n_envs,
-        direct.n_agents,
-        direct.algo,
-        direct.policy,
-    )
-
-
 @pytest.mark.parametrize(
     ("key", "changed"),
     [
@@ -282,35 +269,28 @@ def test_improved_variant_is_the_improved_config(tmp_path: Path) -> None:
         ("improved_freeze10", ("policy_kwargs", "freeze_steps", 10)),
         ("improved_collisions_allowed", ("policy_kwargs", "avoid_collisions", False)),
         ("improved_derived", ("policy_kwargs", "derived_features", True)),
+        ("improved", None),
     ],
 )
-def test_improved_ablations_change_one_key(tmp_path: Path, key: str, changed: tuple) -> None:
-    """Each ``improved_*`` variant is zoo/ippo_improved.yml (its own ``config:``) with one key changed."""
+def test_improved_variants_are_the_improved_config(tmp_path: Path, key: str, changed: tuple | None) -> None:
+    """``improved`` trains exactly zoo/ippo_improved.yml; each ``improved_*`` ablation changes one key."""
     from sb3_pm.zoo.config import load_config
 
     experiment = load_experiment(ZOO / "experiments" / "improvements.yml")
     cell = next(c for c in plan_cells(experiment, tmp_path) if c.variant["key"] == key)
     merged = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
     direct = load_config(ZOO / "ippo_improved.yml", cell.graph)
-    where, name, value = changed
-    if where == "env_kwargs":
-        direct.env_kwargs[name] = value
-    else:
-        direct.hyperparams["policy_kwargs"] = {**direct.hyperparams["policy_kwargs"], name: value}
+    if changed is not None:
+        where, name, value = changed
+        if where == "env_kwargs":
+            direct.env_kwargs[name] = value
+        else:
+            direct.hyperparams["policy_kwargs"] = {**direct.hyperparams["policy_kwargs"], name: value}
     assert merged.hyperparams == direct.hyperparams
     assert merged.env_kwargs == direct.env_kwargs
-
-
-def test_variant_config_is_checked(tmp_path: Path) -> None:
-    path = tmp_path / "bad.yml"
-    path.write_text(
-        "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {kind: baseline, policy: random, config: x.yml}}\n"
+    assert (merged.n_envs, merged.n_agents, merged.algo, merged.policy) == (
+        direct.n_envs,
+        direct.n_agents,
+        direct.algo,
+        direct.policy,
     )
-    with pytest.raises(ExperimentError, match="'config' applies to learned variants"):
-        load_experiment(path)
-    (tmp_path / "base.yml").write_text("default: {}\n")
-    path.write_text(
-        "graphs: [paper-50]\nseeds: [0]\nconfig: base.yml\nvariants: {a: {config: missing.yml}}\n"
-    )
-    with pytest.raises(ExperimentError, match="training config not found"):
-        load_experiment(path)
