@@ -64,6 +64,36 @@ def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
             assert (Path(cell.folder) / "team" / "manifest.json").exists()
 
 
+def _flat(config) -> dict:
+    """A training config as one flat ``{(section, key): value}`` mapping, policy kwargs key by key."""
+    hyperparams = dict(config.hyperparams)
+    policy_kwargs = hyperparams.pop("policy_kwargs", {})
+    flat = {("hyperparams", k): v for k, v in hyperparams.items()}
+    flat.update({("policy_kwargs", k): v for k, v in policy_kwargs.items()})
+    flat.update({("env_kwargs", k): v for k, v in config.env_kwargs.items()})
+    flat.update({("team", k): getattr(config, k) for k in ("n_envs", "n_agents", "algo", "policy")})
+    return flat
+
+
+def test_tuning_variants_change_one_key_of_the_improved_config(tmp_path: Path) -> None:
+    """tuning.yml is a one-change-at-a-time screen: ``improved`` trains zoo/ippo_improved.yml as it
+    is, and every ``tune_*`` variant differs from it in exactly one setting."""
+    from sb3_pm.zoo.config import load_config
+
+    experiment = load_experiment(ZOO / "experiments" / "tuning.yml")
+    learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline" and c.seed == 0]
+    assert {c.variant["key"] for c in learned} >= {"improved", "tune_lr_3e3", "tune_reward_01"}
+    for cell in learned:
+        merged = _flat(runner_module.cell_config(cell, runner_module.Variant(**cell.variant)))
+        direct = _flat(load_config(ZOO / "ippo_improved.yml", cell.graph))
+        changed = {
+            k for k in merged.keys() | direct.keys() if merged.get(k, "unset") != direct.get(k, "unset")
+        }
+        # The rollout variant keeps one minibatch per rollout, so it moves n_steps and batch_size.
+        expected = {"improved": 0, "tune_rollout_1000": 2}.get(cell.variant["key"], 1)
+        assert len(changed) == expected, (cell.variant["key"], changed)
+
+
 def tiny_experiment(tmp_path: Path) -> Path:
     """One learned variant and one baseline on a 12-node graph, with a tiny training config."""
     from sb3_pm.graphs import erdos_renyi, save_graphml
