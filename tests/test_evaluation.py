@@ -35,6 +35,7 @@ from sb3_pm.evaluation import (
     team_seed,
 )
 from sb3_pm.evaluation.harness import EpisodeRecord, EvaluationResult
+from sb3_pm.evaluation.plots import line_colors
 from sb3_pm.evaluation.teams import PolicyError
 from tests.conftest import path_graph
 
@@ -292,6 +293,18 @@ class TestPlotsAndGif:
             plot_table(summarize(results), tmp_path / "t.png"),
         ):
             assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    @pytest.mark.parametrize("n", [3, 10, 16, 25])
+    def test_line_colors_are_distinct(self, n: int) -> None:
+        """A sweep's lines never share a colour (matplotlib's default cycle repeats after 10)."""
+        colors = line_colors(n)
+        assert len(colors) == n and len(set(colors)) == n
+
+    def test_many_policies_plot(self, tmp_path) -> None:
+        """16 lines (a tuning sweep): the legend goes beside the axes, and the figure still saves."""
+        result = evaluate(make_team("random"), "paper-50", episodes=1, max_cycles=5)
+        path = plot_uncertainty({f"variant {i}": [result] for i in range(16)}, tmp_path / "many.png")
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     def test_gif(self, tmp_path) -> None:
         import imageio.v3 as iio

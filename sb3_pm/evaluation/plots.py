@@ -20,6 +20,35 @@ def _pyplot():  # type: ignore[no-untyped-def]
     return plt
 
 
+#: Above this many lines a legend goes beside the axes instead of over the curves.
+LEGEND_INSIDE_MAX = 6
+
+
+def line_colors(n: int) -> list[tuple[float, float, float, float]]:
+    """``n`` distinguishable RGBA colours, one per line.
+
+    matplotlib's default cycle repeats after 10 lines, so a sweep of 16 variants would draw pairs of
+    lines in one colour: up to 10 lines use ``tab10`` (the default look), up to 20 ``tab20``, and
+    beyond that evenly spaced samples of ``turbo``.
+    """
+    from matplotlib import colormaps
+
+    if n <= 10:
+        return [colormaps["tab10"](i) for i in range(n)]
+    if n <= 20:
+        return [colormaps["tab20"](i) for i in range(n)]
+    return [colormaps["turbo"](x) for x in np.linspace(0.0, 1.0, n)]
+
+
+def add_legend(axes, n_entries: int) -> None:  # type: ignore[no-untyped-def]
+    """A legend over the axes for a few lines, beside them (right, outside) for many, so that it
+    never hides the curves; save such figures with ``bbox_inches="tight"`` to keep it in frame."""
+    if n_entries <= LEGEND_INSIDE_MAX:
+        axes.legend(loc="best", fontsize="small")
+    else:
+        axes.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small")
+
+
 def plot_uncertainty(
     by_policy: Mapping[str, Sequence[EvaluationResult]], path: str | Path, title: str | None = None
 ) -> Path:
@@ -34,6 +63,9 @@ def plot_uncertainty(
     graphs = list(split)
     figure, axes_row = plt.subplots(1, max(1, len(graphs)), figsize=(5 * max(1, len(graphs)) + 2, 4), dpi=100)
     axes_list = np.atleast_1d(axes_row)
+    # One colour per policy, the same in every panel.
+    policies = list(dict.fromkeys(policy for graph in graphs for policy in split[graph]))
+    colors = dict(zip(policies, line_colors(len(policies))))
     for axes, graph in zip(axes_list, graphs):
         for policy, results in split[graph].items():
             traces = [record.trace for result in results for record in result.episodes]
@@ -43,20 +75,20 @@ def plot_uncertainty(
             stacked = np.stack([trace[:length] for trace in traces])
             mean, sd = stacked.mean(axis=0), stacked.std(axis=0)
             steps = np.arange(1, length + 1)
-            (line,) = axes.plot(steps, mean, label=policy, linewidth=1.2)
-            axes.fill_between(steps, mean - sd, mean + sd, color=line.get_color(), alpha=0.15, linewidth=0)
+            axes.plot(steps, mean, label=policy, linewidth=1.2, color=colors[policy])
+            axes.fill_between(steps, mean - sd, mean + sd, color=colors[policy], alpha=0.15, linewidth=0)
         axes.set_xlabel("step")
         axes.set_ylabel("summed target uncertainty")
         axes.set_title(
             graph if len(graphs) > 1 else (title or f"Target uncertainty over an episode ({graph})")
         )
         axes.grid(alpha=0.3)
-    axes_list[-1].legend(loc="best", fontsize="small")
+    add_legend(axes_list[-1], len(policies))
     if len(graphs) > 1:
         figure.suptitle(title or "Target uncertainty over an episode")
     figure.tight_layout()
     path = Path(path)
-    figure.savefig(path)
+    figure.savefig(path, bbox_inches="tight")
     plt.close(figure)
     return path
 

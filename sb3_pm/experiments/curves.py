@@ -59,6 +59,7 @@ def plot_training_curves(cells: Sequence[Any], out: Path) -> list[Path]:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    from sb3_pm.evaluation.plots import add_legend, line_colors
     from sb3_pm.graphs import graph_label
 
     written = []
@@ -75,18 +76,21 @@ def plot_training_curves(cells: Sequence[Any], out: Path) -> list[Path]:
                     panels[graph_label(cell.graph)][cell.variant["label"]].extend(series)
         if not panels:
             continue
+        # One colour per variant, the same in every panel.
+        labels = list(dict.fromkeys(label for per_variant in panels.values() for label in per_variant))
+        colors = dict(zip(labels, line_colors(len(labels))))
         figure, axes_row = plt.subplots(1, len(panels), figsize=(5 * len(panels) + 1, 4), squeeze=False)
         for axes, (graph, per_variant) in zip(axes_row[0], panels.items()):
             for label, series in per_variant.items():
                 steps, values = _mean_curve(series)
-                axes.plot(steps, values, label=label)
+                axes.plot(steps, values, label=label, color=colors[label])
             axes.set_xlabel("timesteps per learner")
             axes.set_ylabel(tag)
             axes.set_title(graph)
-            axes.legend(fontsize=8)
+        add_legend(axes_row[0][-1], len(labels))
         figure.suptitle(f"{tag} during training (mean over seeds and agents)")
         figure.tight_layout()
-        figure.savefig(out / filename, dpi=100)
+        figure.savefig(out / filename, dpi=100, bbox_inches="tight")
         plt.close(figure)
         written.append(out / filename)
     return written
