@@ -47,6 +47,9 @@ def add_legend(axes, n_entries: int) -> None:  # type: ignore[no-untyped-def]
         axes.legend(loc="best", fontsize="small")
     else:
         axes.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small")
+        # Widen the figure by about the legend's width, so the panels keep their size.
+        width, height = axes.figure.get_size_inches()
+        axes.figure.set_size_inches(width + 3.0, height)
 
 
 def plot_uncertainty(
