@@ -75,17 +75,22 @@ def _flat(config) -> dict:
     return flat
 
 
+def _against_improved(cell) -> tuple[dict, dict]:
+    """The cell's training config and zoo/ippo_improved.yml's for its graph, both as :func:`_flat`."""
+    from sb3_pm.zoo.config import load_config
+
+    merged = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+    return _flat(merged), _flat(load_config(ZOO / "ippo_improved.yml", cell.graph))
+
+
 def test_tuning_variants_change_one_key_of_the_improved_config(tmp_path: Path) -> None:
     """tuning.yml is a one-change-at-a-time screen: ``improved`` trains zoo/ippo_improved.yml as it
     is, and every ``tune_*`` variant differs from it in exactly one setting."""
-    from sb3_pm.zoo.config import load_config
-
     experiment = load_experiment(ZOO / "experiments" / "tuning.yml")
     learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline" and c.seed == 0]
     assert {c.variant["key"] for c in learned} >= {"improved", "tune_lr_3e3", "tune_reward_01"}
     for cell in learned:
-        merged = _flat(runner_module.cell_config(cell, runner_module.Variant(**cell.variant)))
-        direct = _flat(load_config(ZOO / "ippo_improved.yml", cell.graph))
+        merged, direct = _against_improved(cell)
         changed = {
             k for k in merged.keys() | direct.keys() if merged.get(k, "unset") != direct.get(k, "unset")
         }
@@ -304,23 +309,11 @@ def test_untrained_variant_evaluates_the_initial_policy(
 )
 def test_improved_variants_are_the_improved_config(tmp_path: Path, key: str, changed: tuple | None) -> None:
     """``improved`` trains exactly zoo/ippo_improved.yml; each ``improved_*`` ablation changes one key."""
-    from sb3_pm.zoo.config import load_config
-
     experiment = load_experiment(ZOO / "experiments" / "improvements.yml")
     cell = next(c for c in plan_cells(experiment, tmp_path) if c.variant["key"] == key)
-    merged = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
-    direct = load_config(ZOO / "ippo_improved.yml", cell.graph)
+    merged, direct = _against_improved(cell)
     if changed is not None:
         where, name, value = changed
-        if where == "env_kwargs":
-            direct.env_kwargs[name] = value
-        else:
-            direct.hyperparams["policy_kwargs"] = {**direct.hyperparams["policy_kwargs"], name: value}
-    assert merged.hyperparams == direct.hyperparams
-    assert merged.env_kwargs == direct.env_kwargs
-    assert (merged.n_envs, merged.n_agents, merged.algo, merged.policy) == (
-        direct.n_envs,
-        direct.n_agents,
-        direct.algo,
-        direct.policy,
-    )
+        direct[(where, name)] = value
+    # Hyperparameters, policy kwargs, env kwargs, n_envs, n_agents, algo and policy all agree.
+    assert merged == direct
