@@ -58,6 +58,20 @@ def test_reduction_is_the_marginal_effect() -> None:
     assert rewards == {"agent_0": 0.0, "agent_1": 0.0}
 
 
+def test_clearing_pays_only_for_lowering_u() -> None:
+    env = make({"clearing": 1.0}, [0, 0])
+    _, rewards, *_ = env.step({"agent_0": 1, "agent_1": 0})  # u2 = 1, nobody on the target
+    assert rewards == {"agent_0": 0.0, "agent_1": 0.0}
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 0})  # u2: 1 -> 0
+    assert rewards == {"agent_0": 1.0, "agent_1": 0.0}
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 1})  # u2 stays 0: guarding earns nothing
+    assert rewards["agent_0"] == 0.0
+    env.step({"agent_0": 1, "agent_1": 1})
+    env.step({"agent_0": 1, "agent_1": 1})  # u2 = 2
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 2})  # shared: u2 2 -> 1, but not alone
+    assert rewards == {"agent_0": 0.0, "agent_1": 0.0}
+
+
 def test_change_is_paid_at_the_last_step_against_past_episodes() -> None:
     env = make({"change": 1.0}, [2], max_cycles=2)
     # Episode 1: stay on target 2. Map u sum: step 1 u2 = 0, step 2 u2 = 0 -> U = 0; no history yet.

@@ -99,27 +99,45 @@ def test_tuning_variants_change_one_key_of_the_improved_config(tmp_path: Path) -
         assert len(changed) == expected, (cell.variant["key"], changed)
 
 
-def test_combined_variants_stack_the_named_changes(tmp_path: Path) -> None:
-    """combined.yml shares ``improved`` and ``tune_lr_3e3`` with tuning.yml (same training config,
-    so finished cells can be reused), and each ``combo_*`` is the improved config plus exactly the
-    screen's changes it names."""
-    combined = load_experiment(ZOO / "experiments" / "combined.yml")
+_LR_3E3 = {("hyperparams", "learning_rate"): 0.003}
+_REWARD_01 = {("env_kwargs", "reward"): {"reduction": 0.01, "collision": 0.0005}}
+_CLEARING = {("env_kwargs", "reward"): {"clearing": 0.04, "collision": 0.001}}
+
+
+@pytest.mark.parametrize(
+    ("name", "expected_changes"),
+    [
+        (
+            "combined",
+            {
+                "combo_lr_reward": {**_LR_3E3, **_REWARD_01},
+                "combo_lr_reward_epochs": {**_LR_3E3, **_REWARD_01, ("hyperparams", "n_epochs"): 20},
+            },
+        ),
+        ("idling", {"clearing": _CLEARING, "clearing_lr_3e3": {**_LR_3E3, **_CLEARING}}),
+    ],
+)
+def test_follow_up_variants_change_exactly_what_they_name(
+    tmp_path: Path, name: str, expected_changes: dict
+) -> None:
+    """The follow-ups of tuning.yml share ``improved`` and ``tune_lr_3e3`` with it (same training
+    config, so finished cells can be reused), and each new variant is the improved config plus
+    exactly the changes it names."""
+    experiment = load_experiment(ZOO / "experiments" / f"{name}.yml")
     tuning = {
         c.variant["key"]: c for c in plan_cells(load_experiment(ZOO / "experiments" / "tuning.yml"), tmp_path)
     }
-    lr = {("hyperparams", "learning_rate"): 0.003}
-    reward = {("env_kwargs", "reward"): {"reduction": 0.01, "collision": 0.0005}}
-    expected_changes = {
-        "combo_lr_reward": {**lr, **reward},
-        "combo_lr_reward_epochs": {**lr, **reward, ("hyperparams", "n_epochs"): 20},
-    }
-    learned = [c for c in plan_cells(combined, tmp_path) if c.variant["kind"] != "baseline" and c.seed == 0]
+    learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline" and c.seed == 0]
     assert {c.variant["key"] for c in learned} == {"improved", "tune_lr_3e3", *expected_changes}
     for cell in learned:
         merged, direct = _against_improved(cell)
         key = cell.variant["key"]
         if key in expected_changes:
-            changed = {k: merged[k] for k in merged if merged[k] != direct.get(k, "unset")}
+            changed = {
+                k: merged.get(k, "unset")
+                for k in merged.keys() | direct.keys()
+                if merged.get(k, "unset") != direct.get(k, "unset")
+            }
             assert changed == expected_changes[key], key
         else:
             assert merged == _against_improved(tuning[key])[0], key

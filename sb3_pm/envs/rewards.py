@@ -14,6 +14,10 @@ local: no agent's reward depends on another agent's observations or map. Terms:
                is at its node than it would be without it (2 for u > 0, 1 for u = 0, less at the
                cap; 0 when another agent is there too, since that one does the work alone). Local,
                dense, and aligned with the avg_uncertainty metric.
+``clearing``   how much the agent actually lowers u at its node this step: 1 on a target with
+               u > 0 where it is alone, else 0. Unlike ``reduction`` it pays nothing for guarding a
+               target that is already at 0, which ``reduction`` pays at half the clearing rate
+               with no travel cost, so it removes the incentive to idle on cleared targets.
 
 Presets: ``paper`` = 0.05 x (collision + change + momentum), as in the paper; ``reduction`` =
 1.0 x reduction + 0.05 x collision.
@@ -28,7 +32,7 @@ import numpy as np
 
 from sb3_pm.envs.core import StepOutcome
 
-TERMS = ("collision", "momentum", "change", "reduction")
+TERMS = ("collision", "momentum", "change", "reduction", "clearing")
 REWARD_PRESETS: dict[str, dict[str, float]] = {
     "paper": {"collision": 0.05, "change": 0.05, "momentum": 0.05},
     "reduction": {"reduction": 1.0, "collision": 0.05},
@@ -98,6 +102,9 @@ class RewardComputer:
             alone = on_target & ~outcome.collided
             counterfactual = np.minimum(outcome.u_before + 1, self.u_max)
             terms["reduction"] = w["reduction"] * np.where(alone, counterfactual - outcome.u_after, 0.0)
+        if "clearing" in w:
+            lowered = np.maximum(outcome.u_before - outcome.u_after, 0)
+            terms["clearing"] = w["clearing"] * np.where(on_target & ~outcome.collided, lowered, 0.0)
         if "change" in w:
             change = np.zeros(self.n_agents)
             if last_step:
