@@ -126,6 +126,19 @@ class TestEpisodes:
         assert metrics["collisions"] == 0
         np.testing.assert_array_equal(env.uncertainty_trace(), [1, 2, 3, 2, 1])
 
+    def test_idle_fraction_counts_agents_alone_on_a_cleared_target(self) -> None:
+        # Path 0-1-2, target 2. Agent 0: 1, 2 (u2 1 -> 0, clearing), 2, 2 (idle twice).
+        # Agent 1 stays on the non-target 0 (never idle). 2 idle of 8 agent-steps.
+        env = make(path_graph(3, [2]), 2, [0, 0], max_cycles=4)
+        for destination in (1, 2, 2, 2):
+            *_, infos = act(env, destination, 0)
+        assert infos["agent_0"]["metrics"]["idle_fraction"] == pytest.approx(2 / 8)
+        # Two agents together on the cleared target share it: neither is idle alone.
+        env = make(path_graph(3, [2]), 2, [2, 2], max_cycles=3)
+        for _ in range(3):
+            *_, infos = act(env, 2, 2)
+        assert infos["agent_0"]["metrics"]["idle_fraction"] == 0
+
     def test_never_visited_target_neglected_whole_episode(self) -> None:
         env = make(path_graph(3, [2]), 1, [0], max_cycles=4, u_max=2)
         for _ in range(4):

@@ -129,7 +129,14 @@ class TestEvaluate:
         result = evaluate(make_team("grazing"), "paper-50", n_agents=3, episodes=2, seed=0, max_cycles=20)
         payload = json.loads(json.dumps(result.to_dict()))
         assert set(payload) == {"episodes", "mean", "std", "config"}
-        metrics = {"avg_uncertainty", "max_neglect", "collisions", "peak_uncertainty", "saturated_fraction"}
+        metrics = {
+            "avg_uncertainty",
+            "max_neglect",
+            "collisions",
+            "peak_uncertainty",
+            "saturated_fraction",
+            "idle_fraction",
+        }
         assert len(payload["episodes"]) == 2
         for episode in payload["episodes"]:
             assert metrics | {"episode", "seed", "team_seed"} <= set(episode)

@@ -8,13 +8,22 @@ Step ``k`` (``k = 0..K-1``) is measured after its move and uncertainty update:
 ``collisions``          agent-steps on which an agent shared its node with another
 ``peak_uncertainty``    the largest target u seen
 ``saturated_fraction``  fraction of steps on which some target sat at the cap u_max
+``idle_fraction``       fraction of agent-steps spent alone on a target that was already at u = 0
+                        (guarding a cleared target instead of clearing another one)
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-METRIC_NAMES = ("avg_uncertainty", "max_neglect", "collisions", "peak_uncertainty", "saturated_fraction")
+METRIC_NAMES = (
+    "avg_uncertainty",
+    "max_neglect",
+    "collisions",
+    "peak_uncertainty",
+    "saturated_fraction",
+    "idle_fraction",
+)
 
 
 class EpisodeMetrics:
@@ -23,11 +32,13 @@ class EpisodeMetrics:
     :param target_indices: ``(T,)`` target node indices.
     :param u_max: the cap, for ``saturated_fraction``.
     :param max_steps: episode length K, to preallocate the uncertainty trace.
+    :param n_agents: team size, for ``idle_fraction``.
     """
 
-    def __init__(self, target_indices: np.ndarray, u_max: int, max_steps: int) -> None:
+    def __init__(self, target_indices: np.ndarray, u_max: int, max_steps: int, n_agents: int = 1) -> None:
         self.target_indices = np.asarray(target_indices)
         self.u_max = u_max
+        self.n_agents = n_agents
         #: ``(K,)`` summed target uncertainty after each step (only the first ``steps`` are valid).
         self.trace = np.zeros(max_steps, dtype=np.float64)
         self.reset()
@@ -38,11 +49,13 @@ class EpisodeMetrics:
         self.collisions = 0
         self.peak = 0
         self.saturated_steps = 0
+        self.idle_agent_steps = 0
         self._run = np.zeros(n_targets, dtype=np.int64)
         self._longest = np.zeros(n_targets, dtype=np.int64)
 
-    def update(self, uncertainty: np.ndarray, presence: np.ndarray, n_collided: int) -> None:
-        """Record step ``k``: ``(N,)`` uncertainties and ``(N,)`` bool presence after the move."""
+    def update(self, uncertainty: np.ndarray, presence: np.ndarray, n_collided: int, n_idle: int = 0) -> None:
+        """Record step ``k``: ``(N,)`` uncertainties and ``(N,)`` bool presence after the move,
+        ``n_collided`` agents sharing a node and ``n_idle`` agents alone on a target at u = 0."""
         u = uncertainty[self.target_indices]
         self._run += 1
         self._run[presence[self.target_indices]] = 0
@@ -51,6 +64,7 @@ class EpisodeMetrics:
             self.trace[self.steps] = u.sum()
         self.steps += 1
         self.collisions += int(n_collided)
+        self.idle_agent_steps += int(n_idle)
         highest = int(u.max())
         self.peak = max(self.peak, highest)
         self.saturated_steps += highest >= self.u_max
@@ -64,6 +78,7 @@ class EpisodeMetrics:
             "collisions": float(self.collisions),
             "peak_uncertainty": float(self.peak),
             "saturated_fraction": float(self.saturated_steps / steps),
+            "idle_fraction": float(self.idle_agent_steps / (steps * self.n_agents)),
             "steps": float(self.steps),
         }
 

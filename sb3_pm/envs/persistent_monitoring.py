@@ -101,7 +101,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.maps = MentalMaps(n_agents, self.graph.adjacency, graph_knowledge)
         self.maps.track_uncertainty_sum = "change" in self.reward_weights
         self.rewards_computer = RewardComputer(self.reward_weights, n_agents, self.u_max)
-        self.metrics = EpisodeMetrics(self.graph.target_indices, self.u_max, self.max_cycles)
+        self.metrics = EpisodeMetrics(self.graph.target_indices, self.u_max, self.max_cycles, n_agents)
         self._rng = np.random.default_rng()
         self._step_count = 0
         self._dwell = np.zeros(n_agents, dtype=np.int64)
@@ -203,9 +203,12 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._dwell += 1
         self._dwell[self.core.positions != previous] = 0
         self._observe(outcome.counts, advance_age=True)
-        self.metrics.update(self.core.uncertainty, outcome.presence, int(outcome.collided.sum()))
-        last = self._step_count >= self.max_cycles
         on_target = self._targets[self.core.positions]
+        idle = on_target & ~outcome.collided & (outcome.u_before == 0)
+        self.metrics.update(
+            self.core.uncertainty, outcome.presence, int(outcome.collided.sum()), int(idle.sum())
+        )
+        last = self._step_count >= self.max_cycles
         reward_values, _ = self.rewards_computer.step(
             outcome, on_target, last, self.maps.episode_uncertainty_sum
         )

@@ -73,9 +73,9 @@ Observation with ``observation="local"``: ``position``; ``observed``, ``target``
 
 Rewards are per agent (see :mod:`sb3_pm.envs.rewards`). When an episode ends, every agent's info
 holds ``"metrics"``: ``avg_uncertainty``, ``max_neglect``, ``collisions``, ``peak_uncertainty``,
-``saturated_fraction`` and ``steps`` (:mod:`sb3_pm.envs.metrics`); ``env.episode_metrics()``
-returns them at any time. ``env.unwrapped.uncertainty`` and ``env.unwrapped.positions`` expose the
-true state for tests and omniscient baselines.
+``saturated_fraction``, ``idle_fraction`` and ``steps`` (:mod:`sb3_pm.envs.metrics`);
+``env.episode_metrics()`` returns them at any time. ``env.unwrapped.uncertainty`` and
+``env.unwrapped.positions`` expose the true state for tests and omniscient baselines.
 
 Version history
 ---------------
