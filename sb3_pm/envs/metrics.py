@@ -35,7 +35,7 @@ class EpisodeMetrics:
     :param n_agents: team size, for ``idle_fraction``.
     """
 
-    def __init__(self, target_indices: np.ndarray, u_max: int, max_steps: int, n_agents: int = 1) -> None:
+    def __init__(self, target_indices: np.ndarray, u_max: int, max_steps: int, n_agents: int) -> None:
         self.target_indices = np.asarray(target_indices)
         self.u_max = u_max
         self.n_agents = n_agents
@@ -53,7 +53,7 @@ class EpisodeMetrics:
         self._run = np.zeros(n_targets, dtype=np.int64)
         self._longest = np.zeros(n_targets, dtype=np.int64)
 
-    def update(self, uncertainty: np.ndarray, presence: np.ndarray, n_collided: int, n_idle: int = 0) -> None:
+    def update(self, uncertainty: np.ndarray, presence: np.ndarray, n_collided: int, n_idle: int) -> None:
         """Record step ``k``: ``(N,)`` uncertainties and ``(N,)`` bool presence after the move,
         ``n_collided`` agents sharing a node and ``n_idle`` agents alone on a target at u = 0."""
         u = uncertainty[self.target_indices]

@@ -203,14 +203,14 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._dwell += 1
         self._dwell[self.core.positions != previous] = 0
         self._observe(outcome.counts, advance_age=True)
-        on_target = self._targets[self.core.positions]
-        idle = on_target & ~outcome.collided & (outcome.u_before == 0)
+        alone_on_target = self._targets[self.core.positions] & ~outcome.collided
+        idle = alone_on_target & (outcome.u_before == 0)  # guarding a target that is already clean
         self.metrics.update(
             self.core.uncertainty, outcome.presence, int(outcome.collided.sum()), int(idle.sum())
         )
         last = self._step_count >= self.max_cycles
         reward_values, _ = self.rewards_computer.step(
-            outcome, on_target, last, self.maps.episode_uncertainty_sum
+            outcome, alone_on_target, last, self.maps.episode_uncertainty_sum
         )
 
         observations = self._observations()

@@ -81,12 +81,13 @@ class RewardComputer:
         self.momentum[:] = 0.0
 
     def step(
-        self, outcome: StepOutcome, on_target: np.ndarray, last_step: bool, map_sums: np.ndarray
+        self, outcome: StepOutcome, alone_on_target: np.ndarray, last_step: bool, map_sums: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Rewards for one step.
 
         :param outcome: the move just made.
-        :param on_target: ``(n_agents,)`` bool, the agent's node is a target.
+        :param alone_on_target: ``(n_agents,)`` bool, the agent's node is a target and no other
+            agent is on it (the only case in which ``reduction`` and ``clearing`` pay).
         :param last_step: the episode ends with this step (``change`` is paid).
         :param map_sums: ``(n_agents,)`` this episode's U_i so far, including this step.
         :return: ``(n_agents,)`` float rewards and each weighted term's ``(n_agents,)`` values.
@@ -99,12 +100,12 @@ class RewardComputer:
             self.momentum += np.where(outcome.u_before > 0, 1.0, -1.0)
             terms["momentum"] = w["momentum"] * self.momentum
         if "reduction" in w:
-            alone = on_target & ~outcome.collided
             counterfactual = np.minimum(outcome.u_before + 1, self.u_max)
-            terms["reduction"] = w["reduction"] * np.where(alone, counterfactual - outcome.u_after, 0.0)
+            removed = counterfactual - outcome.u_after
+            terms["reduction"] = w["reduction"] * np.where(alone_on_target, removed, 0.0)
         if "clearing" in w:
             lowered = np.maximum(outcome.u_before - outcome.u_after, 0)
-            terms["clearing"] = w["clearing"] * np.where(on_target & ~outcome.collided, lowered, 0.0)
+            terms["clearing"] = w["clearing"] * np.where(alone_on_target, lowered, 0.0)
         if "change" in w:
             change = np.zeros(self.n_agents)
             if last_step:
