@@ -83,6 +83,15 @@ def _against_improved(cell) -> tuple[dict, dict]:
     return _flat(merged), _flat(load_config(ZOO / "ippo_improved.yml", cell.graph))
 
 
+def _changes(merged: dict, direct: dict) -> dict:
+    """The settings in which ``merged`` differs from ``direct``, with ``merged``'s values."""
+    return {
+        k: merged.get(k, "unset")
+        for k in merged.keys() | direct.keys()
+        if merged.get(k, "unset") != direct.get(k, "unset")
+    }
+
+
 def test_tuning_variants_change_one_key_of_the_improved_config(tmp_path: Path) -> None:
     """tuning.yml is a one-change-at-a-time screen: ``improved`` trains zoo/ippo_improved.yml as it
     is, and every ``tune_*`` variant differs from it in exactly one setting."""
@@ -90,10 +99,7 @@ def test_tuning_variants_change_one_key_of_the_improved_config(tmp_path: Path) -
     learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline" and c.seed == 0]
     assert {c.variant["key"] for c in learned} >= {"improved", "tune_lr_3e3", "tune_reward_01"}
     for cell in learned:
-        merged, direct = _against_improved(cell)
-        changed = {
-            k for k in merged.keys() | direct.keys() if merged.get(k, "unset") != direct.get(k, "unset")
-        }
+        changed = _changes(*_against_improved(cell))
         # The rollout variant keeps one minibatch per rollout, so it moves n_steps and batch_size.
         expected = {"improved": 0, "tune_rollout_1000": 2}.get(cell.variant["key"], 1)
         assert len(changed) == expected, (cell.variant["key"], changed)
@@ -133,12 +139,7 @@ def test_follow_up_variants_change_exactly_what_they_name(
         merged, direct = _against_improved(cell)
         key = cell.variant["key"]
         if key in expected_changes:
-            changed = {
-                k: merged.get(k, "unset")
-                for k in merged.keys() | direct.keys()
-                if merged.get(k, "unset") != direct.get(k, "unset")
-            }
-            assert changed == expected_changes[key], key
+            assert _changes(merged, direct) == expected_changes[key], key
         else:
             assert merged == _against_improved(tuning[key])[0], key
 
