@@ -1,4 +1,4 @@
-"""Shared fixtures: tiny hand-built graphs and the location of the shared reference graphs."""
+"""Fixtures: tiny hand-built graphs and the folder of the published graphs shipped in the package."""
 
 from __future__ import annotations
 
@@ -9,11 +9,10 @@ import pytest
 import torch
 
 from sb3_pm.graphs import GraphSpec
+from sb3_pm.graphs.presets import DATA_DIR
 
 # Tests run two workers on two cores: one torch thread each avoids oversubscription.
 torch.set_num_threads(1)
-
-SHARED_GRAPHS = Path(__file__).resolve().parents[1].parent / "shared" / "graphs"
 
 
 def path_graph(n_nodes: int, targets: list[int], name: str = "path") -> GraphSpec:
@@ -27,8 +26,11 @@ def path_graph(n_nodes: int, targets: list[int], name: str = "path") -> GraphSpe
 
 
 @pytest.fixture
-def shared_graphs() -> Path:
-    """The paper's published GraphML files (``../shared/graphs``); fails loudly if absent."""
-    if not SHARED_GRAPHS.is_dir():
-        pytest.fail(f"reference graphs not found at {SHARED_GRAPHS}")
-    return SHARED_GRAPHS
+def published_graphs() -> Path:
+    """The folder of the paper's published GraphML files, as the package ships them."""
+    assert sorted(path.name for path in DATA_DIR.glob("*.graphml")) == [
+        "paper_100n_17t.graphml",
+        "paper_200n_41t.graphml",
+        "paper_50n_8t.graphml",
+    ], f"the package's graph data is incomplete: {DATA_DIR}"
+    return DATA_DIR

@@ -129,8 +129,8 @@ class TestGrazing:
             goals = list(team.goals.values())
             assert len(goals) == len(set(goals))
 
-    def test_beats_random_on_the_50_node_graph(self, shared_graphs) -> None:
-        graph = shared_graphs / "paper_50n_8t.graphml"
+    def test_beats_random_on_the_50_node_graph(self, published_graphs) -> None:
+        graph = published_graphs / "paper_50n_8t.graphml"
         random = evaluate(make_team("random"), graph, episodes=2, seed=0, max_cycles=200).mean
         grazing = evaluate(make_team("grazing"), graph, episodes=2, seed=0, max_cycles=200).mean
         assert grazing["avg_uncertainty"] < 0.5 * random["avg_uncertainty"]
@@ -269,7 +269,8 @@ class TestLocalGreedy:
         assert 9 in history
 
 
-# Reference figures of ../shared/graphs/README.md: 3 seeds x 5 episodes x 500 steps, 4 agents.
+# Reference figures from an independent simulator (sb3_pm/graphs/data/README.md): 3 seeds x 5
+# episodes x 500 steps, 4 agents.
 REFERENCE = {
     ("paper_50n_8t", "random"): 704.8,
     ("paper_100n_17t", "random"): 1515.3,
@@ -282,13 +283,13 @@ REFERENCE = {
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("graph", "policy"), list(REFERENCE))
-def test_reference_figures(shared_graphs, graph: str, policy: str) -> None:
+def test_reference_figures(published_graphs, graph: str, policy: str) -> None:
     from sb3_pm.evaluation import SEED_STRIDE, pooled_values
 
     results = [
         evaluate(
             make_team(policy),
-            shared_graphs / f"{graph}.graphml",
+            published_graphs / f"{graph}.graphml",
             episodes=5,
             seed=s * SEED_STRIDE,
             max_cycles=500,

@@ -8,13 +8,16 @@ import numpy as np
 import pytest
 
 from sb3_pm.graphs import (
+    ER_PRESETS,
     PRESETS,
+    PUBLISHED,
     GraphError,
     GraphSpec,
     erdos_renyi,
     hyperrectangle,
     load_graphml,
     preset,
+    published_graph_path,
     resolve_graph,
     save_graphml,
 )
@@ -49,11 +52,37 @@ class TestErdosRenyi:
         with pytest.raises(GraphError, match="no connected"):
             erdos_renyi(50, 0.001, n_targets=2, seed=0, max_tries=5)
 
-    @pytest.mark.parametrize("name", sorted(PRESETS))
-    def test_presets(self, name: str) -> None:
-        n_nodes, n_targets, _ = PRESETS[name]
+    @pytest.mark.parametrize("name", sorted(ER_PRESETS))
+    def test_er_presets(self, name: str) -> None:
+        n_nodes, n_targets, seed = ER_PRESETS[name]
         spec = preset(name)
         assert (spec.n_nodes, spec.n_targets, spec.name) == (n_nodes, n_targets, name)
+        assert spec.same_problem(erdos_renyi(n_nodes, 0.2, n_targets=n_targets, seed=seed))
+
+
+class TestPresets:
+    @pytest.mark.parametrize(
+        ("name", "nodes", "edges", "targets"),
+        [("paper-50", 50, 258, 8), ("paper-100", 100, 934, 17), ("paper-200", 200, 3695, 41)],
+    )
+    def test_paper_presets_are_the_published_files(self, published_graphs, name, nodes, edges, targets):
+        spec = preset(name)
+        assert (spec.n_nodes, spec.n_edges, spec.n_targets, spec.name) == (nodes, edges, targets, name)
+        assert spec.same_problem(load_graphml(published_graphs / PUBLISHED[name]))
+
+    def test_every_preset_is_described_and_resolves(self) -> None:
+        assert set(PRESETS) == set(PUBLISHED) | set(ER_PRESETS)
+        for name in PRESETS:
+            assert resolve_graph(name).name == name
+
+    def test_published_and_er_presets_differ(self) -> None:
+        assert not preset("paper-50").same_problem(preset("er-50"))
+
+    def test_unknown_preset_names_the_presets(self) -> None:
+        with pytest.raises(GraphError, match="paper-50"):
+            preset("paper-51")
+        with pytest.raises(GraphError, match="not a published graph"):
+            published_graph_path("er-50")
 
 
 class TestHyperrectangle:
@@ -128,8 +157,8 @@ class TestGraphML:
         ("file", "nodes", "edges", "targets"),
         [("paper_50n_8t", 50, 258, 8), ("paper_100n_17t", 100, 934, 17), ("paper_200n_41t", 200, 3695, 41)],
     )
-    def test_reads_the_published_graphs(self, shared_graphs, file, nodes, edges, targets) -> None:
-        spec = load_graphml(shared_graphs / f"{file}.graphml")
+    def test_reads_the_published_graphs(self, published_graphs, file, nodes, edges, targets) -> None:
+        spec = load_graphml(published_graphs / f"{file}.graphml")
         assert (spec.n_nodes, spec.n_edges, spec.n_targets) == (nodes, edges, targets)
         assert spec.hop_distances.max() == 3
 

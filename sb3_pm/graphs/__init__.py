@@ -1,12 +1,15 @@
 """Graphs for persistent monitoring: one immutable :class:`GraphSpec`, its generators and GraphML I/O."""
 
-from sb3_pm.graphs.generators import PRESETS, erdos_renyi, hyperrectangle, preset
+from sb3_pm.graphs.generators import erdos_renyi, hyperrectangle
 from sb3_pm.graphs.io import load_graphml, save_graphml
+from sb3_pm.graphs.presets import ER_PRESETS, PRESETS, PUBLISHED, preset, published_graph_path
 from sb3_pm.graphs.resolve import GraphLike, graph_label, resolve_graph
 from sb3_pm.graphs.spec import GraphError, GraphSpec
 
 __all__ = [
+    "ER_PRESETS",
     "PRESETS",
+    "PUBLISHED",
     "GraphError",
     "GraphLike",
     "GraphSpec",
@@ -15,6 +18,7 @@ __all__ = [
     "hyperrectangle",
     "load_graphml",
     "preset",
+    "published_graph_path",
     "resolve_graph",
     "save_graphml",
 ]

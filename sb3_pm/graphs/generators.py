@@ -1,4 +1,4 @@
-"""Graph generators: Erdős–Rényi draws, the paper's presets and its Algorithm 1 partition."""
+"""Graph generators: seeded Erdős–Rényi draws and the paper's Algorithm 1 partition."""
 
 from __future__ import annotations
 
@@ -11,14 +11,6 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from sb3_pm.graphs.spec import GraphError, GraphSpec
-
-#: Preset name -> (nodes, targets, seed). The seeds are ours: these are fresh draws with the
-#: paper's sizes, not the authors' published files (load those through their GraphML path).
-PRESETS: dict[str, tuple[int, int, int]] = {
-    "paper-50": (50, 8, 50),
-    "paper-100": (100, 17, 100),
-    "paper-200": (200, 32, 200),
-}
 
 
 def erdos_renyi(
@@ -70,14 +62,6 @@ def erdos_renyi(
     raise GraphError(
         f"no connected G({n_nodes}, {edge_prob}) graph with a target in {max_tries} draws; raise edge_prob"
     )
-
-
-def preset(name: str) -> GraphSpec:
-    """One of :data:`PRESETS`: an Erdős–Rényi graph with p = 0.2 and the paper's target count."""
-    if name not in PRESETS:
-        raise GraphError(f"unknown graph preset {name!r}; presets are {sorted(PRESETS)}")
-    n_nodes, n_targets, seed = PRESETS[name]
-    return erdos_renyi(n_nodes, edge_prob=0.2, n_targets=n_targets, seed=seed, name=name)
 
 
 def _cell_counts(lengths: Sequence[float], chunk_sizes: Sequence[float]) -> tuple[int, ...]:

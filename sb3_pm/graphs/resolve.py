@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sb3_pm.graphs.generators import PRESETS, preset
 from sb3_pm.graphs.io import load_graphml
+from sb3_pm.graphs.presets import PRESETS, preset
 from sb3_pm.graphs.spec import GraphError, GraphSpec
 
 GraphLike = str | Path | GraphSpec
