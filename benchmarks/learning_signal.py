@@ -1,6 +1,6 @@
 """How much a team's PPO updates move its policy: a diagnostic for configs that do not learn.
 
-    python benchmarks/learning_signal.py --config zoo/ippo.yml --graph paper-50 [--timesteps 1000]
+    python benchmarks/learning_signal.py --config ippo_paper --graph paper-50 [--timesteps 1000]
         [--seed 0] [--hyperparams KEY:VALUE ...] [--env-kwargs KEY:VALUE ...]
 
 Trains a team for ``--timesteps`` steps per learner with the config's entry for the graph (the same
@@ -61,7 +61,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--config", default="zoo/ippo.yml")
+    parser.add_argument("--config", default="ippo")
     parser.add_argument("--graph", default="paper-50")
     parser.add_argument("--timesteps", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)

@@ -1,7 +1,7 @@
 """Training speed of an independent team, next to stock SB3 PPO measured in the same run.
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
-                                     [--config zoo/ippo.yml] [--repeats 1] [--threads 2]
+                                     [--config ippo] [--repeats 1] [--threads 2]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -71,7 +71,7 @@ def main() -> None:
     )
     parser.add_argument("--graphs", nargs="+", default=["paper-50", "paper-200"])
     parser.add_argument("--algo", default=None, help="dcbf_ppo | maskable_ppo | ppo (default: the config's)")
-    parser.add_argument("--config", default="zoo/ippo.yml", help="team config (default zoo/ippo.yml)")
+    parser.add_argument("--config", default="ippo", help="team config: a path or shipped name (default ippo)")
     parser.add_argument("--n-envs", type=int, default=None, help="override the config's n_envs")
     parser.add_argument("--n-steps", type=int, default=None, help="override n_steps (and batch_size)")
     parser.add_argument("--threads", type=int, default=th.get_num_threads(), help="torch threads")

@@ -2,13 +2,14 @@
 
 What it shows:
 
-* reading an entry of our team config ``zoo/ippo.yml`` (rl-zoo conventions: keyed by graph,
-  ``default:`` fallback, ``lin_`` schedules) with :func:`sb3_pm.zoo.load_config`;
+* reading an entry of the default team config ``ippo`` (the repository's ``zoo/ippo.yml``, shipped
+  with the package; rl-zoo conventions: keyed by graph, ``default:`` fallback, ``lin_``
+  schedules) with :func:`sb3_pm.zoo.load_config`;
 * building the team with :meth:`IndependentPPO.from_config`: one learner per agent, sharing
   nothing (the paper's fully decentralized setting);
 * ``learn`` / ``save`` and :func:`sb3_pm.evaluation.evaluate` with the paper's metrics.
 
-The same run from the command line: ``sb3-pm train --config zoo/ippo.yml --env paper-50``.
+The same run from the command line: ``sb3-pm train --env paper-50``.
 
 Usage::
 
@@ -27,15 +28,13 @@ from sb3_pm import IndependentPPO
 from sb3_pm.evaluation import evaluate, markdown_table, summarize
 from sb3_pm.zoo import load_config
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "zoo" / "ippo.yml"
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--graph", default="paper-50", help="preset name or .graphml path")
-    parser.add_argument("--config", default=str(DEFAULT_CONFIG), help="team config (zoo/ippo.yml format)")
+    parser.add_argument("--config", default="ippo", help="team config: a path or shipped name (default ippo)")
     parser.add_argument("--timesteps", type=int, default=None, help="per learner (default: the config's)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="output folder (default: a new temp dir)")

@@ -3,8 +3,8 @@
 * rl-zoo YAMLs (``zoo/<algo>.yml``, all but the team files ``zoo/ippo*.yml``): each entry is read
   by rl-zoo's own :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
   ``rl_zoo3.train`` would (schedules, env_kwargs, policy_kwargs, n_envs).
-* ``zoo/ippo.yml`` and ``zoo/ippo_improved.yml`` (our team format): each entry builds an
-  :class:`IndependentPPO` team.
+* ``zoo/ippo.yml``, ``zoo/ippo_paper.yml`` and ``zoo/ippo_improved.yml`` (our team format): each
+  entry builds an :class:`IndependentPPO` team.
 * ``python -m rl_zoo3.train --gym-packages sb3_pm ...`` (a subprocess) and our launcher
   ``python -m sb3_pm.zoo --algo dcbf_ppo ...`` run end to end and save a model.
 """
@@ -34,7 +34,7 @@ th.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]
 ZOO = ROOT / "zoo"
 #: Files in zoo/ that are not rl-zoo hyperparameter files.
-NOT_RL_ZOO = {"ippo.yml", "ippo_improved.yml"}
+NOT_RL_ZOO = {"ippo.yml", "ippo_paper.yml", "ippo_improved.yml"}
 RL_ZOO_FILES = sorted(p for p in ZOO.glob("*.yml") if p.name not in NOT_RL_ZOO)
 #: Small settings so that building (and the end-to-end runs) stay fast.
 TINY = {"n_envs": 1, "n_steps": 32, "batch_size": 32}
@@ -67,7 +67,7 @@ def test_rl_zoo_file_is_keyed_by_env_id(path: Path) -> None:
     for entry, values in data.items():
         assert entry == "default" or entry in ENV_IDS, f"{path.name}: {entry!r} is no registered id"
         assert isinstance(values, dict) and "n_timesteps" in values and "policy" in values
-        # rl-zoo eval()s string policy_kwargs; ours are real mappings (STYLE.md).
+        # rl-zoo eval()s string policy_kwargs; ours are real mappings.
         assert isinstance(values.get("policy_kwargs", {}), dict)
 
 

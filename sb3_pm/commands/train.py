@@ -2,7 +2,10 @@
 
 ::
 
-    sb3-pm train --config zoo/ippo.yml --env paper-50 --seed 0 [--timesteps T] [--out DIR]
+    sb3-pm train [--config ippo] --env paper-50 --seed 0 [--timesteps T] [--out DIR]
+
+``--config`` defaults to the shipped ``ippo`` config (the repository's ``zoo/ippo.yml``), the best
+configuration measured; ``--config ippo_paper`` trains the paper-faithful one.
 
 The run folder (default ``runs/<graph>_<algo>_s<seed>``, relative to the working directory)
 records ``config.yml`` (the resolved entry), ``args.yml``, ``command.txt``, TensorBoard logs per
@@ -19,6 +22,8 @@ from typing import Any
 
 import yaml
 
+from sb3_pm.commands.options import add_compute_options
+
 #: Files that mark a folder as a run folder (only such a folder is replaced by --overwrite).
 RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
 
@@ -30,9 +35,18 @@ def register(subparsers: Any) -> None:
         description="Train one learner per agent (sharing nothing) and save the team to a run folder.",
     )
     parser.add_argument(
-        "--config", type=Path, default=Path("zoo/ippo.yml"), help="rl-zoo style YAML (default zoo/ippo.yml)"
+        "--config",
+        default="ippo",
+        help="rl-zoo style YAML: a path, or the name of a shipped config (ippo, ippo_paper, ippo_improved). "
+        "Default: ippo, the package's copy of zoo/ippo.yml, the best configuration measured "
+        "(docs/RESULTS.md); ippo_paper is the paper-faithful one",
     )
-    parser.add_argument("--env", default="paper-50", help="a preset (paper-50/100/200) or a .graphml path")
+    parser.add_argument(
+        "--env",
+        default="paper-50",
+        help="a preset (paper-50/100/200: the paper's published graphs; er-50/100/200: seeded "
+        "Erdős–Rényi draws) or a .graphml path (default paper-50)",
+    )
     parser.add_argument(
         "--seed", type=int, default=0, help="seeds the env copies and every learner (default 0)"
     )
@@ -59,17 +73,9 @@ def register(subparsers: Any) -> None:
         help="override environment arguments, e.g. reward:reduction max_cycles:200",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
-    parser.add_argument("--device", default="cpu", help="torch device of every learner (default cpu)")
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity of every learner (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        metavar="N",
-        help="torch CPU threads (default 1: training is then bit-for-bit reproducible from --seed; "
-        "with more threads some torch kernels reduce in a varying order)",
-    )
+    add_compute_options(parser, training=True)
     parser.set_defaults(func=run)
 
 

@@ -128,12 +128,13 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
 def load_experiment(path: str | Path) -> Experiment:
     """Parse and validate an experiment file.
 
+    :param path: an experiment file, or the name of a shipped one (``comparison``).
     :raises FileNotFoundError: if the file is missing.
     :raises ExperimentError: for malformed YAML, unknown keys, bad values or a missing config file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"experiment file not found: {path}")
+    from sb3_pm.zoo.shipped import resolve_experiment_path
+
+    path = resolve_experiment_path(path)
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:

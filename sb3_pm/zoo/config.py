@@ -43,6 +43,7 @@ from sb3_pm.zoo.registry import (
     resolve_policy_kwargs,
 )
 from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
+from sb3_pm.zoo.shipped import resolve_config_path
 
 DEFAULT_ENTRY = "default"
 #: Keys that belong to the team, not to one learner's algorithm.
@@ -108,12 +109,11 @@ class TrainConfig:
 def read_yaml(path: str | Path) -> dict[str, Any]:
     """Parse a config file into a mapping of entries.
 
+    :param path: a path, or the name of a shipped config (see :mod:`sb3_pm.zoo.shipped`).
     :raises FileNotFoundError: if it does not exist.
     :raises ConfigError: for malformed YAML or a file that is not a mapping of mappings.
     """
-    file = Path(path)
-    if not file.is_file():
-        raise FileNotFoundError(f"config file not found: {file}")
+    file = resolve_config_path(path)
     try:
         data = yaml.safe_load(file.read_text())
     except yaml.YAMLError as error:
@@ -265,11 +265,12 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
 
     :param overrides: entry keys to set on top of the file's (see :func:`apply_overrides`); they
         are validated like the file's own keys.
+    :param path: a config file, or the name of a shipped one (``ippo``, ``ippo_paper``).
     :raises FileNotFoundError: if the file does not exist.
     :raises ConfigError: for malformed YAML, unknown keys or wrong types (naming file and key).
     """
-    source = str(path)
-    data = read_yaml(path)
+    source = str(resolve_config_path(path))
+    data = read_yaml(source)
     entry = entry_for(data, env, source)
     raw = apply_overrides(data[entry], overrides or {})
     where = f"{source}: {entry}" + (" (with command-line overrides)" if overrides else "")

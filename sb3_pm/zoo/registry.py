@@ -1,7 +1,7 @@
 """Name -> class registries for configs: algorithms, activation functions, optimizers, extractors.
 
 A YAML config names classes by string (``algo: maskable_ppo``, ``activation_fn: ReLU``). They are
-resolved here, never with ``eval`` (STYLE.md, "rl-baselines3-zoo"). Entries are ``"module:attr"``
+resolved here, never with ``eval`` (which rl-zoo uses on strings). Entries are ``"module:attr"``
 strings imported on first use, so the registry costs nothing to import and ``dcbf_ppo`` does not
 drag in torch-geometric until it is asked for. Besides registered names, any class-valued key
 accepts an explicit ``"package.module:ClassName"`` import path.

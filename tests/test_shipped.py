@@ -1,0 +1,130 @@
+"""The package stands alone: its configs, experiment files and published graphs ship inside it,
+resolve by name from any folder, and the default training config is the best measured one."""
+
+from __future__ import annotations
+
+import configparser
+import fnmatch
+import subprocess
+from pathlib import Path
+
+import pytest
+import torch as th
+import yaml
+
+from sb3_pm.cli import main
+from sb3_pm.experiments import load_experiment
+from sb3_pm.graphs.presets import DATA_DIR, PUBLISHED
+from sb3_pm.zoo import DEFAULT_CONFIG, load_config, resolve_config_path, resolve_experiment_path
+from sb3_pm.zoo.shipped import CONFIG_DIR, EXPERIMENT_DIR
+
+th.set_num_threads(1)
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "sb3_pm"
+
+
+def _package_data_globs() -> list[str]:
+    parser = configparser.ConfigParser()
+    parser.read(ROOT / "setup.cfg")
+    return [line.strip() for line in parser["options.package_data"]["sb3_pm"].splitlines() if line.strip()]
+
+
+def test_the_shipped_config_folder_is_the_repository_zoo_folder() -> None:
+    assert CONFIG_DIR.resolve() == (ROOT / "zoo").resolve()
+    assert {path.name for path in CONFIG_DIR.glob("*.yml")} >= {"ippo.yml", "ippo_paper.yml"}
+
+
+def test_package_data_covers_every_config_experiment_and_graph() -> None:
+    """What a wheel holds is what setup.cfg's package_data globs match under sb3_pm/."""
+    globs = _package_data_globs()
+    shipped = [*CONFIG_DIR.glob("*.yml"), *EXPERIMENT_DIR.glob("*.yml"), *DATA_DIR.glob("*.graphml")]
+    assert len(shipped) >= 3 + 2 + 6
+    for path in shipped:
+        relative = path.relative_to(PACKAGE).as_posix() if PACKAGE in path.parents else None
+        if relative is None:  # resolved through the configs link: name it as the wheel will
+            relative = "configs/" + path.relative_to(CONFIG_DIR).as_posix()
+        assert any(fnmatch.fnmatch(relative, pattern) for pattern in globs), relative
+    assert {DATA_DIR / name for name in PUBLISHED.values()} <= set(DATA_DIR.glob("*.graphml"))
+
+
+@pytest.mark.parametrize("name", ["ippo", "ippo.yml", "zoo/ippo.yml", "ippo_paper"])
+def test_configs_resolve_by_name_from_any_folder(name, tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert resolve_config_path(name).resolve().parent == CONFIG_DIR.resolve()
+
+
+@pytest.mark.parametrize(
+    "name", ["comparison", "experiments/comparison.yml", "zoo/experiments/comparison.yml"]
+)
+def test_experiments_resolve_by_name_from_any_folder(name, tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert resolve_experiment_path(name).name == "comparison.yml"
+    assert load_experiment(name).name == "comparison"
+
+
+def test_a_local_file_wins_over_a_shipped_name(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("ippo.yml").write_text("default: {n_timesteps: 7}\n")
+    assert resolve_config_path("ippo.yml") == Path("ippo.yml")
+
+
+def test_unknown_names_list_what_ships(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(FileNotFoundError, match="shipped configs: .*ippo_paper"):
+        resolve_config_path("ipo")
+    with pytest.raises(FileNotFoundError, match="shipped experiments: .*comparison"):
+        resolve_experiment_path("zoo/experiments/nope.yml")
+
+
+def test_the_default_config_is_the_measured_best_and_the_paper_one_is_kept() -> None:
+    """zoo/ippo.yml is section 3e's `clearing` team (the best measured), at the paper's budget on the
+    published graphs; zoo/ippo_paper.yml keeps the paper's reward and DCBF rules."""
+    default = load_config(DEFAULT_CONFIG, "paper-50")
+    assert default.n_timesteps == 50_000 and default.entry == "paper-50"
+    assert default.env_kwargs["reward"] == {"clearing": 0.04, "collision": 0.001}
+    kwargs = default.hyperparams["policy_kwargs"]
+    assert kwargs["dcbf_barrier"] is False and kwargs["avoid_collisions"] is True
+    # The published graph by file path finds the same entry as by preset name.
+    assert load_config(DEFAULT_CONFIG, str(DATA_DIR / "paper_50n_8t.graphml")).entry == "paper_50n_8t"
+    paper = load_config("ippo_paper", "paper-50")
+    assert paper.n_timesteps == 50_000
+    assert "reward" not in paper.env_kwargs  # the environment's default: the paper's reward
+    assert "dcbf_barrier" not in paper.hyperparams["policy_kwargs"]
+
+
+def test_train_with_no_config_from_outside_the_repository(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--env", "paper-50", "--timesteps", "500", "--out", "run", "--no-progress"]) == 0
+    resolved = yaml.safe_load(Path("run/config.yml").read_text())
+    assert Path(resolved["source"]).name == "ippo.yml" and resolved["env"] == "paper-50"
+    assert resolved["env_kwargs"]["reward"] == {"clearing": 0.04, "collision": 0.001}
+    assert Path("run/team/manifest.json").exists()
+
+
+def test_no_tracked_file_points_outside_the_repository() -> None:
+    """Nothing may rely on a sibling folder of the checkout: the project stands alone."""
+    needle = "../" + "shared"
+    try:
+        files = subprocess.run(
+            ["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.split()
+    except (OSError, subprocess.CalledProcessError):  # not a git checkout: every project file
+        skipped = {"build", "dist", "runs", "results", "__pycache__"}
+        files = [
+            str(path.relative_to(ROOT))
+            for path in ROOT.rglob("*")
+            if not any(part.startswith(".") or part in skipped or part.endswith(".egg-info")
+                       for part in path.relative_to(ROOT).parts)
+        ]  # fmt: skip
+    assert files
+    offenders = []
+    for name in files:
+        path = ROOT / name
+        if path.is_file() and not path.is_symlink():
+            try:
+                if needle in path.read_text(errors="ignore"):
+                    offenders.append(name)
+            except OSError:
+                continue
+    assert not offenders, offenders
