@@ -1,7 +1,7 @@
 """Callbacks for sb3_pm learners.
 
 :class:`EstimatorCallback` trains a :class:`~sb3_pm.policies.DCBFActorCriticPolicy`'s state
-estimator (METHOD.md "Estimator loss", paper eq. 3) on each rollout's own transitions, with the
+estimator (docs/METHOD.md "Estimator loss", paper eq. 3) on each rollout's own transitions, with the
 estimator's own optimizer. :class:`~sb3_pm.ppo_dcbf.DCBFPPO` attaches it automatically, so a plain
 ``model.learn()`` needs no glue.
 

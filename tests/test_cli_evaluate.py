@@ -33,10 +33,10 @@ class TestEvaluate:
         assert (payload["config"]["n_agents"], payload["config"]["max_cycles"]) == (3, 20)
         assert (payload["config"]["policy"], payload["config"]["graph"]) == ("grazing", "paper-50")
 
-    def test_graphml_and_gif(self, capsys, tmp_path, shared_graphs) -> None:
-        gif = tmp_path / "e.gif"
+    def test_graphml_and_gif(self, capsys, tmp_path, published_graphs) -> None:
+        gif, graph = tmp_path / "e.gif", str(published_graphs / "paper_50n_8t.graphml")
         code, _, _ = run_cli(
-            capsys, "evaluate", "--policy", "random", "--graph", str(shared_graphs / "paper_50n_8t.graphml"),
+            capsys, "evaluate", "--policy", "random", "--graph", graph,
             "--steps", "3", "--episodes", "1", "--gif", str(gif),
         )  # fmt: skip
         assert code == 0
@@ -74,8 +74,8 @@ class TestEvaluate:
 
         class FakePPO:
             @staticmethod
-            def load(path, graph=None):
-                loaded.append(path)
+            def load(path, graph=None, device="cpu"):
+                loaded.append((path, device))
                 team = make_team("sit_on_nodes")
                 team.n_agents, team.env_kwargs = 4, {"obs_radius": 2, "max_cycles": 7}
                 return team
@@ -87,7 +87,7 @@ class TestEvaluate:
         team_dir.mkdir()
         argv = ["evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1"]
         code, out, _ = run_cli(capsys, *argv)
-        assert code == 0 and loaded and loaded[0] == team_dir
+        assert code == 0 and loaded and loaded[0] == (team_dir, "cpu")
         assert "my_team on paper-50" in out
         # The team's own env options are used (obs_radius), the episode length stays ours.
         code, _, _ = run_cli(capsys, *argv, "--json", str(tmp_path / "r.json"))
@@ -95,6 +95,8 @@ class TestEvaluate:
         assert config["env_kwargs"] == {"obs_radius": 2} and config["max_cycles"] == 5
         code, _, err = run_cli(capsys, *argv, "--agents", "3")
         assert code == 2 and "has 4 agents; pass --agents 4" in err
+        code, _, _ = run_cli(capsys, *argv, "--device", "cuda")
+        assert code == 0 and loaded[-1] == (team_dir, "cuda")
 
     def test_trained_team_without_learner(self, capsys, tmp_path, monkeypatch) -> None:
         monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", None)  # import fails
@@ -112,7 +114,7 @@ class TestCompare:
             "--episodes", "2", "--steps", "10", "--out", str(out_dir),
         )  # fmt: skip
         assert code == 0
-        assert out.startswith("| Algorithm | Avg. Uncertainty | SD | Avg. Neglect Time | SD |")
+        assert out.startswith("| Algorithm | Avg. Uncertainty | SD | Max Neglect | SD |")
         names = {p.name for p in out_dir.iterdir()}
         assert names == {
             "table.md",

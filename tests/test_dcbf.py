@@ -1,4 +1,4 @@
-"""The DCBF filter's rules (METHOD.md "DCBF safety filter") on hand-built tensors."""
+"""The DCBF filter's rules (docs/METHOD.md "DCBF safety filter") on hand-built tensors."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Hand-computed dynamics (METHOD.md eq. 1, the cap, collisions) and illegal actions."""
+"""Hand-computed dynamics (docs/METHOD.md "Dynamics": eq. 1, the cap, collisions) and illegal actions."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Reward terms (METHOD.md "Reward", paper eq. 5-8) computed by hand on a path graph."""
+"""Reward terms (docs/METHOD.md "Reward", paper eq. 5-8) computed by hand on a path graph."""
 
 from __future__ import annotations
 

@@ -267,7 +267,7 @@ class TestReports:
 
     def test_markdown(self) -> None:
         lines = markdown_table(self.table).splitlines()
-        assert lines[0] == "| Algorithm | Avg. Uncertainty | SD | Avg. Neglect Time | SD |"
+        assert lines[0] == "| Algorithm | Avg. Uncertainty | SD | Max Neglect | SD |"
         assert lines[2] == "| random | 705.0 | 7.1 | 110.0 | 14.1 |"
         assert lines[3] == "| sit_on_nodes | 360.0 | 0.0 | 500.0 | 0.0 |"
 
@@ -316,6 +316,40 @@ class TestPlotsAndGif:
         assert frames.shape[0] == 5  # the reset frame plus one per step
         same = evaluate(make_team("grazing"), "paper-50", episodes=1, seed=2, max_cycles=4).episodes[0]
         assert record.metrics == same.metrics
+
+    def test_blitted_frames_equal_a_full_redraw(self) -> None:
+        """Only the changing artists are redrawn per frame; nothing of an earlier frame may remain."""
+        from sb3_pm.envs.rendering import GraphRenderer
+        from sb3_pm.graphs import resolve_graph
+
+        graph = resolve_graph("paper-50")
+        renderer = GraphRenderer(graph, u_max=100)
+        u_a, u_b = np.arange(graph.n_nodes) % 101, np.full(graph.n_nodes, 100)
+        first = renderer.draw(u_a, np.array([0, 1, 2, 3]), 0)
+        other = renderer.draw(u_b, np.array([10, 11, 12, 13]), 1)
+        again = renderer.draw(u_a, np.array([0, 1, 2, 3]), 0)
+        assert (first == again).all() and (first != other).any()
+        # A full redraw of the same state, every artist drawn the ordinary way, gives the same pixels.
+        for artist in (renderer.targets, renderer.agents, renderer.title, *renderer.labels):
+            artist.set_animated(False)
+        renderer.figure.canvas.draw()
+        full = np.asarray(renderer.figure.canvas.buffer_rgba())[:, :, :3]
+        renderer.close()
+        assert (full == again).all()
+
+    def test_gif_keeps_the_frames(self, tmp_path) -> None:
+        import imageio.v3 as iio
+
+        from sb3_pm.evaluation.gif import write_gif
+
+        rng = np.random.default_rng(0)
+        frames = [np.full((20, 30, 3), value, dtype=np.uint8) for value in (0, 90, 255)]
+        frames.append(rng.integers(0, 256, (20, 30, 3), dtype=np.uint8))
+        back = iio.imread(write_gif(frames, tmp_path / "f.gif"), index=None)[..., :3]
+        assert back.shape == (4, 20, 30, 3)
+        assert (back[:3] == np.stack(frames[:3])).all()  # flat colours are in the palette exactly
+        with pytest.raises(ValueError, match="at least one frame"):
+            write_gif([], tmp_path / "none.gif")
 
 
 class TestCompareAndResolve:

@@ -1,4 +1,4 @@
-"""Mental maps (METHOD.md "Mental map M_i", paper §III.B), one per agent, in pure NumPy.
+"""Mental maps (docs/METHOD.md "Mental map", paper §III.B), one per agent, in pure NumPy.
 
 A mental map is an agent's fixed-size memory of the whole graph built only from what that agent
 has observed itself. The class is batched over agents because the environment updates every map

@@ -319,7 +319,8 @@ class IndependentPPO(Team):
 
         :param callback: per-agent callbacks: a list, an ``{agent: callback}`` dict or a factory
             ``agent_name -> callback`` (a single callback object only for a one-agent team).
-        :param progress_bar: one tqdm bar over the team's agent-steps.
+        :param progress_bar: report the team's agent-steps (a tqdm bar on a terminal, a plain line every
+            30 s elsewhere; :mod:`sb3_pm.progress`).
         :param tb_log_name: TensorBoard run name prefix; each agent logs to ``<prefix><agent>``.
         :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``.
         :raises Exception: the first error a learner raised (the others are stopped cleanly).
@@ -351,14 +352,12 @@ class IndependentPPO(Team):
             )
         bar = None
         if progress_bar:
-            from tqdm.auto import tqdm
+            from sb3_pm.progress import progress_bar as make_progress
 
             rollout = self.models[self.agents[0]].n_steps * self.n_envs
             rollouts = -(-int(total_timesteps) // rollout)
-            bar = tqdm(
-                total=rollouts * rollout * self.n_agents,
-                unit="agent-step",
-                desc=f"{self.algo} x{self.n_agents}",
+            bar = make_progress(
+                rollouts * rollout * self.n_agents, f"{self.algo} x{self.n_agents}", unit="agent-step"
             )
             self.hub.on_round = bar.update
         try:

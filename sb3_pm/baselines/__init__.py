@@ -1,4 +1,4 @@
-"""Non-learning teams (METHOD.md "Baselines"), all behind the :class:`Team` interface.
+"""Non-learning teams (docs/METHOD.md "Baselines"), all behind the :class:`Team` interface.
 
 ``make_team("grazing")`` builds one by name; :data:`BASELINES` lists them.
 """

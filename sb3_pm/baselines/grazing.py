@@ -1,4 +1,4 @@
-"""``grazing``: omniscient greedy patrol (METHOD.md "Baselines", the paper's §IV.C).
+"""``grazing``: omniscient greedy patrol (docs/METHOD.md "Baselines", the paper's §IV.C).
 
 Every step, with the true uncertainties and all positions read through ``env.unwrapped``:
 

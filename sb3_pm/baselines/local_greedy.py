@@ -1,4 +1,4 @@
-"""``local_greedy``: the decentralized analogue of grazing (METHOD.md "Baselines").
+"""``local_greedy``: the decentralized analogue of grazing (docs/METHOD.md "Baselines").
 
 Each agent acts on its **own** observation only (its mental map, ``observation="map"``):
 ``obs["nodes"]`` (``[u, age, target, occupied, self]`` per node), ``obs["adjacency"]`` (the edges

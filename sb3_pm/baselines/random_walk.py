@@ -1,4 +1,7 @@
-"""``random``: every agent picks a destination uniformly from its reachable set (METHOD.md "Baselines")."""
+"""``random``: every agent picks a destination uniformly from its reachable set.
+
+See docs/METHOD.md, "Baselines".
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``sit_on_nodes``: go to the nearest unclaimed target and stay there (METHOD.md "Baselines").
+"""``sit_on_nodes``: go to the nearest unclaimed target and stay there (docs/METHOD.md "Baselines").
 
 Claims are made once per episode, at the first :meth:`predict` after :meth:`reset`, in agent
 order: each agent claims the nearest (in hops) target that no earlier agent has claimed, ties

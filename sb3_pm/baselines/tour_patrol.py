@@ -1,4 +1,4 @@
-"""``tour_patrol``: agents spread along one closed tour of the targets (METHOD.md "Baselines").
+"""``tour_patrol``: agents spread along one closed tour of the targets (docs/METHOD.md "Baselines").
 
 The tour is an approximate travelling-salesman tour of the targets on hop distances: a
 nearest-neighbour tour from the lowest-index target, improved by 2-opt until no reversal

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_pm.commands.evaluate import check_counts
+from sb3_pm.commands.options import add_compute_options, check_compute_options
 
 
 def register(subparsers: Any) -> None:
@@ -34,7 +35,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
-    parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+    parser.add_argument("--no-progress", action="store_true", help="never show progress")
+    add_compute_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -44,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from sb3_pm.graphs import resolve_graph
 
     check_counts(args)
+    check_compute_options(args)
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out} exists and is not a directory")
     if args.out.is_dir() and any(args.out.iterdir()) and not args.overwrite:
@@ -54,11 +57,11 @@ def run(args: argparse.Namespace) -> int:
         resolve_graph(graph)  # every graph checked before the long part starts
     teams = {}
     for policy in args.policies:
-        team = resolve_team(policy, graph=args.graphs[0])  # checks the name/directory now
+        team = resolve_team(policy, graph=args.graphs[0], device=args.device)  # checks it now
         label = policy_label(policy, team)
         if label in teams:
             raise UsageError(f"two policies share the label {label!r}")
-        teams[label] = lambda graph, policy=policy: resolve_team(policy, graph=graph)
+        teams[label] = lambda graph, policy=policy: resolve_team(policy, graph=graph, device=args.device)
     comparison = compare(
         teams,
         args.graphs,
@@ -67,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
         n_agents=args.agents,
         max_cycles=args.steps,
         progress=False if args.no_progress else None,
+        threads=args.threads,
     )
     comparison.config["command"] = shlex.join(getattr(args, "command_line", ["sb3-pm", *sys.argv[1:]]))
     written = comparison.write(args.out)

@@ -8,7 +8,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-#: Runs with at least this many steps in all show a progress bar (on a terminal).
+from sb3_pm.commands.options import add_compute_options, check_compute_options
+
+#: Runs with at least this many steps in all report progress (a bar on a terminal, lines elsewhere).
 PROGRESS_MIN_STEPS = 5000
 
 
@@ -19,7 +21,9 @@ def register(subparsers: Any) -> None:
         description="Run a policy for several episodes and print the mean and SD of every metric.",
     )
     parser.add_argument("--policy", required=True, help="a baseline name or a saved trained team directory")
-    parser.add_argument("--graph", default="paper-50", help="a preset (paper-50/100/200) or a .graphml path")
+    parser.add_argument(
+        "--graph", default="paper-50", help="a preset (paper-50/100/200, er-50/100/200) or a .graphml path"
+    )
     parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
     parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")
     parser.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
@@ -33,7 +37,8 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="sample a learned team's actions instead of taking the most likely (seeded, reproducible)",
     )
-    parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+    parser.add_argument("--no-progress", action="store_true", help="never show progress")
+    add_compute_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -78,11 +83,12 @@ def run(args: argparse.Namespace) -> int:
     from sb3_pm.graphs import resolve_graph
 
     check_counts(args)
+    check_compute_options(args)
     graph = resolve_graph(args.graph)  # fail on a bad graph before loading a model
     for path in (args.json, args.gif):
         if path is not None and not path.parent.exists():
             raise FileNotFoundError(f"output directory does not exist: {path.parent}")
-    team = resolve_team(args.policy, graph=graph)
+    team = resolve_team(args.policy, graph=graph, device=args.device)
     label = policy_label(args.policy, team)
     trained_agents = getattr(team, "n_agents", None)
     if trained_agents is not None and trained_agents != args.agents:
@@ -102,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         progress=None if long_run and not args.no_progress else False,
         policy_name=label,
         deterministic=not args.stochastic,
+        threads=args.threads,
     )
     result.config["graph"] = str(args.graph)
     print_summary(result)
@@ -110,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.json}", file=sys.stderr)
     if args.gif is not None:
         record_gif(
-            resolve_team(args.policy, graph=graph),
+            resolve_team(args.policy, graph=graph, device=args.device),
             graph,
             args.gif,
             n_agents=args.agents,

@@ -19,7 +19,9 @@ def register(subparsers: Any) -> None:
         ),
     )
     parser.add_argument(
-        "experiment", type=Path, help="an experiment YAML, e.g. zoo/experiments/comparison.yml"
+        "experiment",
+        help="an experiment YAML: a path, or the name of a shipped one (comparison, ablation, ...; "
+        "the repository's zoo/experiments/)",
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory (reused to resume)")
     parser.add_argument(
@@ -44,7 +46,10 @@ def register(subparsers: Any) -> None:
         "--ray-address", help="address of an existing Ray cluster (default: start a local one)"
     )
     parser.add_argument("--jobs", type=int, help="parallel cells (default: one per core)")
-    parser.add_argument("--no-progress", action="store_true", help="never show a progress bar")
+    parser.add_argument("--no-progress", action="store_true", help="never show progress")
+    parser.add_argument(
+        "--device", default="cpu", help="torch device of the learned teams: cpu, cuda, auto (default cpu)"
+    )
     parser.set_defaults(func=run)
 
 
@@ -100,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         ray_address=args.ray_address,
         progress=not args.no_progress,
         command=getattr(args, "command_line", None),
+        device=args.device,
     )
     from sb3_pm.evaluation import markdown_table
 

@@ -1,4 +1,4 @@
-"""Persistent-monitoring dynamics in pure NumPy (METHOD.md "Dynamics"; the paper's eq. 1 with a cap).
+"""Persistent-monitoring dynamics in pure NumPy (docs/METHOD.md "Dynamics"; the paper's eq. 1 with a cap).
 
 The core knows nothing of PettingZoo, observations or rewards: it holds the true state (agent
 positions and node uncertainties) and advances it one simultaneous move at a time. Everything is

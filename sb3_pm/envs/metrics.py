@@ -1,4 +1,4 @@
-"""Episode metrics (METHOD.md "Metrics"), streamed one step at a time.
+"""Episode metrics (docs/METHOD.md "Metrics"), streamed one step at a time.
 
 Step ``k`` (``k = 0..K-1``) is measured after its move and uncertainty update:
 

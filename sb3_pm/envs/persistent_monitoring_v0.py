@@ -2,7 +2,7 @@
 
 ``n_agents`` agents move along the edges of an undirected, connected graph. Some nodes are
 targets; a target's uncertainty ``u`` grows by one each step nobody is on it and falls by one
-each step somebody is (METHOD.md "Dynamics", the paper's eq. 1), capped at ``u_max``. Agents see
+each step somebody is (docs/METHOD.md "Dynamics", the paper's eq. 1), capped at ``u_max``. Agents see
 only their own neighbourhood and never communicate.
 
 Usage::
@@ -14,7 +14,8 @@ Usage::
 Arguments
 ---------
 graph (``"paper-50"``)
-    A preset name (``paper-50``, ``paper-100``, ``paper-200``), a ``.graphml`` path, or a
+    A preset name (``paper-50``, ``paper-100``, ``paper-200``: the paper's published graphs;
+    ``er-50``, ``er-100``, ``er-200``: seeded Erdős–Rényi draws), a ``.graphml`` path, or a
     :class:`~sb3_pm.graphs.GraphSpec`.
 n_agents (``4``)
     Team size, at most the number of nodes. Agents are named ``agent_0 ... agent_{n-1}``.
@@ -49,7 +50,7 @@ illegal_action (``"raise"``)
     records the request.
 shared_map (``False``)
     ``True`` feeds every agent's mental map with the union of all agents' observations: the
-    *centralized* setting (METHOD.md "centralized" baseline). Never used by decentralized teams.
+    *centralized* setting (docs/METHOD.md "Baselines": centralized). Never used by decentralized teams.
 render_mode (``None``)
     ``"rgb_array"`` (a matplotlib frame), ``"human"`` (a window) or ``"ansi"`` (text).
 

@@ -3,7 +3,7 @@
 Registered ids (namespace ``sb3_pm``)::
 
     sb3_pm/PersistentMonitoring-v0            graph given by the ``graph=`` kwarg (default paper-50)
-    sb3_pm/PersistentMonitoring-paper50-v0    the paper-50 preset
+    sb3_pm/PersistentMonitoring-paper50-v0    the paper-50 preset (the paper's published 50-node graph)
     sb3_pm/PersistentMonitoring-paper100-v0   the paper-100 preset
     sb3_pm/PersistentMonitoring-paper200-v0   the paper-200 preset
 

@@ -1,4 +1,4 @@
-"""Per-agent rewards as a weighted sum of named terms (METHOD.md "Reward", paper eq. 5-8).
+"""Per-agent rewards as a weighted sum of named terms (docs/METHOD.md "Reward", paper eq. 5-8).
 
 Each term is computed from what the agent itself did, found and remembers, so every reward is
 local: no agent's reward depends on another agent's observations or map. Terms:

@@ -16,7 +16,7 @@ Seeding: ``reset(seed=s)`` reseeds the env and the teammates' randomness (derive
 starts a new agent lifetime: the known adjacency (``graph_knowledge="discovered"``) and the
 ``change`` reward's history of past episodes are cleared, so that the same seed always gives the
 same episode. ``reset()`` without a seed continues the lifetime: edges discovered and episode
-totals from earlier episodes are kept, as METHOD.md prescribes.
+totals from earlier episodes are kept, as docs/METHOD.md prescribes.
 """
 
 from __future__ import annotations

@@ -139,6 +139,7 @@ def compare(
     max_cycles: int = 500,
     env_kwargs: Mapping[str, Any] | None = None,
     progress: bool | None = False,
+    threads: int | None = 1,
 ) -> Comparison:
     """Evaluate every team on every graph for every seed.
 
@@ -147,6 +148,7 @@ def compare(
         A trained team's own env options (:func:`team_env_kwargs`) apply, then ``env_kwargs``.
     :param graphs: preset names or ``.graphml`` paths.
     :param seeds: grid seeds (see the module docstring for the env seeds they give).
+    :param threads: torch CPU threads while evaluating (see :func:`~sb3_pm.evaluation.evaluate`).
     """
     if not teams:
         raise ValueError("compare needs at least one policy")
@@ -184,6 +186,7 @@ def compare(
                         env_kwargs={**team_env_kwargs(team), **dict(env_kwargs or {})},
                         progress=progress,
                         policy_name=label,
+                        threads=threads,
                     )
                 )
     return comparison

@@ -9,7 +9,8 @@ shares a stream with the environment's.
 from __future__ import annotations
 
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -134,6 +135,7 @@ def evaluate(
     progress: bool | None = False,
     policy_name: str | None = None,
     deterministic: bool = True,
+    threads: int | None = 1,
 ) -> EvaluationResult:
     """Run ``team`` for ``episodes`` full episodes on ``graph`` and collect their metrics.
 
@@ -144,16 +146,23 @@ def evaluate(
     :param seed: episode ``e`` uses env seed ``seed + e`` (see the module docstring).
     :param max_cycles: episode length K.
     :param env_kwargs: further arguments of the environment (``obs_radius``, ``u_max``, ...).
-    :param progress: show a tqdm bar on stderr; ``None`` shows it only on a terminal.
+    :param progress: report progress on stderr (:func:`sb3_pm.progress.progress_bar`: a tqdm bar on
+        a terminal, a plain line every 30 s elsewhere); ``False`` (default) is silent.
     :param policy_name: the label in reports; defaults to ``team.name``.
     :param deterministic: passed to ``team.predict``; ``False`` samples a learned team's actions
         (from the team's own seeded stream, so still reproducible). Baselines ignore it.
-    :raises ValueError: for ``episodes < 1`` or bad environment arguments.
+    :param threads: torch CPU threads while the episodes run, restored afterwards (default 1;
+        ``None`` leaves torch's setting alone). A learned team's per-step forward passes are far
+        too small to gain from intra-op threads: one episode took 31 s of wall time with one
+        thread and 60 s with torch's default two on the 2-core development machine.
+    :raises ValueError: for ``episodes < 1``, ``threads < 1`` or bad environment arguments.
     """
     from sb3_pm.envs import persistent_monitoring_v0
 
     if episodes < 1:
         raise ValueError(f"episodes must be at least 1, got {episodes}")
+    if threads is not None and threads < 1:
+        raise ValueError(f"threads must be at least 1, got {threads}")
     spec = resolve_graph(graph)
     kwargs = dict(env_kwargs or {})
     env = persistent_monitoring_v0.parallel_env(
@@ -164,10 +173,11 @@ def evaluate(
         episodes * max_cycles, progress, f"{policy_name or team.name} on {graph_label(graph)}"
     )
     try:
-        for episode in range(episodes):
-            env_seed = seed + episode
-            records.append(run_episode(team, env, env_seed, bar, deterministic=deterministic))
-            records[-1].episode = episode
+        with torch_threads(threads):
+            for episode in range(episodes):
+                env_seed = seed + episode
+                records.append(run_episode(team, env, env_seed, bar, deterministic=deterministic))
+                records[-1].episode = episode
     finally:
         if bar is not None:
             bar.close()
@@ -184,6 +194,25 @@ def evaluate(
         "deterministic": deterministic,
     }
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
+
+
+@contextmanager
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """Run the block with ``threads`` torch CPU threads, then restore the previous count.
+
+    Does nothing for ``None``, or when torch has not been imported (a baseline team never needs
+    it, and importing it here would cost seconds).
+    """
+    torch = sys.modules.get("torch")
+    if threads is None or torch is None:
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def run_episode(
@@ -223,16 +252,6 @@ def run_episode(
 
 
 def _progress_bar(total: int, progress: bool | None, description: str) -> Any:
-    if progress is False:
-        return None
-    from tqdm.auto import tqdm
+    from sb3_pm.progress import progress_bar
 
-    # disable=None: tqdm hides itself when stderr is not a terminal.
-    return tqdm(
-        total=total,
-        desc=description,
-        unit="step",
-        file=sys.stderr,
-        disable=None if progress is None else False,
-        leave=False,
-    )
+    return progress_bar(total, description, unit="step", enabled=progress)

@@ -97,12 +97,12 @@ def plot_uncertainty(
 
 
 def plot_table(table: Mapping[str, Mapping[str, Summary]], path: str | Path) -> Path:
-    """Two bar panels (Avg. Uncertainty, Avg. Neglect Time) with SD error bars, one bar per policy."""
+    """Two bar panels (Avg. Uncertainty, Max Neglect) with SD error bars, one bar per policy."""
     plt = _pyplot()
     policies = list(table)
     figure, axes = plt.subplots(1, 2, figsize=(9, 3.6), dpi=100)
     for ax, (metric, label) in zip(
-        axes, (("avg_uncertainty", "Avg. Uncertainty"), ("max_neglect", "Avg. Neglect Time"))
+        axes, (("avg_uncertainty", "Avg. Uncertainty"), ("max_neglect", "Max Neglect (steps)"))
     ):
         means = [table[p][metric].mean for p in policies]
         sds = [table[p][metric].sd for p in policies]

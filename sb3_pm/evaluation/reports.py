@@ -1,7 +1,9 @@
 """Tables shaped like the paper's Table I, as Markdown, CSV and LaTeX, plus the ANOVA as text.
 
-Columns: Algorithm | Avg. Uncertainty | SD | Avg. Neglect Time | SD, where "Avg. Neglect Time" is
-the mean over points of ``max_neglect`` (METHOD.md "Metrics").
+Columns: Algorithm | Avg. Uncertainty | SD | Max Neglect | SD. "Avg. Uncertainty" is the mean over
+points of ``avg_uncertainty``; "Max Neglect" is the mean over points of ``max_neglect``, each
+episode's longest run of steps in which some target had no agent (docs/METHOD.md "Metrics"). The
+paper calls its second column "Avg. Neglect Time"; the name here says what is measured.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from collections.abc import Mapping, Sequence
 
 from sb3_pm.evaluation.statistics import AnovaResult, Effect, Summary
 
-HEADER = ("Algorithm", "Avg. Uncertainty", "SD", "Avg. Neglect Time", "SD")
+HEADER = ("Algorithm", "Avg. Uncertainty", "SD", "Max Neglect", "SD")
 
 
 def _rows(table: Mapping[str, Mapping[str, Summary]], digits: int) -> list[tuple[str, ...]]:

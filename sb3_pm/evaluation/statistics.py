@@ -1,4 +1,6 @@
-"""Aggregates across graphs x seeds x episodes and the one-way ANOVA across algorithms (METHOD.md "Metrics").
+"""Aggregates across graphs x seeds x episodes and the one-way ANOVA across algorithms.
+
+See docs/METHOD.md, "Metrics".
 
 Every episode is one point; an algorithm's mean and SD pool all its points, as the paper's
 Table I does (3 graphs x 3 seeds x 10 episodes = 90 points per algorithm). SDs are sample SDs

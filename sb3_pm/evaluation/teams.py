@@ -13,13 +13,14 @@ class PolicyError(ValueError):
     """A ``--policy`` that names no baseline and no loadable trained team."""
 
 
-def resolve_team(policy: str | Path, graph: Any = None, **kwargs: Any) -> Team:
+def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **kwargs: Any) -> Team:
     """A team for ``policy``.
 
     :param policy: a baseline name (a key of :data:`~sb3_pm.baselines.BASELINES`) or the path of a
         directory holding a saved trained team (loaded with ``IndependentPPO.load``).
     :param graph: for a trained team, the graph it will run on; its loader checks that the team
         was trained on the same problem. Ignored for baselines.
+    :param device: torch device of a trained team (``cpu``, ``cuda``, ``auto``); ignored for baselines.
     :param kwargs: constructor arguments for a baseline; ignored for a trained team.
     :raises PolicyError: an unknown name, or a directory that cannot be loaded.
     :raises FileNotFoundError: a path-like policy that does not exist.
@@ -29,7 +30,7 @@ def resolve_team(policy: str | Path, graph: Any = None, **kwargs: Any) -> Team:
         return make_team(text, **kwargs)
     path = Path(text).expanduser()
     if path.is_dir():
-        return load_trained_team(path, graph)
+        return load_trained_team(path, graph, device=device)
     if path.exists():
         raise PolicyError(f"policy {text!r} is a file; a trained team is a directory written by its save()")
     if "/" in text or "\\" in text or text.startswith("."):
@@ -39,7 +40,7 @@ def resolve_team(policy: str | Path, graph: Any = None, **kwargs: Any) -> Team:
     )
 
 
-def load_trained_team(path: Path, graph: Any = None) -> Team:
+def load_trained_team(path: Path, graph: Any = None, device: str = "cpu") -> Team:
     """``IndependentPPO.load(path)`` (or ``CentralizedPPO.load`` for a centralized team's folder),
     imported lazily so that baselines never need torch."""
     try:
@@ -55,7 +56,7 @@ def load_trained_team(path: Path, graph: Any = None) -> Team:
     centralized = manifest.exists() and CENTRALIZED in manifest.read_text()
     team_class: Any = CentralizedPPO if centralized else IndependentPPO
     try:
-        team = team_class.load(path) if graph is None else team_class.load(path, graph=graph)
+        team = team_class.load(path, graph=graph, device=device)
     except (FileNotFoundError, ValueError) as error:
         raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
     return team

@@ -61,6 +61,9 @@ class Cell:
     n_agents: int
     env_kwargs: dict[str, Any]
     hyperparams: dict[str, Any]
+    #: torch device of a learned team; not part of the experiment record (results do not depend
+    #: on where they ran, up to floating point).
+    device: str = "cpu"
 
     @property
     def done(self) -> bool:
@@ -71,7 +74,7 @@ def cell_folder(out: Path, variant: Variant, graph: str, seed: int) -> Path:
     return out / "cells" / variant.key / graph_label(graph) / f"seed{seed}"
 
 
-def plan_cells(experiment: Experiment, out: Path) -> list[Cell]:
+def plan_cells(experiment: Experiment, out: Path, device: str = "cpu") -> list[Cell]:
     """Every cell of the grid, in table order."""
     cells = []
     for variant in experiment.variants:
@@ -90,6 +93,7 @@ def plan_cells(experiment: Experiment, out: Path) -> list[Cell]:
                         n_agents=experiment.n_agents,
                         env_kwargs=dict(experiment.env_kwargs),
                         hyperparams=dict(experiment.hyperparams),
+                        device=device,
                     )
                 )
     return cells
@@ -123,20 +127,22 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
     from sb3_pm.sharing.centralized import CentralizedPPO
 
     team_class: Any = CentralizedPPO if variant.kind == "centralized" else IndependentPPO
-    team = team_class.from_config(config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"))
+    team = team_class.from_config(
+        config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
+    )
     if variant.train:
         team.learn(timesteps)
     team.save(folder / "team", overwrite=True)
     return team
 
 
-def _load_finished_team(folder: Path) -> Any:
+def _load_finished_team(folder: Path, device: str = "cpu") -> Any:
     """A team this cell already trained and saved (the sweep stopped during its evaluation), or None."""
     if not (folder / "manifest.json").exists():
         return None
     from sb3_pm.evaluation.teams import load_trained_team
 
-    return load_trained_team(folder)
+    return load_trained_team(folder, device=device)
 
 
 def schedule(cells: list[Cell]) -> list[Cell]:
@@ -168,7 +174,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
     variant = Variant(**cell.variant)
     started = time.time()
     if variant.learned:
-        team = _load_finished_team(folder / "team") or _train(cell, variant, folder)
+        team = _load_finished_team(folder / "team", cell.device) or _train(cell, variant, folder)
         env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}
     else:
         from sb3_pm.baselines import make_team
@@ -207,22 +213,24 @@ def reproduce(
     ray_address: str | None = None,
     progress: bool = True,
     command: list[str] | None = None,
+    device: str = "cpu",
 ) -> Comparison:
-    """Run (or resume) ``experiment`` into ``out`` and write its reports; returns the comparison."""
+    """Run (or resume) ``experiment`` into ``out`` and write its reports; returns the comparison.
+
+    :param device: torch device of the learned teams (``cpu``, ``cuda``, ``auto``).
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
-    cells = plan_cells(experiment, out)
+    cells = plan_cells(experiment, out, device=device)
     todo = schedule([cell for cell in cells if not cell.done])
     bar = None
     if progress and todo:
-        from tqdm.auto import tqdm
+        from sb3_pm.progress import progress_bar
 
-        bar = tqdm(
-            total=len(todo),
-            unit="cell",
-            desc=f"{experiment.name}: {len(cells) - len(todo)} of {len(cells)} done",
+        bar = progress_bar(
+            len(todo), f"{experiment.name} ({len(cells) - len(todo)} of {len(cells)} cells were done)", "cell"
         )
     run_jobs(
         run_cell,

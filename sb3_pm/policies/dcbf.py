@@ -1,4 +1,6 @@
-"""The discrete control-barrier-function (DCBF) safety filter (METHOD.md "DCBF safety filter", paper §III.E).
+"""The discrete control-barrier-function (DCBF) safety filter (paper §III.E).
+
+See docs/METHOD.md, "DCBF safety filter".
 
 The filter turns the predicted next-step uncertainties ``û`` and the agent's own mental map into a
 boolean mask over destination nodes; the actor's categorical distribution is then restricted to
@@ -24,7 +26,7 @@ among all reachable nodes but still dwells on a target until it is cleared. This
 paper; it exists because rules 2-4 leave a single allowed action on almost every step (measured in
 docs/RESULTS.md), so the learned actor barely acts.
 
-Decisions where METHOD.md is silent: γ gates the whole filter including the freeze (the freeze is
+Decisions where the paper is silent: γ gates the whole filter including the freeze (the freeze is
 rule 5 of the filter); rule 6 also applies to the frozen ``{φ}`` but can never empty it. A final
 guard makes every row non-empty even for malformed input (falls back to ``R``, then to all nodes).
 """

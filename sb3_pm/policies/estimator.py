@@ -1,7 +1,7 @@
-"""The state estimator (METHOD.md "Network of one agent" and "Estimator loss", paper eq. 3).
+"""The state estimator (docs/METHOD.md "Network of one agent" and "Estimator loss", paper eq. 3).
 
 An MLP that predicts, from an agent's mental map ``M_{k-1}``, the uncertainty of every node at the
-next step, ``û`` (the u channel of ``M_k``). Design decisions (METHOD.md leaves them open):
+next step, ``û`` (the u channel of ``M_k``). Design decisions (docs/METHOD.md leaves them open):
 
 * **Per node, weights shared across nodes.** Each node's prediction reads only that node's row
   ``[u/u_max, age/max_cycles, target, occupied, self]``; the same MLP serves every node, so it has

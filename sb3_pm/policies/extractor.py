@@ -1,4 +1,4 @@
-"""Graph-attention features extractor over an agent's mental map (METHOD.md "Network of one agent").
+"""Graph-attention features extractor over an agent's mental map (docs/METHOD.md "Network of one agent").
 
 The extractor turns one SB3-preprocessed mental-map observation (see
 :mod:`sb3_pm.envs.persistent_monitoring_v0`) into per-node embeddings ``H``:

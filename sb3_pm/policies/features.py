@@ -1,6 +1,6 @@
 """Derived node features computed from one agent's mental map (option ``derived_features``).
 
-METHOD.md fixes the mental map's five raw features and leaves the network's input features open.
+docs/METHOD.md fixes the mental map's five raw features and leaves the network's input features open.
 Two quantities that a greedy patrol rule needs are not linear in the raw map, so a small network
 fed 20 episodes of experience is slow to discover them:
 

@@ -1,4 +1,4 @@
-"""The DCBF actor-critic policy of one agent (METHOD.md "Network of one agent", "DCBF safety filter").
+"""The DCBF actor-critic policy of one agent (docs/METHOD.md "Network of one agent", "DCBF safety filter").
 
 Architecture, for a batch of ``B`` mental maps on ``N`` nodes:
 
@@ -290,8 +290,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         with th.no_grad():
             return self._masks(pre, self.uncertainty(pre), None)
 
-    def _heads(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """Per-node logits ``(B, N)`` and values ``(B, 1)``."""
+    def _node_inputs(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """The heads' inputs: per-node ``[H_m, û_m / u_max]`` ``(B, N, d)`` and the agent's own
+        node's embedding ``(B, h)``."""
         extractor: GATFeaturesExtractor = self.features_extractor  # type: ignore[assignment]
         embeddings = extractor.node_embeddings(pre)  # (B, N, h)
         batch = embeddings.shape[0]
@@ -299,10 +300,20 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         own = embeddings[th.arange(batch, device=embeddings.device), position]  # (B, h)
         if self.use_estimator:
             embeddings = th.cat((embeddings, (u_hat / self.u_max).unsqueeze(-1)), dim=-1)
+        return embeddings, own
+
+    def _heads(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """Per-node logits ``(B, N)`` and values ``(B, 1)``."""
+        embeddings, own = self._node_inputs(pre, u_hat)
         logits = self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
         pooled = th.cat((embeddings.mean(1), own), dim=-1)
         values = self.value_net(self.critic_body(pooled))
         return logits, values
+
+    def _logits(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> th.Tensor:
+        """Per-node logits ``(B, N)`` alone: acting needs no critic."""
+        embeddings, own = self._node_inputs(pre, u_hat)
+        return self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
 
     def _actor_hidden(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
         """The actor body on ``[embeddings_m, own]`` for every node ``m``.
@@ -382,12 +393,18 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     ) -> MaskableDistribution:
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
-        logits, _ = self._heads(pre, u_hat)
+        logits = self._logits(pre, u_hat)
         return self._distribution(logits, self._masks(pre, u_hat, action_masks))
 
     def predict_values(self, obs: PyTorchObs) -> th.Tensor:
         pre = self._preprocess(obs)
         return self._heads(pre, self.uncertainty(pre))[1]
+
+    def set_training_mode(self, mode: bool) -> None:
+        """SB3 calls this on every ``predict``; walking the module tree each time was 13% of a learned
+        team's evaluation step, so it is skipped when the mode is already set."""
+        if any(module.training != mode for module in self.modules()):
+            super().set_training_mode(mode)
 
     def _predict(  # type: ignore[override]
         self, observation: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None

@@ -1,4 +1,4 @@
-"""PPO whose action masks come from the policy's DCBF filter (METHOD.md "DCBF safety filter").
+"""PPO whose action masks come from the policy's DCBF filter (docs/METHOD.md "DCBF safety filter").
 
 :class:`DCBFPPO` is sb3-contrib's :class:`~sb3_contrib.MaskablePPO` with two changes:
 

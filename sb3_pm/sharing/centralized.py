@@ -1,6 +1,6 @@
 """:class:`CentralizedPPO`: the paper's centralized comparison, as configuration of the same model.
 
-METHOD.md's ``centralized`` algorithm has one shared mental map (the union of every agent's
+The ``centralized`` algorithm of docs/METHOD.md has one shared mental map (the union of every agent's
 observations), one shared estimator and one network acting for every agent. Here that is:
 
 - the environment option ``shared_map=True`` (every agent's map receives the team's observations);

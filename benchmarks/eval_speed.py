@@ -1,0 +1,90 @@
+"""Evaluation speed of a learned team, and of writing an episode's GIF.
+
+    python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
+                                    [--config ippo] [--threads 1 2] [--gif-frames 500]
+
+For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
+trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
+``--steps`` steps, with one warm-up episode not timed. Then renders and writes a GIF of
+``--gif-frames`` frames on the first graph (drawing and writing timed separately). The load
+average is printed: on a shared CPU the figures are lower.
+
+Measured on the 2-core development machine, idle, with torch 2.13.0 (see the README's Speed
+section for the figures and the command).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+
+def evaluation_speed(graph: str, config: str, episodes: int, steps: int, threads: int) -> float:
+    """Episodes per second of a 4-agent learned team on ``graph`` with ``threads`` torch threads."""
+    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.evaluation import evaluate
+    from sb3_pm.zoo import load_config
+
+    team = IndependentPPO.from_config(load_config(config, graph), graph, seed=0)
+    evaluate(team, graph, episodes=1, max_cycles=steps, threads=threads)  # warm-up
+    start = time.perf_counter()
+    evaluate(team, graph, episodes=episodes, seed=1, max_cycles=steps, threads=threads)
+    seconds = time.perf_counter() - start
+    team.close()
+    return episodes / seconds
+
+
+def gif_speed(graph: str, frames: int) -> tuple[float, float]:
+    """Seconds to draw ``frames`` frames of ``graph`` and to write them as a GIF."""
+    import numpy as np
+
+    from sb3_pm.envs.rendering import GraphRenderer
+    from sb3_pm.evaluation.gif import write_gif
+    from sb3_pm.graphs import resolve_graph
+
+    spec = resolve_graph(graph)
+    renderer = GraphRenderer(spec, u_max=100)
+    rng = np.random.default_rng(0)
+    start = time.perf_counter()
+    images = [
+        renderer.draw(rng.integers(0, 101, spec.n_nodes), rng.choice(spec.n_nodes, 4, replace=False), k)
+        for k in range(frames)
+    ]
+    drawn = time.perf_counter()
+    renderer.close()
+    with tempfile.TemporaryDirectory() as folder:
+        write_gif(images, Path(folder) / "episode.gif")
+    return drawn - start, time.perf_counter() - drawn
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--graphs", nargs="+", default=["paper-50", "paper-200"])
+    parser.add_argument("--episodes", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=500)
+    parser.add_argument("--config", default="ippo")
+    parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
+    parser.add_argument("--gif-frames", type=int, default=500)
+    args = parser.parse_args()
+    import torch
+
+    print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
+    print("| graph | torch threads | episodes/s | seconds per episode |")
+    print("|---|---:|---:|---:|")
+    for graph in args.graphs:
+        for threads in args.threads:
+            rate = evaluation_speed(graph, args.config, args.episodes, args.steps, threads)
+            print(f"| {graph} | {threads} | {rate:.3f} | {1 / rate:.1f} |", flush=True)
+    if args.gif_frames > 0:
+        draw, write = gif_speed(args.graphs[0], args.gif_frames)
+        print(
+            f"\nGIF of {args.gif_frames} frames on {args.graphs[0]}: drawn in {draw:.1f} s "
+            f"({args.gif_frames / draw:.0f} frames/s), written in {write:.1f} s"
+        )
+
+
+if __name__ == "__main__":
+    main()

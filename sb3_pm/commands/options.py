@@ -1,0 +1,36 @@
+"""Command-line options that several commands share, defined once."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def add_compute_options(parser: argparse.ArgumentParser, training: bool = False) -> None:
+    """``--device`` and ``--threads``.
+
+    One torch thread is the default everywhere: training is then bit-for-bit reproducible from its
+    seed, and a learned team's small per-step forward passes gain nothing from intra-op threads
+    (with torch's default thread count an evaluation episode took twice the wall time and four
+    times the CPU time on 2 cores). Parallelism comes from processes (``reproduce --jobs``).
+    """
+    parser.add_argument(
+        "--device", default="cpu", help="torch device of learned teams: cpu, cuda, auto (default cpu)"
+    )
+    reason = (
+        "training is then bit-for-bit reproducible from --seed; with more threads some torch kernels "
+        "reduce in a varying order"
+        if training
+        else "small per-step forward passes are fastest single-threaded"
+    )
+    parser.add_argument(
+        "--threads", type=int, default=1, metavar="N", help=f"torch CPU threads (default 1: {reason})"
+    )
+
+
+def check_compute_options(args: Any) -> None:
+    """Refuse ``--threads`` below 1 with one line, before any work starts."""
+    from sb3_pm.cli import UsageError
+
+    if args.threads < 1:
+        raise UsageError(f"--threads must be at least 1, got {args.threads}")
