@@ -13,8 +13,8 @@ import sys
 
 from sb3_pm.version import __version__
 
-#: Command modules, in help order. A module that is not there yet is skipped.
-COMMAND_MODULES = ("evaluate", "compare", "train", "reproduce", "render")
+#: Command modules, in help order.
+COMMAND_MODULES = ("evaluate", "compare", "train", "reproduce")
 
 
 class UsageError(Exception):
@@ -29,13 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"sb3-pm {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"sb3_pm.commands.{name}")
-        except ModuleNotFoundError as error:
-            if error.name == f"sb3_pm.commands.{name}":
-                continue
-            raise
-        module.register(subparsers)
+        importlib.import_module(f"sb3_pm.commands.{name}").register(subparsers)
     return parser
 
 

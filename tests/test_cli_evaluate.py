@@ -148,3 +148,24 @@ class TestCompare:
         code, _, err = run_cli(capsys, "compare", "--steps", "5", "--out", str(tmp_path / "o"), *args)
         assert code == 2 and message in err and len(err.strip().splitlines()) == 1
         assert not (tmp_path / "o").exists()  # nothing written before the inputs are checked
+
+
+@pytest.mark.parametrize(
+    ("manifest", "expected"),
+    [
+        ({"format": "sb3_pm.team/1", "name": "sb3_pm.centralized/1 look-alike"}, "independent"),
+        ({"format": "sb3_pm.centralized/1"}, "centralized"),
+    ],
+)
+def test_saved_team_type_comes_from_the_manifest_format(monkeypatch, tmp_path, manifest, expected) -> None:
+    """Not from a substring of the manifest: a name that mentions another format changes nothing."""
+    from sb3_pm.evaluation.teams import load_trained_team
+
+    def fake(kind):
+        return type(kind, (), {"load": staticmethod(lambda path, graph=None, device="cpu": kind)})
+
+    monkeypatch.setattr("sb3_pm.agents.team.IndependentPPO", fake("independent"))
+    monkeypatch.setattr("sb3_pm.sharing.centralized.CentralizedPPO", fake("centralized"))
+    (tmp_path / "team").mkdir()
+    (tmp_path / "team" / "manifest.json").write_text(json.dumps(manifest))
+    assert load_trained_team(tmp_path) == expected  # a run folder: the team is in team/

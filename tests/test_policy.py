@@ -268,6 +268,17 @@ class TestPolicy:
         _, expected, _ = policy.evaluate_actions(obs, actions, action_masks=masks)
         th.testing.assert_close(log_probs, expected)
 
+    def test_encoder_settings_in_features_extractor_kwargs_are_not_overridden(self, env) -> None:
+        """hidden_dim given in features_extractor_kwargs used to be replaced by the policy's 32."""
+        with pytest.raises(ValueError, match=r"hidden_dim \(pass hidden_dim=...\)"):
+            make_policy(env, features_extractor_kwargs={"hidden_dim": 64})
+        with pytest.raises(ValueError, match="pass gat_backend="):
+            make_policy(env, features_extractor_kwargs={"backend": "sparse"})
+        # The same value twice is no conflict (a policy saved by SB3 passes both), and the policy's
+        # own argument sets the encoder.
+        policy = make_policy(env, hidden_dim=16, features_extractor_kwargs={"hidden_dim": 16})
+        assert policy.features_extractor.hidden_dim == 16
+
     def test_rejects_other_spaces(self) -> None:
         from gymnasium import spaces
 

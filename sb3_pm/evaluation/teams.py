@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -52,9 +53,18 @@ def load_trained_team(path: Path, graph: Any = None, device: str = "cpu") -> Tea
             f"cannot load the trained team in {path}: "
             f"sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
         ) from error
-    manifest = path / "manifest.json"
-    centralized = manifest.exists() and CENTRALIZED in manifest.read_text()
-    team_class: Any = CentralizedPPO if centralized else IndependentPPO
+    # The manifest's ``format`` field says which team type wrote it (a run folder of
+    # ``sb3-pm train`` keeps the team in ``team/``; the loaders handle both).
+    manifest_format = None
+    for folder in (path, path / "team"):
+        if (folder / "manifest.json").exists():
+            try:
+                manifest_format = json.loads((folder / "manifest.json").read_text()).get("format")
+            except (json.JSONDecodeError, AttributeError) as error:
+                message = f"cannot load the trained team in {path}: bad manifest.json ({error})"
+                raise PolicyError(message) from error
+            break
+    team_class: Any = CentralizedPPO if manifest_format == CENTRALIZED else IndependentPPO
     try:
         team = team_class.load(path, graph=graph, device=device)
     except (FileNotFoundError, ValueError) as error:

@@ -153,6 +153,21 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             extra_attention=extra_attention,
             backend=gat_backend,
         )
+        # The encoder's settings are this policy's own arguments. The same key in
+        # features_extractor_kwargs with another value used to be overwritten without a word
+        # (hidden_dim: 64 there gave 32); now it is an error that names the argument to use.
+        argument_for = {"backend": "gat_backend"}
+        clash = sorted(
+            key
+            for key, value in (features_extractor_kwargs or {}).items()
+            if key in self._encoder_kwargs and value != self._encoder_kwargs[key]
+        )
+        if clash:
+            names = ", ".join(f"{key} (pass {argument_for.get(key, key)}=...)" for key in clash)
+            raise ValueError(
+                f"features_extractor_kwargs sets {names}: DCBFActorCriticPolicy sets the graph encoder "
+                "from its own arguments; give them as policy_kwargs instead"
+            )
         features_extractor_kwargs = {**(features_extractor_kwargs or {}), **self._encoder_kwargs}
         if net_arch is None:
             net_arch = dict(pi=[64, 64], vf=[64, 64])
