@@ -172,6 +172,29 @@ class TestGraphML:
         with pytest.raises(GraphError, match="no 'target' attribute"):
             load_graphml(path)
 
+    @staticmethod
+    def _directed(tmp_path, edges: list[tuple[str, str]]):
+        path = tmp_path / "directed.graphml"
+        keys = '<key id="t" for="node" attr.name="target" attr.type="int"/>'
+        nodes = "".join(f'<node id="{n}"><data key="t">{int(n == "c")}</data></node>' for n in "abc")
+        links = "".join(f'<edge source="{a}" target="{b}"/>' for a, b in edges)
+        path.write_text(
+            '<?xml version="1.0"?><graphml xmlns="http://graphml.graphdrawing.org/xmlns">'
+            f'{keys}<graph edgedefault="directed">{nodes}{links}</graph></graphml>'
+        )
+        return path
+
+    def test_directed_graph_with_a_one_way_edge_is_refused(self, tmp_path) -> None:
+        path = self._directed(tmp_path, [("a", "b"), ("b", "a"), ("b", "c")])
+        with pytest.raises(GraphError, match="one-way edge 'b' -> 'c'"):
+            load_graphml(path)
+        assert path.exists()  # nothing of the user's is touched
+
+    def test_directed_graph_with_every_reverse_edge_is_read(self, tmp_path) -> None:
+        path = self._directed(tmp_path, [("a", "b"), ("b", "a"), ("b", "c"), ("c", "b")])
+        spec = load_graphml(path)
+        assert (spec.n_nodes, spec.n_edges, spec.n_targets) == (3, 2, 1)
+
     def test_not_graphml(self, tmp_path) -> None:
         path = tmp_path / "junk.graphml"
         path.write_text("this is not xml")

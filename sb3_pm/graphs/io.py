@@ -43,6 +43,16 @@ def load_graphml(path: str | Path, name: str | None = None) -> GraphSpec:
         if flag not in (0, 1) or str(value).strip() not in {"0", "1", "True", "False", "true", "false"}:
             raise GraphError(f"{path}: node {node!r} has target={value!r}; expected 0 or 1")
         targets[index[node]] = bool(flag)
+    if graph.is_directed():
+        # A directed file is accepted only when every edge has its reverse (an undirected graph
+        # written as directed); a one-way edge would be made two-way by the symmetric adjacency.
+        one_way = next(((a, b) for a, b in graph.edges() if not graph.has_edge(b, a)), None)
+        if one_way is not None:
+            raise GraphError(
+                f"{path}: directed graph with a one-way edge {one_way[0]!r} -> {one_way[1]!r}; "
+                "persistent monitoring needs an undirected graph (add the reverse edges or "
+                "declare edgedefault=\"undirected\")"
+            )
     adjacency = np.zeros((len(nodes), len(nodes)), dtype=bool)
     for a, b in graph.edges():
         if a == b:
