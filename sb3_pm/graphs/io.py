@@ -51,7 +51,7 @@ def load_graphml(path: str | Path, name: str | None = None) -> GraphSpec:
             raise GraphError(
                 f"{path}: directed graph with a one-way edge {one_way[0]!r} -> {one_way[1]!r}; "
                 "persistent monitoring needs an undirected graph (add the reverse edges or "
-                "declare edgedefault=\"undirected\")"
+                'declare edgedefault="undirected")'
             )
     adjacency = np.zeros((len(nodes), len(nodes)), dtype=bool)
     for a, b in graph.edges():
