@@ -1,12 +1,14 @@
 """Evaluation speed of a learned team, and of writing an episode's GIF.
 
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
-                                    [--config ippo] [--threads 1 2] [--gif-frames 500]
+                                    [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
-``--steps`` steps, with one warm-up episode not timed. Then renders and writes a GIF of
-``--gif-frames`` frames on the first graph (drawing and writing timed separately). The load
+``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
+timed runs (the development machine is a shared VM, and single runs varied by 20%). Then renders
+and writes a GIF of ``--gif-frames`` frames on the first graph (drawing and writing timed
+separately). The load
 average is printed: on a shared CPU the figures are lower.
 
 Measured on the 2-core development machine, idle, with torch 2.13.0 (see the README's Speed
@@ -22,19 +24,24 @@ import time
 from pathlib import Path
 
 
-def evaluation_speed(graph: str, config: str, episodes: int, steps: int, threads: int) -> float:
-    """Episodes per second of a 4-agent learned team on ``graph`` with ``threads`` torch threads."""
+def evaluation_speed(graph: str, config: str, episodes: int, steps: int, threads: int, repeats: int) -> float:
+    """Episodes per second of a 4-agent learned team on ``graph`` with ``threads`` torch threads
+    (the median of ``repeats`` timed runs)."""
+    import statistics
+
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.evaluation import evaluate
     from sb3_pm.zoo import load_config
 
     team = IndependentPPO.from_config(load_config(config, graph), graph, seed=0)
     evaluate(team, graph, episodes=1, max_cycles=steps, threads=threads)  # warm-up
-    start = time.perf_counter()
-    evaluate(team, graph, episodes=episodes, seed=1, max_cycles=steps, threads=threads)
-    seconds = time.perf_counter() - start
+    rates = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        evaluate(team, graph, episodes=episodes, seed=1, max_cycles=steps, threads=threads)
+        rates.append(episodes / (time.perf_counter() - start))
     team.close()
-    return episodes / seconds
+    return statistics.median(rates)
 
 
 def gif_speed(graph: str, frames: int) -> tuple[float, float]:
@@ -67,6 +74,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--config", default="ippo")
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
+    parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gif-frames", type=int, default=500)
     args = parser.parse_args()
     import torch
@@ -76,7 +84,7 @@ def main() -> None:
     print("|---|---:|---:|---:|")
     for graph in args.graphs:
         for threads in args.threads:
-            rate = evaluation_speed(graph, args.config, args.episodes, args.steps, threads)
+            rate = evaluation_speed(graph, args.config, args.episodes, args.steps, threads, args.repeats)
             print(f"| {graph} | {threads} | {rate:.3f} | {1 / rate:.1f} |", flush=True)
     if args.gif_frames > 0:
         draw, write = gif_speed(args.graphs[0], args.gif_frames)

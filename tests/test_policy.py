@@ -279,6 +279,26 @@ class TestPolicy:
         policy = make_policy(env, hidden_dim=16, features_extractor_kwargs={"hidden_dim": 16})
         assert policy.features_extractor.hidden_dim == 16
 
+    def test_masked_mode_equals_the_distribution_mode(self, env: SingleAgentMonitoringEnv) -> None:
+        """The deterministic shortcut picks what sb3-contrib's distribution would, ties included."""
+        from sb3_pm.policies.policy import masked_mode
+
+        policy = make_policy(env)
+        generator = th.Generator().manual_seed(0)
+        logits = th.randn(256, N, generator=generator)
+        logits[:64] = th.round(logits[:64])  # many exact ties
+        logits[64:96] = 0.0  # every entry tied
+        masks = th.rand(256, N, generator=generator) < 0.4
+        masks[th.arange(256), th.randint(0, N, (256,), generator=generator)] = True  # no empty row
+        expected = policy._distribution(logits, masks).get_actions(deterministic=True)
+        assert th.equal(masked_mode(logits, masks), expected)
+        # And through predict: the shortcut against the distribution on real observations.
+        batch = observation_batch(env, steps=16)
+        with th.no_grad():
+            fast = policy._predict(batch, deterministic=True)
+            slow = policy.get_distribution(batch).get_actions(deterministic=True)
+        assert th.equal(fast, slow)
+
     def test_rejects_other_spaces(self) -> None:
         from gymnasium import spaces
 

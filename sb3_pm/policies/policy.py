@@ -51,6 +51,23 @@ def _mlp(in_dim: int, hidden: list[int], activation: type[nn.Module]) -> tuple[n
     return nn.Sequential(*layers), in_dim
 
 
+def masked_mode(logits: th.Tensor, masks: th.Tensor) -> th.Tensor:
+    """The mode of sb3-contrib's masked categorical distribution, computed the way it computes it.
+
+    ``MaskableCategorical`` normalizes the logits, sets masked entries to -1e8, normalizes again,
+    takes the softmax and its argmax. Doing exactly those operations keeps every tie and rounding
+    identical (``tests/test_policy.py`` compares the two).
+
+    Shapes:
+        - logits: ``(B, N)`` float; masks: ``(B, N)`` bool, no row all False
+        - output: ``(B,)`` long
+    """
+    normalized = logits - logits.logsumexp(dim=-1, keepdim=True)
+    masked = th.where(masks, normalized, th.tensor(-1e8, dtype=logits.dtype, device=logits.device))
+    masked = masked - masked.logsumexp(dim=-1, keepdim=True)
+    return th.argmax(th.softmax(masked, dim=-1), dim=1)
+
+
 class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     """Masked actor-critic over a mental map, with a GAT encoder, a state estimator and a DCBF filter.
 
@@ -416,12 +433,19 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         return self._heads(pre, self.uncertainty(pre))[1]
 
     def set_training_mode(self, mode: bool) -> None:
-        """SB3 calls this on every ``predict``; walking the module tree each time was 13% of a learned
-        team's evaluation step, so it is skipped when the mode is already set."""
-        if any(module.training != mode for module in self.modules()):
+        """SB3 calls this on every ``predict``; setting the mode on the whole module tree each time was
+        13% of a learned team's evaluation step, so it is skipped when the policy and its direct
+        children are already in that mode (nothing in the package toggles a deeper module alone)."""
+        if self.training != mode or any(child.training != mode for child in self.children()):
             super().set_training_mode(mode)
 
     def _predict(  # type: ignore[override]
         self, observation: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None
     ) -> th.Tensor:
-        return self.get_distribution(observation, action_masks).get_actions(deterministic=deterministic)
+        if not deterministic:
+            return self.get_distribution(observation, action_masks).get_actions(deterministic=False)
+        # The most likely action without building the distribution (three Categorical objects per
+        # call in sb3-contrib, with argument checks): the same arithmetic, the same action.
+        pre = self._preprocess(observation)
+        u_hat = self.uncertainty(pre)
+        return masked_mode(self._logits(pre, u_hat), self._masks(pre, u_hat, action_masks))
