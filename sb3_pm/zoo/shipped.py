@@ -42,20 +42,24 @@ def _shipped(value: str, folder: Path, prefixes: tuple[str, ...]) -> Path | None
     return None
 
 
+def _resolve(value: str | Path, folder: Path, prefixes: tuple[str, ...], kind: str) -> Path:
+    path = Path(value)
+    if path.is_file():
+        return path
+    found = _shipped(str(value), folder, prefixes)
+    if found is None:
+        raise FileNotFoundError(
+            f"{kind} file not found: {value} (shipped {kind}s: {', '.join(shipped_names(folder))})"
+        )
+    return found
+
+
 def resolve_config_path(value: str | Path) -> Path:
     """The training config ``value`` names (see the module docstring for the rules).
 
     :raises FileNotFoundError: naming the value and the shipped configs, if nothing matches.
     """
-    path = Path(value)
-    if path.is_file():
-        return path
-    found = _shipped(str(value), CONFIG_DIR, ("zoo/", "./zoo/"))
-    if found is None:
-        raise FileNotFoundError(
-            f"config file not found: {value} (shipped configs: {', '.join(shipped_names())})"
-        )
-    return found
+    return _resolve(value, CONFIG_DIR, ("zoo/", "./zoo/"), "config")
 
 
 def resolve_experiment_path(value: str | Path) -> Path:
@@ -63,13 +67,6 @@ def resolve_experiment_path(value: str | Path) -> Path:
 
     :raises FileNotFoundError: naming the value and the shipped experiments, if nothing matches.
     """
-    path = Path(value)
-    if path.is_file():
-        return path
-    found = _shipped(str(value), EXPERIMENT_DIR, ("zoo/experiments/", "./zoo/experiments/", "experiments/"))
-    if found is None:
-        raise FileNotFoundError(
-            f"experiment file not found: {value} "
-            f"(shipped experiments: {', '.join(shipped_names(EXPERIMENT_DIR))})"
-        )
-    return found
+    return _resolve(
+        value, EXPERIMENT_DIR, ("zoo/experiments/", "./zoo/experiments/", "experiments/"), "experiment"
+    )
