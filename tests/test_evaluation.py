@@ -336,6 +336,10 @@ class TestPlotsAndGif:
         full = np.asarray(renderer.figure.canvas.buffer_rgba())[:, :, :3]
         renderer.close()
         assert (full == again).all()
+        # The window mode (human) draws without blitting, the same picture.
+        plain = GraphRenderer(graph, u_max=100, blit=False)
+        assert (plain.draw(u_a, np.array([0, 1, 2, 3]), 0) == again).all()
+        plain.close()
 
     def test_gif_keeps_the_frames(self, tmp_path) -> None:
         import imageio.v3 as iio

@@ -304,7 +304,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         if self.render_mode == "ansi":
             return rendering.render_ansi(self)
         if self._renderer is None:
-            self._renderer = rendering.GraphRenderer(self.graph, self.u_max)
+            self._renderer = rendering.GraphRenderer(self.graph, self.u_max, blit=self.render_mode != "human")
         frame = self._renderer.draw(self.core.uncertainty, self.core.positions, self._step_count)
         if self.render_mode == "human":
             self._renderer.show()

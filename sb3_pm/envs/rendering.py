@@ -19,10 +19,11 @@ class GraphRenderer:
     background; each frame restores it and redraws only the artists that change (target colours,
     agents, their labels, the title). That is matplotlib's blitting, and it made a 500-frame GIF of
     the 50-node graph several times faster than a full redraw per frame (see the
-    ``benchmarks/eval_speed.py`` GIF row).
+    ``benchmarks/eval_speed.py`` GIF row). A window (``render_mode="human"``) redraws in full,
+    ``blit=False``: its event loop repaints the figure, and a full repaint skips blitted artists.
     """
 
-    def __init__(self, graph: GraphSpec, u_max: int, size_inches: float = 6.0) -> None:
+    def __init__(self, graph: GraphSpec, u_max: int, size_inches: float = 6.0, blit: bool = True) -> None:
         import matplotlib
 
         matplotlib.use("Agg", force=False)
@@ -31,6 +32,7 @@ class GraphRenderer:
 
         self.graph = graph
         self.u_max = u_max
+        self.blit = bool(blit)
         self.xy = graph.layout(seed=0)
         self.figure, self.axes = plt.subplots(figsize=(size_inches, size_inches), dpi=80)
         self.axes.set_axis_off()
@@ -54,11 +56,13 @@ class GraphRenderer:
         self.agents = self.axes.scatter([], [], s=160, marker="^", c="tab:blue", edgecolors="k", zorder=4)
         self.labels: list = []
         self.title = self.axes.set_title("")
-        # Blitting: the changing artists are left out of the full draw, which becomes the background.
-        for artist in (self.targets, self.agents, self.title):
-            artist.set_animated(True)
-        self.figure.canvas.draw()
-        self.background = self.figure.canvas.copy_from_bbox(self.figure.bbox)  # type: ignore[attr-defined]
+        self.background = None
+        if self.blit:
+            # The changing artists are left out of the full draw, which becomes the background.
+            for artist in (self.targets, self.agents, self.title):
+                artist.set_animated(True)
+            self.figure.canvas.draw()
+            self.background = self.figure.canvas.copy_from_bbox(self.figure.bbox)  # type: ignore[attr-defined]
 
     def draw(self, uncertainty: np.ndarray, positions: np.ndarray, step: int) -> np.ndarray:
         """Return an ``(H, W, 3)`` uint8 frame."""
@@ -68,16 +72,26 @@ class GraphRenderer:
             label.remove()
         self.labels = [
             self.axes.annotate(
-                str(i), self.xy[p], ha="center", va="center", color="w", fontsize=7, zorder=5, animated=True
+                str(i),
+                self.xy[p],
+                ha="center",
+                va="center",
+                color="w",
+                fontsize=7,
+                zorder=5,
+                animated=self.blit,
             )
             for i, p in enumerate(positions)
         ]
         total = int(uncertainty[self.graph.targets].sum())
         self.title.set_text(f"{self.graph.name}  step {step}  sum of target u = {total}")
         canvas = self.figure.canvas
-        canvas.restore_region(self.background)  # type: ignore[attr-defined]
-        for artist in (self.targets, self.agents, *self.labels, self.title):  # in z order
-            self.axes.draw_artist(artist)
+        if self.blit:
+            canvas.restore_region(self.background)  # type: ignore[attr-defined]
+            for artist in (self.targets, self.agents, *self.labels, self.title):  # in z order
+                self.axes.draw_artist(artist)
+        else:
+            canvas.draw()
         # Agg canvas (forced above) has buffer_rgba; the base class does not declare it.
         return np.asarray(canvas.buffer_rgba())[:, :, :3].copy()  # type: ignore[attr-defined]
 
