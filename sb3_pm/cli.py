@@ -49,6 +49,10 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, GraphError, FileNotFoundError, FileExistsError, ValueError) as error:
         print(f"sb3-pm {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # an unwritable path, a full disk: the file and the reason, in one line
+        where = f" {error.filename}" if getattr(error, "filename", None) else ""
+        print(f"sb3-pm {args.command}: error:{where}: {error.strerror or error}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"sb3-pm {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import platform
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -416,9 +417,9 @@ class IndependentPPO(Team):
             raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
         folder.mkdir(parents=True, exist_ok=True)
         for agent in self.agents:
-            self.models[agent].save(folder / f"{agent}.zip")
+            save_model_atomic(self.models[agent], folder / f"{agent}.zip")
         save_graph_copy(self.graph, folder)
-        (folder / MANIFEST).write_text(json.dumps(self.manifest(), indent=2, sort_keys=True) + "\n")
+        write_manifest(folder, self.manifest())  # last: a folder with a manifest holds a whole team
         return folder
 
     @classmethod
@@ -555,6 +556,21 @@ def save_graph_copy(graph: GraphSpec, folder: Path) -> None:
         save_graphml(graph, folder / "graph.graphml", overwrite=True)
 
 
+def save_model_atomic(model: Any, path: Path) -> None:
+    """``model.save`` to a temporary name beside ``path``, then a rename: an interrupted save
+    leaves the previous file or the new one, never a truncated zip."""
+    temporary = path.with_name(f".{path.stem}.tmp.zip")  # SB3 keeps a .zip suffix as given
+    model.save(temporary)
+    os.replace(temporary, path)
+
+
+def write_manifest(folder: Path, manifest: Mapping[str, Any]) -> None:
+    """Write ``manifest.json`` atomically (temporary file, then rename)."""
+    temporary = folder / f".{MANIFEST}.tmp"
+    temporary.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    os.replace(temporary, folder / MANIFEST)
+
+
 def read_manifest(folder: Path) -> dict[str, Any]:
     """A saved team's ``manifest.json``.
 
@@ -598,4 +614,12 @@ def check_same_graph(expected: GraphSpec, actual: GraphSpec) -> None:
         )
 
 
-__all__ = ["EpisodeMetricsCallback", "IndependentPPO", "agent_seed", "check_same_graph", "learn_seed"]
+__all__ = [
+    "EpisodeMetricsCallback",
+    "IndependentPPO",
+    "agent_seed",
+    "check_same_graph",
+    "learn_seed",
+    "save_model_atomic",
+    "write_manifest",
+]

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_pm.commands.options import add_compute_options, check_compute_options
+from sb3_pm.commands.options import add_compute_options, check_compute_options, check_writable
 
 #: Runs with at least this many steps in all report progress (a bar on a terminal, lines elsewhere).
 PROGRESS_MIN_STEPS = 5000
@@ -85,9 +85,8 @@ def run(args: argparse.Namespace) -> int:
     check_counts(args)
     check_compute_options(args)
     graph = resolve_graph(args.graph)  # fail on a bad graph before loading a model
-    for path in (args.json, args.gif):
-        if path is not None and not path.parent.exists():
-            raise FileNotFoundError(f"output directory does not exist: {path.parent}")
+    check_writable(args.json, "--json")  # before the evaluation, whose result it would lose
+    check_writable(args.gif, "--gif")
     team = resolve_team(args.policy, graph=graph, device=args.device)
     label = policy_label(args.policy, team)
     trained_agents = getattr(team, "n_agents", None)

@@ -34,3 +34,30 @@ def check_compute_options(args: Any) -> None:
 
     if args.threads < 1:
         raise UsageError(f"--threads must be at least 1, got {args.threads}")
+
+
+def check_writable(path: Any, flag: str) -> None:
+    """Refuse an output file that cannot be written, before the long work that would fill it.
+
+    Creates and removes a temporary file in the target folder: permission bits alone say nothing
+    for root, and a "folder" that is a regular file fails only when written into.
+    """
+    import tempfile
+    from pathlib import Path
+
+    from sb3_pm.cli import UsageError
+
+    if path is None:
+        return
+    folder = Path(path).parent
+    if Path(path).is_dir():
+        raise UsageError(f"{flag} {path} is a folder; give a file name")
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except FileNotFoundError:
+        raise UsageError(f"{flag} {path}: output directory does not exist: {folder}") from None
+    except OSError as error:
+        raise UsageError(
+            f"{flag} {path} cannot be written ({error.strerror or error}); choose another path"
+        ) from None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -53,6 +54,10 @@ def register(subparsers: Any) -> None:
     parser.set_defaults(func=run)
 
 
+def _exit_on_sigterm(signum: int, frame: Any) -> None:
+    raise SystemExit(128 + signum)
+
+
 def run(args: argparse.Namespace) -> int:
     from sb3_pm.cli import UsageError
     from sb3_pm.experiments import load_experiment, reproduce
@@ -97,6 +102,9 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.out} holds a different experiment ({record}); resume with the same file and flags, "
                 "or choose another --out"
             )
+    # SIGTERM ends the sweep like Ctrl-C: the workers are terminated with it (a SIGKILLed parent's
+    # workers notice on their own, see sb3_pm.experiments.backends.exit_with_parent).
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     comparison = reproduce(
         experiment,
         args.out,

@@ -16,16 +16,20 @@ from __future__ import annotations
 
 import argparse
 import shlex
-import shutil
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from sb3_pm.commands.options import add_compute_options
-
-#: Files that mark a folder as a run folder (only such a folder is replaced by --overwrite).
-RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
+from sb3_pm.commands.run_folder import (
+    LOCK,
+    RUN_MARKERS,
+    RunFolderError,
+    lock_owner,
+    locked_run_folder,
+    write_atomic,
+)
 
 
 def register(subparsers: Any) -> None:
@@ -85,8 +89,8 @@ def _package_dir() -> Path:
     return Path(sb3_pm.__file__).resolve().parent
 
 
-def prepare_run_folder(out: Path, overwrite: bool) -> None:
-    """Create ``out``; refuse an existing non-empty one unless ``overwrite`` and it is a run folder."""
+def check_run_folder(out: Path, overwrite: bool) -> None:
+    """Everything about ``out`` that can be checked without touching it, before any work starts."""
     from sb3_pm.cli import UsageError
 
     resolved = out.resolve()
@@ -94,18 +98,23 @@ def prepare_run_folder(out: Path, overwrite: bool) -> None:
         raise UsageError(
             f"run folder {out} is inside the sb3_pm package; choose a folder outside the source tree"
         )
-    if out.exists():
-        if not out.is_dir():
-            raise UsageError(f"{out} exists and is not a folder")
-        if any(out.iterdir()):
-            if not overwrite:
-                raise UsageError(f"run folder {out} already exists; pass --overwrite to replace it")
-            if not any((out / marker).exists() for marker in RUN_MARKERS):
-                raise UsageError(
-                    f"{out} is not empty and does not look like a run folder; refusing to replace it"
-                )
-            shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out} exists and is not a folder")
+    owner = lock_owner(out) if out.is_dir() else None
+    if owner is not None:
+        raise UsageError(
+            f"run folder {out} is in use by process {owner}; wait for it to end or choose another --out"
+        )
+    if out.is_dir() and any(entry.name != LOCK for entry in out.iterdir()):
+        if not overwrite:
+            raise UsageError(f"run folder {out} already exists; pass --overwrite to replace it")
+        if not any((out / marker).exists() for marker in RUN_MARKERS):
+            raise UsageError(
+                f"{out} is not empty and does not look like a run folder; refusing to replace it"
+            )
+    parent = next((p for p in (out, *out.parents) if p.exists()), Path("."))
+    if not parent.is_dir():
+        raise UsageError(f"cannot create run folder {out}: {parent} is not a folder")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -117,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
         value = getattr(args, flag)
         if value is not None and value < 1:
             raise UsageError(f"--{flag.replace('_', '-')} must be at least 1, got {value}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be at least 0, got {args.seed}")
     graph = resolve_graph(args.env)
     overrides = parse_overrides(args.hyperparams, "--hyperparams")
     env_overrides = parse_overrides(args.env_kwargs, "--env-kwargs")
@@ -128,41 +139,59 @@ def run(args: argparse.Namespace) -> int:
     if args.n_envs is not None:
         config.n_envs = args.n_envs
     out = args.out or Path("runs") / f"{graph_label(args.env)}_{config.algo}_s{args.seed}"
-    prepare_run_folder(out, args.overwrite)
+    # Everything is checked, and the team built (which validates policy_kwargs, the team size and
+    # every learner argument), before the run folder is created or emptied: a bad run leaves nothing.
+    check_run_folder(out, args.overwrite)
     import torch
 
     # Measured: two runs with the same seed gave different parameters with torch's default 2 threads
     # on 2 cores, and identical ones with 1 thread.
     torch.set_num_threads(args.threads)
+    from sb3_pm.agents.team import IndependentPPO
 
+    try:
+        team = IndependentPPO.from_config(
+            config,
+            graph,
+            seed=args.seed,
+            tensorboard_log=out / "tb",
+            verbose=args.verbose,
+            device=args.device,
+        )
+    except TypeError as error:  # an argument the algorithm or the policy does not take
+        raise UsageError(f"{config.source}: {error}") from None
+    try:
+        with locked_run_folder(out, args.overwrite):
+            _write_records(args, config, out)
+            print(
+                f"training {config.n_agents} x {config.algo} on {graph.name} "
+                f"({graph.n_nodes} nodes, {graph.n_targets} targets), "
+                f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
+            )
+            team.learn(config.n_timesteps, progress_bar=not args.no_progress)
+            folder = team.save(out / "team")
+    except RunFolderError as error:
+        raise UsageError(str(error)) from None
+    finally:
+        team.close()
+    print(f"team saved to {folder}")
+    print(f"evaluate it with: sb3-pm evaluate --policy {out} --graph {args.env}")
+    return 0
+
+
+def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
+    """``args.yml``, ``config.yml`` (the resolved entry) and ``command.txt``, each written atomically."""
     recorded = {
         key: (str(value) if isinstance(value, Path) else value)
         for key, value in vars(args).items()
         if key != "func"
     }
     recorded["out"] = str(out)
-    (out / "args.yml").write_text(yaml.safe_dump(recorded, sort_keys=True))
+    write_atomic(out / "args.yml", yaml.safe_dump(recorded, sort_keys=True))
     resolved = {"env": str(args.env), "entry": config.entry, "source": config.source, **config.to_dict()}
-    (out / "config.yml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+    write_atomic(out / "config.yml", yaml.safe_dump(resolved, sort_keys=False))
     # The equivalent command (with every setting made explicit), to rerun this exact training.
-    (out / "command.txt").write_text(shlex.join(["sb3-pm", "train", *_argv_from(args, out)]) + "\n")
-
-    from sb3_pm.agents.team import IndependentPPO
-
-    team = IndependentPPO.from_config(
-        config, graph, seed=args.seed, tensorboard_log=out / "tb", verbose=args.verbose, device=args.device
-    )
-    print(
-        f"training {config.n_agents} x {config.algo} on {graph.name} "
-        f"({graph.n_nodes} nodes, {graph.n_targets} targets), "
-        f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
-    )
-    team.learn(config.n_timesteps, progress_bar=not args.no_progress)
-    folder = team.save(out / "team")
-    team.close()
-    print(f"team saved to {folder}")
-    print(f"evaluate it with: sb3-pm evaluate --policy {out} --graph {args.env}")
-    return 0
+    write_atomic(out / "command.txt", shlex.join(["sb3-pm", "train", *_argv_from(args, out)]) + "\n")
 
 
 def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:

@@ -7,6 +7,8 @@ results in submission order, so the tables they produce are identical for the sa
 from __future__ import annotations
 
 import os
+import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
@@ -53,14 +55,47 @@ def run_jobs(
             if on_done:
                 on_done(index, results[index])
         return results
-    with ProcessPoolExecutor(max_workers=min(n_jobs, len(jobs))) as pool:
+    pool = ProcessPoolExecutor(
+        max_workers=min(n_jobs, len(jobs)), initializer=exit_with_parent, initargs=(os.getpid(),)
+    )
+    try:
         futures = {pool.submit(function, job): index for index, job in enumerate(jobs)}
         for future in as_completed(futures):
             index = futures[future]
             results[index] = future.result()
             if on_done:
                 on_done(index, results[index])
+    except BaseException:
+        # Ctrl-C, a failed cell, SystemExit from a SIGTERM handler: the workers go too, now, instead
+        # of the pool waiting for every running cell to finish.
+        workers = list(getattr(pool, "_processes", {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for worker in workers:
+            worker.terminate()
+        raise
+    pool.shutdown(wait=True)
     return results
+
+
+#: Seconds between a worker's checks that its parent is still alive.
+PARENT_CHECK_SECONDS = 1.0
+
+
+def exit_with_parent(parent_pid: int) -> None:
+    """Make this worker process end when ``parent_pid`` ends (a pool initializer).
+
+    A SIGKILLed parent runs no cleanup, so its workers would be adopted by init and go on training
+    and writing into the sweep's folder. A daemon thread notices the new parent id within
+    :data:`PARENT_CHECK_SECONDS` and ends the worker; the unfinished cell has no ``DONE`` file, so a
+    resumed sweep trains it again.
+    """
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_CHECK_SECONDS)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def _run_ray(

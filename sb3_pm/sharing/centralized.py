@@ -15,7 +15,6 @@ team ``n_agents * T`` agent-steps, so both teams see the same amount of experien
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -33,8 +32,10 @@ from sb3_pm.agents.team import (
     resolve_hyperparams,
     resolve_learner,
     save_graph_copy,
+    save_model_atomic,
     team_manifest,
     with_episode_metrics,
+    write_manifest,
 )
 from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
@@ -174,9 +175,9 @@ class CentralizedPPO(Team):
         if (folder / MANIFEST).exists() and not overwrite:
             raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
         folder.mkdir(parents=True, exist_ok=True)
-        self.model.save(folder / MODEL_FILE)
+        save_model_atomic(self.model, folder / MODEL_FILE)
         save_graph_copy(self.graph, folder)
-        (folder / MANIFEST).write_text(json.dumps(self.manifest(), indent=2, sort_keys=True) + "\n")
+        write_manifest(folder, self.manifest())  # last
         return folder
 
     @classmethod

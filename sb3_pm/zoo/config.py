@@ -167,6 +167,10 @@ def _env_args() -> set[str]:
     return {name for name in parameters if name not in ("self", "graph", "n_agents")}
 
 
+#: Integer arguments of the algorithms that are counts or sizes, so at least 1.
+POSITIVE_KEYS = frozenset({"n_steps", "batch_size", "n_epochs"})
+
+
 def _as_int(value: Any, where: str, minimum: int = 1) -> int:
     """An integer from YAML, accepting ``5e4``-style numbers (PyYAML reads ``5e4`` as a string)."""
     if isinstance(value, bool):
@@ -215,7 +219,8 @@ def _check_hyperparam(key: str, value: Any, parameter: inspect.Parameter, where:
             raise ConfigError(f"{where}: expected true/false, got {value!r}")
         return value
     if isinstance(default, int):
-        return _as_int(value, where, minimum=-(2**31))
+        # Sizes must be positive: n_steps: -5 used to reach numpy as "negative dimensions".
+        return _as_int(value, where, minimum=1 if key in POSITIVE_KEYS else -(2**31))
     if isinstance(default, float):
         if isinstance(value, str):
             try:

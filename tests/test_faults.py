@@ -1,0 +1,179 @@
+"""Faults lose nothing: a locked run folder, atomic saves, no stub folders, writable outputs first."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+import torch as th
+
+from sb3_pm.cli import main
+from sb3_pm.commands.run_folder import LOCK, lock_owner, locked_run_folder
+from sb3_pm.graphs import erdos_renyi, save_graphml
+
+th.set_num_threads(1)
+
+TINY = """
+default:
+  n_timesteps: 32
+  n_envs: 1
+  n_agents: 2
+  algo: maskable_ppo
+  n_steps: 16
+  batch_size: 16
+  n_epochs: 1
+  env_kwargs: {max_cycles: 10}
+"""
+
+
+@pytest.fixture()
+def setup(tmp_path):
+    config = tmp_path / "tiny.yml"
+    config.write_text(textwrap.dedent(TINY))
+    graph = save_graphml(erdos_renyi(12, 0.3, n_targets=3, seed=1), tmp_path / "g12.graphml")
+    return ["train", "--config", str(config), "--env", str(graph), "--no-progress"], tmp_path
+
+
+def _holder(folder: Path) -> subprocess.Popen:
+    """Another process that holds ``folder``'s run lock until it is killed."""
+    code = (
+        "import sys, time; from pathlib import Path; "
+        "from sb3_pm.commands.run_folder import locked_run_folder\n"
+        f"with locked_run_folder(Path({str(folder)!r}), overwrite=False) as f:\n"
+        "    (f / 'args.yml').write_text('the first run')\n"
+        "    print('ready', flush=True); time.sleep(600)\n"
+    )
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert process.stdout is not None and process.stdout.readline().strip() == "ready"
+    return process
+
+
+def test_overwrite_refuses_a_folder_in_use_and_takes_over_a_stale_lock(setup, capsys) -> None:
+    argv, tmp = setup
+    out = tmp / "run"
+    holder = _holder(out)
+    try:
+        assert lock_owner(out) == holder.pid
+        assert main([*argv, "--out", str(out), "--overwrite"]) == 2
+        assert f"in use by process {holder.pid}" in capsys.readouterr().err
+        assert (out / "args.yml").read_text() == "the first run"  # nothing of the first run lost
+    finally:
+        holder.send_signal(signal.SIGKILL)  # dies without releasing its lock
+        holder.wait()
+    assert (out / LOCK).exists() and lock_owner(out) is None  # stale: its process is gone
+    assert main([*argv, "--out", str(out), "--overwrite"]) == 0
+    assert (out / "team" / "manifest.json").exists() and not (out / LOCK).exists()
+
+
+def test_a_run_holds_its_lock_and_releases_it(tmp_path) -> None:
+    with locked_run_folder(tmp_path / "r", overwrite=False) as folder:
+        assert (folder / LOCK).read_text().startswith(f"{os.getpid()}@")
+        assert lock_owner(folder) is None  # our own lock does not block us
+    assert not (folder / LOCK).exists()
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--seed", "-1"], "--seed must be at least 0"),
+        (["--hyperparams", "n_agents:20"], "more agents (20) than nodes (12)"),
+        (["--hyperparams", "policy_kwargs:{no_such_option: 1}"], "no_such_option"),
+        (["--hyperparams", "n_steps:-5"], "n_steps: expected an integer >= 1, got -5"),
+    ],
+)
+def test_bad_input_leaves_no_stub_folder(setup, capsys, extra, message) -> None:
+    argv, tmp = setup
+    out = tmp / "never"
+    assert main([*argv, "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_team_save_leaves_no_temporary_files(setup) -> None:
+    argv, tmp = setup
+    assert main([*argv, "--out", str(tmp / "run")]) == 0
+    names = sorted(p.name for p in (tmp / "run" / "team").iterdir())
+    assert names == ["agent_0.zip", "agent_1.zip", "graph.graphml", "manifest.json"]
+    assert not [p for p in (tmp / "run").iterdir() if p.name.startswith(".")]
+
+
+def test_unwritable_json_fails_before_the_evaluation(tmp_path, capsys) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    started = time.perf_counter()
+    argv = ["evaluate", "--policy", "grazing", "--episodes", "50", "--json", str(blocker / "r.json")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--json" in err and "cannot be written" in err and len(err.strip().splitlines()) == 1
+    assert time.perf_counter() - started < 20  # 50 episodes were not run first (they take minutes)
+    assert blocker.read_text() == "not a folder"
+
+
+SLOW_EXPERIMENT = """
+name: slow
+graphs: [{graph}]
+seeds: [0, 1]
+episodes: 1
+max_cycles: 10
+n_agents: 2
+config: tiny.yml
+timesteps: 100000
+variants:
+  learned: {{kind: independent}}
+"""
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (from /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads worker processes from /proc")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_sweep_workers_end_with_their_parent(setup, sig) -> None:
+    _, tmp = setup
+    experiment = tmp / "slow.yml"
+    experiment.write_text(SLOW_EXPERIMENT.format(graph=str(tmp / "g12.graphml")))
+    out = tmp / "sweep"
+    command = [sys.executable, "-m", "sb3_pm.cli", "reproduce", str(experiment), "--out", str(out)]
+    parent = subprocess.Popen([*command, "--jobs", "2", "--no-progress"], stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while len(workers := _children(parent.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert len(workers) >= 2, "the sweep never started its workers"
+        time.sleep(1.0)  # the workers are training their cells
+        parent.send_signal(sig)
+        parent.wait(timeout=30)
+        deadline = time.monotonic() + 15
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not [pid for pid in workers if _alive(pid)], "workers outlived their parent"
+    finally:
+        parent.kill()
+        for pid in _children(parent.pid):
+            os.kill(pid, signal.SIGKILL)
+    assert not list(out.glob("cells/*/*/*/DONE"))  # no cell claims to be finished
