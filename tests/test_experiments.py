@@ -362,3 +362,37 @@ def test_improved_variants_are_the_improved_config(tmp_path: Path, key: str, cha
         direct[(where, name)] = value
     # Hyperparameters, policy kwargs, env kwargs, n_envs, n_agents, algo and policy all agree.
     assert merged == direct
+
+
+def test_damaged_finished_cells_are_run_again(tmp_path: Path, monkeypatch, capsys) -> None:
+    """A truncated evaluation.json is evaluated again; a changed team zip is kept aside and the
+    team retrained (bit for bit, so the table does not change)."""
+    experiment = load_tiny(tmp_path)
+    first = reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    cells = plan_cells(experiment, tmp_path / "out")
+    learned = [Path(c.folder) for c in cells if c.variant["kind"] != "baseline"]
+    assert len(learned) >= 2
+    evaluation = learned[0] / "evaluation.json"
+    evaluation.write_text(evaluation.read_text()[:100])  # truncated
+    zipped = learned[1] / "team" / "agent_0.zip"
+    damaged = bytearray(zipped.read_bytes())
+    damaged[len(damaged) // 2] ^= 0xFF
+    zipped.write_bytes(bytes(damaged))
+    trained = []
+    original = runner_module._train
+
+    def counting_train(cell, variant, folder):
+        trained.append(Path(cell.folder))
+        return original(cell, variant, folder)
+
+    monkeypatch.setattr(runner_module, "_train", counting_train)
+    capsys.readouterr()
+    second = reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    err = capsys.readouterr().err
+    assert f"{evaluation}: unreadable" in err and f"{zipped}: changed since the cell finished" in err
+    assert trained == [learned[1]]  # only the damaged team is trained again
+    assert (learned[1] / "team.damaged" / "agent_0.zip").read_bytes() == bytes(damaged)  # kept
+    assert first.table == second.table
+    from sb3_pm.experiments.integrity import check_done
+
+    assert check_done(learned[0]) is None and check_done(learned[1]) is None

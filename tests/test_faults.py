@@ -177,3 +177,24 @@ def test_sweep_workers_end_with_their_parent(setup, sig) -> None:
         for pid in _children(parent.pid):
             os.kill(pid, signal.SIGKILL)
     assert not list(out.glob("cells/*/*/*/DONE"))  # no cell claims to be finished
+
+
+def test_a_damaged_model_file_is_one_line_naming_it(setup, capsys) -> None:
+    import zipfile
+
+    argv, tmp = setup
+    assert main([*argv, "--out", str(tmp / "run")]) == 0
+    model = tmp / "run" / "team" / "agent_1.zip"
+    with zipfile.ZipFile(model) as source:
+        members = {name: source.read(name) for name in source.namelist()}
+    members["policy.pth"] = members["policy.pth"][: len(members["policy.pth"]) // 2]  # a valid zip
+    with zipfile.ZipFile(model, "w") as damaged:
+        for name, data in members.items():
+            damaged.writestr(name, data)
+    capsys.readouterr()
+    assert (
+        main(["evaluate", "--policy", str(tmp / "run"), "--agents", "2", "--graph", str(tmp / "g12.graphml")])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert "agent_1.zip cannot be loaded" in err and len(err.strip().splitlines()) == 1, err

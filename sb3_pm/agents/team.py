@@ -21,7 +21,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import pickle
 import platform
+import zipfile
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -472,8 +474,12 @@ class IndependentPPO(Team):
             _init_models=False,
         )
         for i, agent in enumerate(team.agents):
-            model = team.algo_class.load(
-                zips[agent], env=team.hub.vec_envs[i], device=device, custom_objects=custom_objects
+            model = load_model_file(
+                team.algo_class,
+                zips[agent],
+                env=team.hub.vec_envs[i],
+                device=device,
+                custom_objects=custom_objects,
             )
             if tensorboard_log is not None:
                 model.tensorboard_log = str(tensorboard_log)
@@ -564,6 +570,23 @@ def save_model_atomic(model: Any, path: Path) -> None:
     os.replace(temporary, path)
 
 
+def load_model_file(algo_class: type[BaseAlgorithm], path: Path, **kwargs: Any) -> Any:
+    """``algo_class.load(path, **kwargs)``, with a corrupt or foreign file as one ``ValueError``
+    that names it (a valid zip holding a damaged ``policy.pth`` raised torch's RuntimeError).
+
+    :raises ValueError: if the file cannot be read as a model of ``algo_class``.
+    """
+    try:
+        return algo_class.load(path, **kwargs)
+    except (RuntimeError, OSError, EOFError, KeyError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
+        if isinstance(error, FileNotFoundError):
+            raise
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ValueError(
+            f"{path} cannot be loaded, the file is damaged or not a saved model ({reason})"
+        ) from error
+
+
 def write_manifest(folder: Path, manifest: Mapping[str, Any]) -> None:
     """Write ``manifest.json`` atomically (temporary file, then rename)."""
     temporary = folder / f".{MANIFEST}.tmp"
@@ -620,6 +643,7 @@ __all__ = [
     "agent_seed",
     "check_same_graph",
     "learn_seed",
+    "load_model_file",
     "save_model_atomic",
     "write_manifest",
 ]

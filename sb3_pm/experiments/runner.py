@@ -11,7 +11,8 @@ Layout of the output folder::
                                 sweep stopped during evaluation resumes without retraining
           tb/                   TensorBoard logs of its training
           evaluation.json       the cell's evaluation (EvaluationResult.to_dict())
-          DONE                  written last: a cell with DONE is never run again
+          DONE                  written last, with the checksum of the cell's files: a cell with
+                                a sound DONE is never run again, a damaged one runs again
       results.md results.csv results.tex anova.txt by_graph.md effects.md results.json
       uncertainty.png table.png training.png estimator_loss.png
       report.md                 all of the above on one page, with the code version and compute
@@ -37,13 +38,13 @@ import yaml
 from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
 from sb3_pm.experiments.backends import run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
+from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant
 from sb3_pm.graphs import graph_label
 
 #: Evaluation env seeds start here, far from the seeds training episodes use.
 EVAL_SEED_OFFSET = 1_000_000
-DONE = "DONE"
 
 
 @dataclass(frozen=True)
@@ -142,7 +143,13 @@ def _load_finished_team(folder: Path, device: str = "cpu") -> Any:
         return None
     from sb3_pm.evaluation.teams import load_trained_team
 
-    return load_trained_team(folder, device=device)
+    try:
+        return load_trained_team(folder, device=device)
+    except (ValueError, FileNotFoundError) as error:  # damaged: keep it aside, train again
+        aside = folder.with_name(f"{folder.name}.damaged-{time.strftime('%Y%m%dT%H%M%S')}")
+        folder.rename(aside)
+        print(f"warning: {error}; kept as {aside}, training the cell again", file=sys.stderr)
+        return None
 
 
 def schedule(cells: list[Cell]) -> list[Cell]:
@@ -201,7 +208,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         "code": code_version(),
     }
     (folder / "evaluation.json").write_text(json.dumps(payload, indent=2))
-    (folder / DONE).write_text(time.strftime("%Y-%m-%dT%H:%M:%S\n"))
+    write_done(folder)
     return payload
 
 
@@ -224,6 +231,10 @@ def reproduce(
     (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
     cells = plan_cells(experiment, out, device=device)
+    for cell in cells:
+        damage = reopen_damaged_cell(Path(cell.folder)) if cell.done else None
+        if damage is not None:
+            print(f"warning: finished cell is damaged, running it again: {damage}", file=sys.stderr)
     todo = schedule([cell for cell in cells if not cell.done])
     bar = None
     if progress and todo:

@@ -28,6 +28,7 @@ from sb3_pm.agents.team import (
     check_same_graph,
     graph_for_saved_team,
     learn_seed,
+    load_model_file,
     read_manifest,
     resolve_hyperparams,
     resolve_learner,
@@ -205,7 +206,7 @@ class CentralizedPPO(Team):
             device=device,
             _init_model=False,
         )
-        team.model = team.algo_class.load(folder / MODEL_FILE, env=team.venv, device=device)
+        team.model = load_model_file(team.algo_class, folder / MODEL_FILE, env=team.venv, device=device)
         return team
 
     def close(self) -> None:
