@@ -198,3 +198,28 @@ def test_a_damaged_model_file_is_one_line_naming_it(setup, capsys) -> None:
     )
     err = capsys.readouterr().err
     assert "agent_1.zip cannot be loaded" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_ray_problems_are_one_line_before_anything_is_written(tmp_path, monkeypatch, capsys) -> None:
+    import importlib.util
+    import socket
+
+    out = tmp_path / "sweep"
+    argv = ["reproduce", "comparison", "--quick", "--out", str(out), "--backend", "ray"]
+    # An address where nothing listens: a port just closed on this machine.
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    started = time.perf_counter()
+    assert main([*argv, "--ray-address", f"127.0.0.1:{port}"]) == 2
+    assert "no Ray cluster answered" in capsys.readouterr().err
+    assert time.perf_counter() - started < 30 and not out.exists()
+    assert main([*argv, "--ray-address", "nonsense"]) == 2
+    assert "expected HOST:PORT" in capsys.readouterr().err
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real_find_spec(name, *a)
+    )
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "needs Ray" in err and len(err.strip().splitlines()) == 1 and not out.exists()

@@ -54,6 +54,36 @@ def register(subparsers: Any) -> None:
     parser.set_defaults(func=run)
 
 
+#: Seconds to wait for a Ray cluster's address to accept a connection.
+RAY_CONNECT_SECONDS = 10.0
+
+
+def check_ray(address: str | None) -> None:
+    """Before anything is written: Ray is installed, and a cluster address answers.
+
+    ``ray.init`` on an unreachable address retried for minutes without a word; a plain TCP
+    connection with a timeout says the same in seconds.
+    """
+    import importlib.util
+    import socket
+
+    from sb3_pm.cli import UsageError
+
+    if importlib.util.find_spec("ray") is None:
+        raise UsageError("--backend ray needs Ray: pip install -e '.[ray]' (or pip install ray)")
+    if not address or address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise UsageError(f"--ray-address {address!r}: expected HOST:PORT")
+    try:
+        socket.create_connection((host, int(port)), timeout=RAY_CONNECT_SECONDS).close()
+    except OSError as error:
+        raise UsageError(
+            f"--ray-address {address}: no Ray cluster answered within {RAY_CONNECT_SECONDS:.0f} s ({error})"
+        ) from None
+
+
 def _exit_on_sigterm(signum: int, frame: Any) -> None:
     raise SystemExit(128 + signum)
 
@@ -88,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
     if args.ray_address and args.backend != "ray":
         raise UsageError("--ray-address needs --backend ray")
+    if args.backend == "ray":
+        check_ray(args.ray_address)
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out} exists and is not a directory")
     record = args.out / "experiment.yml"
