@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -34,3 +35,29 @@ def published_graphs() -> Path:
         "paper_50n_8t.graphml",
     ], f"the package's graph data is incomplete: {DATA_DIR}"
     return DATA_DIR
+
+
+#: A team config small enough for end-to-end ``sb3-pm train`` runs in a second or two.
+TINY_CONFIG = """
+default:
+  n_timesteps: 100000
+  n_envs: 1
+  n_agents: 2
+  algo: maskable_ppo
+  n_steps: 16
+  batch_size: 16
+  n_epochs: 1
+  learning_rate: lin_1e-3
+  env_kwargs: {max_cycles: 10}
+"""
+
+
+@pytest.fixture()
+def tiny_train(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """``(config, graph, out)``: the tiny config, a 12-node GraphML graph and a run folder path."""
+    from sb3_pm.graphs import erdos_renyi, save_graphml
+
+    config = tmp_path / "tiny.yml"
+    config.write_text(textwrap.dedent(TINY_CONFIG))
+    graph = save_graphml(erdos_renyi(12, 0.3, n_targets=3, seed=1), tmp_path / "g12.graphml")
+    return config, graph, tmp_path / "run"

@@ -2,41 +2,16 @@
 
 from __future__ import annotations
 
-import textwrap
-
-import pytest
 import torch as th
 import yaml
 
 from sb3_pm.cli import main
-from sb3_pm.graphs import erdos_renyi, save_graphml
 
 th.set_num_threads(1)
 
-TINY = """
-default:
-  n_timesteps: 100000
-  n_envs: 1
-  n_agents: 2
-  algo: maskable_ppo
-  n_steps: 16
-  batch_size: 16
-  n_epochs: 1
-  learning_rate: lin_1e-3
-  env_kwargs: {max_cycles: 10}
-"""
 
-
-@pytest.fixture()
-def setup(tmp_path):
-    config = tmp_path / "tiny.yml"
-    config.write_text(textwrap.dedent(TINY))
-    graph = save_graphml(erdos_renyi(12, 0.3, n_targets=3, seed=1), tmp_path / "g12.graphml")
-    return config, graph, tmp_path / "run"
-
-
-def test_train_writes_run_folder_and_refuses_overwrite(setup, capsys) -> None:
-    config, graph, out = setup
+def test_train_writes_run_folder_and_refuses_overwrite(tiny_train, capsys) -> None:
+    config, graph, out = tiny_train
     argv = [
         "train",
         "--config",
@@ -82,8 +57,8 @@ def test_train_writes_run_folder_and_refuses_overwrite(setup, capsys) -> None:
     assert main([*argv, "--overwrite"]) == 0
 
 
-def test_train_user_errors(setup, capsys) -> None:
-    config, graph, out = setup
+def test_train_user_errors(tiny_train, capsys) -> None:
+    config, graph, out = tiny_train
     assert main(["train", "--config", str(config), "--env", "nope", "--out", str(out)]) == 2
     assert "unknown graph" in capsys.readouterr().err
     bad = config.parent / "bad.yml"
@@ -96,8 +71,8 @@ def test_train_user_errors(setup, capsys) -> None:
     )
 
 
-def test_train_overrides_rl_zoo_style(setup, capsys) -> None:
-    config, graph, out = setup
+def test_train_overrides_rl_zoo_style(tiny_train, capsys) -> None:
+    config, graph, out = tiny_train
     argv = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "16", "--out", str(out)]
     overrides = ["--hyperparams", "learning_rate:5e-4", "n_steps:8", "--env-kwargs", "reward:reduction"]
     assert main([*argv, *overrides, "--no-progress"]) == 0
@@ -120,9 +95,9 @@ def test_train_overrides_rl_zoo_style(setup, capsys) -> None:
         assert message in capsys.readouterr().err
 
 
-def test_train_threads_option(setup, capsys) -> None:
+def test_train_threads_option(tiny_train, capsys) -> None:
     """--threads sets torch's thread count (default 1, the bit-for-bit reproducible setting)."""
-    config, graph, out = setup
+    config, graph, out = tiny_train
     args = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "16", "--no-progress"]
     try:
         assert main([*args, "--out", str(out / "two"), "--threads", "2"]) == 0
@@ -136,11 +111,11 @@ def test_train_threads_option(setup, capsys) -> None:
     assert "--threads must be at least 1" in capsys.readouterr().err
 
 
-def test_train_same_seed_same_parameters(setup) -> None:
+def test_train_same_seed_same_parameters(tiny_train) -> None:
     """Two DCBF-PPO runs from the same seed save identical learners."""
     import zipfile
 
-    config, graph, out = setup
+    config, graph, out = tiny_train
     args = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "32", "--no-progress"]
     args += ["--hyperparams", "algo:dcbf_ppo", "policy_kwargs:{gat_heads: 1, hidden_dim: 8}"]
     for name in ("a", "b"):

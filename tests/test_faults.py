@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
@@ -15,29 +14,16 @@ import torch as th
 
 from sb3_pm.cli import main
 from sb3_pm.commands.run_folder import LOCK, lock_owner, locked_run_folder
-from sb3_pm.graphs import erdos_renyi, save_graphml
 
 th.set_num_threads(1)
 
-TINY = """
-default:
-  n_timesteps: 32
-  n_envs: 1
-  n_agents: 2
-  algo: maskable_ppo
-  n_steps: 16
-  batch_size: 16
-  n_epochs: 1
-  env_kwargs: {max_cycles: 10}
-"""
-
 
 @pytest.fixture()
-def setup(tmp_path):
-    config = tmp_path / "tiny.yml"
-    config.write_text(textwrap.dedent(TINY))
-    graph = save_graphml(erdos_renyi(12, 0.3, n_targets=3, seed=1), tmp_path / "g12.graphml")
-    return ["train", "--config", str(config), "--env", str(graph), "--no-progress"], tmp_path
+def setup(tiny_train):
+    """The tiny training command (32 steps per learner) and the test's folder."""
+    config, graph, out = tiny_train
+    argv = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "32", "--no-progress"]
+    return argv, out.parent
 
 
 def _holder(folder: Path) -> subprocess.Popen:
