@@ -24,7 +24,7 @@ def _interval() -> float:
         value = float(text)
     except ValueError:
         raise ValueError(f"SB3_PM_PROGRESS_SECONDS must be a number of seconds, got {text!r}") from None
-    if value < 0:
+    if not value >= 0:  # also refuses nan, which would silence every line
         raise ValueError(f"SB3_PM_PROGRESS_SECONDS must be at least 0, got {text!r}")
     return value
 

@@ -45,7 +45,7 @@ def test_overwrite_refuses_a_folder_in_use_and_takes_over_a_stale_lock(setup, ca
     out = tmp / "run"
     holder = _holder(out)
     try:
-        assert lock_owner(out) == holder.pid
+        assert str(lock_owner(out)).startswith(f"{holder.pid}@")
         assert main([*argv, "--out", str(out), "--overwrite"]) == 2
         assert f"in use by process {holder.pid}" in capsys.readouterr().err
         assert (out / "args.yml").read_text() == "the first run"  # nothing of the first run lost
@@ -54,14 +54,33 @@ def test_overwrite_refuses_a_folder_in_use_and_takes_over_a_stale_lock(setup, ca
         holder.wait()
     assert (out / LOCK).exists() and lock_owner(out) is None  # stale: its process is gone
     assert main([*argv, "--out", str(out), "--overwrite"]) == 0
-    assert (out / "team" / "manifest.json").exists() and not (out / LOCK).exists()
+    assert (out / "team" / "manifest.json").exists() and lock_owner(out) is None
+
+
+def _owner_seen_by_another_process(folder: Path) -> str:
+    code = f"from sb3_pm.commands.run_folder import lock_owner; print(lock_owner({str(folder)!r}))"
+    return subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.strip()
 
 
 def test_a_run_holds_its_lock_and_releases_it(tmp_path) -> None:
     with locked_run_folder(tmp_path / "r", overwrite=False) as folder:
         assert (folder / LOCK).read_text().startswith(f"{os.getpid()}@")
         assert lock_owner(folder) is None  # our own lock does not block us
-    assert not (folder / LOCK).exists()
+        assert _owner_seen_by_another_process(folder).startswith(f"{os.getpid()}@")
+    assert _owner_seen_by_another_process(folder) == "None"
+
+
+def test_overwrite_removes_only_what_a_run_writes(setup, capsys) -> None:
+    argv, tmp = setup
+    out = tmp / "mixed"
+    out.mkdir()
+    (out / "config.yml").write_text("a run's record")
+    (out / "notes.txt").write_text("the user's own file")
+    assert main([*argv, "--out", str(out), "--overwrite"]) == 2
+    assert "holds files no run writes (notes.txt)" in capsys.readouterr().err
+    assert (out / "notes.txt").read_text() == "the user's own file" and (out / "config.yml").exists()
 
 
 @pytest.mark.parametrize(
@@ -87,7 +106,7 @@ def test_team_save_leaves_no_temporary_files(setup) -> None:
     assert main([*argv, "--out", str(tmp / "run")]) == 0
     names = sorted(p.name for p in (tmp / "run" / "team").iterdir())
     assert names == ["agent_0.zip", "agent_1.zip", "graph.graphml", "manifest.json"]
-    assert not [p for p in (tmp / "run").iterdir() if p.name.startswith(".")]
+    assert [p.name for p in (tmp / "run").iterdir() if p.name.startswith(".")] == [LOCK]
 
 
 def test_unwritable_json_fails_before_the_evaluation(tmp_path, capsys) -> None:

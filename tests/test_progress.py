@@ -39,8 +39,9 @@ def test_disabled_means_nothing() -> None:
     assert progress_bar(10, "x", enabled=False) is None
 
 
-def test_a_bad_interval_is_a_clear_error(monkeypatch) -> None:
-    monkeypatch.setenv("SB3_PM_PROGRESS_SECONDS", "soon")
+@pytest.mark.parametrize("text", ["soon", "-1", "nan"])
+def test_a_bad_interval_is_a_clear_error(monkeypatch, text) -> None:
+    monkeypatch.setenv("SB3_PM_PROGRESS_SECONDS", text)
     with pytest.raises(ValueError, match="SB3_PM_PROGRESS_SECONDS"):
         progress_bar(10, "x", stream=io.StringIO())
 

@@ -2,13 +2,15 @@
 
 A second ``sb3-pm train --out R --overwrite`` while a first run still trains into ``R`` used to
 delete the folder under it; the first run then saved into a folder holding another run's records.
-Now every run holds ``R/.lock`` (its process id) from before it touches the folder until it ends, and
-``--overwrite`` refuses a folder whose lock belongs to a live process. A lock left by a process
-that died (a SIGKILL, a power cut) is recognised as stale and taken over.
+Now every run holds an exclusive ``flock`` on ``R/.lock`` from before it touches the folder until
+it ends, and ``--overwrite`` refuses a folder whose lock another process holds. The kernel drops
+the lock when its process dies, however it dies, so a lock is never stale. ``--overwrite`` removes
+only what a run writes, and refuses a folder that holds anything else.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import socket
@@ -18,35 +20,42 @@ from pathlib import Path
 
 #: The lock file inside a run folder.
 LOCK = ".lock"
-#: Files that mark a folder as a run folder (only such a folder is replaced by --overwrite).
+#: Files that mark a folder as a run folder.
 RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
+#: Everything a run writes into its folder: all that ``--overwrite`` may remove.
+RUN_ENTRIES = frozenset({*RUN_MARKERS, "tb", LOCK})
 
 
 class RunFolderError(Exception):
     """A run folder that cannot be used: in use by another process, or not a run folder."""
 
 
-def _alive(pid: int) -> bool:
+def _holder(path: Path) -> str:
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by another user
-        return True
-    return True
+        return path.read_text().strip() or "another process"
+    except OSError:
+        return "another process"
 
 
-def lock_owner(folder: Path) -> int | None:
-    """The process id holding ``folder``'s lock if that process is alive on this host, else None."""
-    path = folder / LOCK
-    try:
-        pid_text, _, host = path.read_text().partition("@")
-        pid = int(pid_text)
-    except (OSError, ValueError):
+def lock_owner(folder: Path) -> str | None:
+    """Who holds ``folder``'s lock (``pid@host``), or None if no other open lock holds it."""
+    path = Path(folder) / LOCK
+    if not path.exists():
         return None
-    if host.strip() and host.strip() != socket.gethostname():
-        return pid  # another machine's process: cannot tell, so assume it is alive
-    return pid if pid != os.getpid() and _alive(pid) else None
+    holder = _holder(path)
+    if holder == f"{os.getpid()}@{socket.gethostname()}":
+        return None  # our own lock does not block us
+    try:
+        descriptor = os.open(path, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return holder
+    finally:
+        os.close(descriptor)  # closing drops the probe's lock
+    return None
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -57,40 +66,47 @@ def write_atomic(path: Path, text: str) -> None:
     os.replace(temporary, path)
 
 
+def foreign_entries(folder: Path) -> list[str]:
+    """Entries of ``folder`` that no run writes (leftover temporary files are a run's own)."""
+    return sorted(
+        entry.name
+        for entry in folder.iterdir()
+        if entry.name not in RUN_ENTRIES and not (entry.name.startswith(".") and entry.name.endswith(".tmp"))
+    )
+
+
 @contextmanager
 def locked_run_folder(folder: Path, overwrite: bool) -> Iterator[Path]:
     """Create (or, with ``overwrite``, empty) ``folder`` and hold its lock until the block ends.
 
     :raises RunFolderError: if another live process holds the lock, the folder exists and is not
-        empty without ``overwrite``, or it is not a run folder.
+        empty without ``overwrite``, or it holds files no run writes.
     """
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise RunFolderError(f"{folder} exists and is not a folder")
     folder.mkdir(parents=True, exist_ok=True)
-    owner = lock_owner(folder)
-    if owner is not None:
-        raise RunFolderError(
-            f"run folder {folder} is in use by process {owner}; wait for it to end or choose another --out"
-        )
-    existing = [entry for entry in folder.iterdir() if entry.name != LOCK]
-    if existing and not overwrite:
-        raise RunFolderError(f"run folder {folder} already exists; pass --overwrite to replace it")
-    if existing and not any((folder / marker).exists() for marker in RUN_MARKERS):
-        raise RunFolderError(
-            f"{folder} is not empty and does not look like a run folder; refusing to replace it"
-        )
-    lock = folder / LOCK
-    lock.unlink(missing_ok=True)  # stale: its process is gone
+    descriptor = os.open(folder / LOCK, os.O_CREAT | os.O_RDWR, 0o644)
     try:
-        descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-    except FileExistsError:  # another process took it between the check and here
-        raise RunFolderError(f"run folder {folder} is in use by process {lock_owner(folder)}") from None
-    with os.fdopen(descriptor, "w") as handle:
-        handle.write(f"{os.getpid()}@{socket.gethostname()}")
-    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise RunFolderError(
+                f"run folder {folder} is in use by process {_holder(folder / LOCK)}; "
+                "wait for it to end or choose another --out"
+            ) from None
+        os.ftruncate(descriptor, 0)
+        os.write(descriptor, f"{os.getpid()}@{socket.gethostname()}".encode())
+        existing = [entry for entry in folder.iterdir() if entry.name != LOCK]
+        if existing and not overwrite:
+            raise RunFolderError(f"run folder {folder} already exists; pass --overwrite to replace it")
+        foreign = foreign_entries(folder)
+        if existing and foreign:
+            raise RunFolderError(
+                f"{folder} holds files no run writes ({', '.join(foreign[:5])}); refusing to replace it"
+            )
         for entry in existing:  # --overwrite: the old run goes only once the lock is ours
             shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
         yield folder
     finally:
-        lock.unlink(missing_ok=True)
+        os.close(descriptor)  # releases the lock; the file stays (unlinking it would race)

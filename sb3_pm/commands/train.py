@@ -24,8 +24,8 @@ import yaml
 from sb3_pm.commands.options import add_compute_options
 from sb3_pm.commands.run_folder import (
     LOCK,
-    RUN_MARKERS,
     RunFolderError,
+    foreign_entries,
     lock_owner,
     locked_run_folder,
     write_atomic,
@@ -108,9 +108,10 @@ def check_run_folder(out: Path, overwrite: bool) -> None:
     if out.is_dir() and any(entry.name != LOCK for entry in out.iterdir()):
         if not overwrite:
             raise UsageError(f"run folder {out} already exists; pass --overwrite to replace it")
-        if not any((out / marker).exists() for marker in RUN_MARKERS):
+        foreign = foreign_entries(out)
+        if foreign:
             raise UsageError(
-                f"{out} is not empty and does not look like a run folder; refusing to replace it"
+                f"{out} holds files no run writes ({', '.join(foreign[:5])}); refusing to replace it"
             )
     parent = next((p for p in (out, *out.parents) if p.exists()), Path("."))
     if not parent.is_dir():

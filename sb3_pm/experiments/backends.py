@@ -55,9 +55,7 @@ def run_jobs(
             if on_done:
                 on_done(index, results[index])
         return results
-    pool = ProcessPoolExecutor(
-        max_workers=min(n_jobs, len(jobs)), initializer=exit_with_parent, initargs=(os.getpid(),)
-    )
+    pool = ProcessPoolExecutor(max_workers=min(n_jobs, len(jobs)), initializer=exit_with_parent)
     try:
         futures = {pool.submit(function, job): index for index, job in enumerate(jobs)}
         for future in as_completed(futures):
@@ -81,14 +79,16 @@ def run_jobs(
 PARENT_CHECK_SECONDS = 1.0
 
 
-def exit_with_parent(parent_pid: int) -> None:
-    """Make this worker process end when ``parent_pid`` ends (a pool initializer).
+def exit_with_parent() -> None:
+    """Make this worker process end when its parent ends (a pool initializer).
 
     A SIGKILLed parent runs no cleanup, so its workers would be adopted by init and go on training
     and writing into the sweep's folder. A daemon thread notices the new parent id within
     :data:`PARENT_CHECK_SECONDS` and ends the worker; the unfinished cell has no ``DONE`` file, so a
-    resumed sweep trains it again.
+    resumed sweep trains it again. The parent is read here, in the worker: under the ``forkserver``
+    start method it is the fork server, which ends with the sweep too.
     """
+    parent_pid = os.getppid()
 
     def watch() -> None:
         while os.getppid() == parent_pid:

@@ -61,7 +61,9 @@ def check_done(folder: Path) -> tuple[Path, str] | None:
         record = json.loads((folder / DONE).read_text())
     except ValueError:
         return None  # the older plain-text DONE
-    for name, expected in dict(record.get("sha256", {})).items():
+    if not isinstance(record, dict) or not isinstance(record.get("sha256", {}), dict):
+        return folder / DONE, "not a DONE record"
+    for name, expected in record.get("sha256", {}).items():
         path = folder / name
         if not path.is_file():
             return path, "missing"
