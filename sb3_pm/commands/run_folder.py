@@ -75,6 +75,22 @@ def foreign_entries(folder: Path) -> list[str]:
     )
 
 
+def contents_problem(folder: Path, overwrite: bool) -> str | None:
+    """Why the existing contents of ``folder`` may not be replaced, or None if they may."""
+    if not folder.is_dir() or not any(entry.name != LOCK for entry in folder.iterdir()):
+        return None
+    if not overwrite:
+        return f"run folder {folder} already exists; pass --overwrite to replace it"
+    foreign = foreign_entries(folder)
+    if foreign:
+        return f"{folder} holds files no run writes ({', '.join(foreign[:5])}); refusing to replace it"
+    return None
+
+
+def in_use_message(folder: Path, owner: str) -> str:
+    return f"run folder {folder} is in use by process {owner}; wait for it to end or choose another --out"
+
+
 @contextmanager
 def locked_run_folder(folder: Path, overwrite: bool) -> Iterator[Path]:
     """Create (or, with ``overwrite``, empty) ``folder`` and hold its lock until the block ends.
@@ -91,21 +107,15 @@ def locked_run_folder(folder: Path, overwrite: bool) -> Iterator[Path]:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            raise RunFolderError(
-                f"run folder {folder} is in use by process {_holder(folder / LOCK)}; "
-                "wait for it to end or choose another --out"
-            ) from None
+            raise RunFolderError(in_use_message(folder, _holder(folder / LOCK))) from None
         os.ftruncate(descriptor, 0)
         os.write(descriptor, f"{os.getpid()}@{socket.gethostname()}".encode())
-        existing = [entry for entry in folder.iterdir() if entry.name != LOCK]
-        if existing and not overwrite:
-            raise RunFolderError(f"run folder {folder} already exists; pass --overwrite to replace it")
-        foreign = foreign_entries(folder)
-        if existing and foreign:
-            raise RunFolderError(
-                f"{folder} holds files no run writes ({', '.join(foreign[:5])}); refusing to replace it"
-            )
-        for entry in existing:  # --overwrite: the old run goes only once the lock is ours
+        problem = contents_problem(folder, overwrite)
+        if problem is not None:
+            raise RunFolderError(problem)
+        for entry in [
+            entry for entry in folder.iterdir() if entry.name != LOCK
+        ]:  # --overwrite: the old run goes only once the lock is ours
             shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
         yield folder
     finally:

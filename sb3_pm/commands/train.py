@@ -23,9 +23,9 @@ import yaml
 
 from sb3_pm.commands.options import add_compute_options
 from sb3_pm.commands.run_folder import (
-    LOCK,
     RunFolderError,
-    foreign_entries,
+    contents_problem,
+    in_use_message,
     lock_owner,
     locked_run_folder,
     write_atomic,
@@ -102,17 +102,10 @@ def check_run_folder(out: Path, overwrite: bool) -> None:
         raise UsageError(f"{out} exists and is not a folder")
     owner = lock_owner(out) if out.is_dir() else None
     if owner is not None:
-        raise UsageError(
-            f"run folder {out} is in use by process {owner}; wait for it to end or choose another --out"
-        )
-    if out.is_dir() and any(entry.name != LOCK for entry in out.iterdir()):
-        if not overwrite:
-            raise UsageError(f"run folder {out} already exists; pass --overwrite to replace it")
-        foreign = foreign_entries(out)
-        if foreign:
-            raise UsageError(
-                f"{out} holds files no run writes ({', '.join(foreign[:5])}); refusing to replace it"
-            )
+        raise UsageError(in_use_message(out, owner))
+    problem = contents_problem(out, overwrite)
+    if problem is not None:
+        raise UsageError(problem)
     parent = next((p for p in (out, *out.parents) if p.exists()), Path("."))
     if not parent.is_dir():
         raise UsageError(f"cannot create run folder {out}: {parent} is not a folder")
