@@ -37,6 +37,7 @@ from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, learn_concurrently, raise_first_error
 from sb3_pm.baselines.base import Observation, Team
+from sb3_pm.files import write_atomic
 from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
 from sb3_pm.zoo.registry import (
     DEFAULT_POLICIES,
@@ -589,9 +590,7 @@ def load_model_file(algo_class: type[BaseAlgorithm], path: Path, **kwargs: Any) 
 
 def write_manifest(folder: Path, manifest: Mapping[str, Any]) -> None:
     """Write ``manifest.json`` atomically (temporary file, then rename)."""
-    temporary = folder / f".{MANIFEST}.tmp"
-    temporary.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
-    os.replace(temporary, folder / MANIFEST)
+    write_atomic(folder / MANIFEST, json.dumps(manifest, indent=2, sort_keys=True) + "\n")
 
 
 def read_manifest(folder: Path) -> dict[str, Any]:

@@ -58,14 +58,6 @@ def lock_owner(folder: Path) -> str | None:
     return None
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path``, then rename it over ``path``: a reader
-    (or a crash) sees the old file or the new one, never half of one."""
-    temporary = path.with_name(f".{path.name}.tmp")
-    temporary.write_text(text)
-    os.replace(temporary, path)
-
-
 def foreign_entries(folder: Path) -> list[str]:
     """Entries of ``folder`` that no run writes (leftover temporary files are a run's own)."""
     return sorted(

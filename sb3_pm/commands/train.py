@@ -28,8 +28,8 @@ from sb3_pm.commands.run_folder import (
     in_use_message,
     lock_owner,
     locked_run_folder,
-    write_atomic,
 )
+from sb3_pm.files import write_atomic
 
 
 def register(subparsers: Any) -> None:

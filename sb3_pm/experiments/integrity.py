@@ -14,6 +14,8 @@ import json
 import time
 from pathlib import Path
 
+from sb3_pm.files import move_aside, write_atomic
+
 #: The file a cell writes last.
 DONE = "DONE"
 
@@ -40,9 +42,7 @@ def write_done(folder: Path) -> None:
         "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "sha256": {str(p.relative_to(folder)): _sha256(p) for p in cell_files(folder)},
     }
-    temporary = folder / f".{DONE}.tmp"
-    temporary.write_text(json.dumps(record, indent=1) + "\n")
-    temporary.replace(folder / DONE)
+    write_atomic(folder / DONE, json.dumps(record, indent=1) + "\n")
 
 
 def check_done(folder: Path) -> tuple[Path, str] | None:
@@ -87,8 +87,5 @@ def reopen_damaged_cell(folder: Path) -> str | None:
     (folder / DONE).unlink()
     team = folder / "team"
     if team in path.parents and team.is_dir():
-        aside = folder / "team.damaged"
-        if aside.exists():
-            aside = folder / f"team.damaged-{time.strftime('%Y%m%dT%H%M%S')}"
-        team.rename(aside)
+        move_aside(team)
     return f"{path}: {reason}"

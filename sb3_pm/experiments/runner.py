@@ -41,6 +41,7 @@ from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant
+from sb3_pm.files import move_aside
 from sb3_pm.graphs import graph_label
 
 #: Evaluation env seeds start here, far from the seeds training episodes use.
@@ -146,8 +147,7 @@ def _load_finished_team(folder: Path, device: str = "cpu") -> Any:
     try:
         return load_trained_team(folder, device=device)
     except (ValueError, FileNotFoundError) as error:  # damaged: keep it aside, train again
-        aside = folder.with_name(f"{folder.name}.damaged-{time.strftime('%Y%m%dT%H%M%S')}")
-        folder.rename(aside)
+        aside = move_aside(folder)
         print(f"warning: {error}; kept as {aside}, training the cell again", file=sys.stderr)
         return None
 

@@ -1,0 +1,32 @@
+"""File writes that lose nothing: atomic replacement, and keeping a damaged file or folder aside.
+
+Every layer writes records (run folders, saved teams, sweep cells), so this module depends on
+nothing else in the package.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path``, then rename it over ``path``: a reader
+    (or a crash) sees the old file or the new one, never half of one."""
+    temporary = path.with_name(f".{path.name}.tmp")
+    temporary.write_text(text)
+    os.replace(temporary, path)
+
+
+def move_aside(path: Path) -> Path:
+    """Rename a damaged file or folder to ``<name>.damaged`` (or a timestamped name if that is
+    taken) beside it, so that nothing is deleted; returns the new path."""
+    aside = path.with_name(f"{path.name}.damaged")
+    stamp = time.strftime("%Y%m%dT%H%M%S")
+    count = 0
+    while aside.exists():
+        count += 1
+        aside = path.with_name(f"{path.name}.damaged-{stamp}-{count}")
+    path.rename(aside)
+    return aside
