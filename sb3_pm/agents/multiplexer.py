@@ -16,6 +16,15 @@ agent_0``, makes every stretch of learner code between two env interactions (pol
 ``train()``, callbacks) run alone, in a fixed order, so a run is bit-for-bit reproducible from its
 seed. ``strict_order=False`` drops the baton (agents submit in any order), for experiments only.
 
+Each learner also draws from its own random stream (:mod:`sb3_pm.agents.streams`): its state is
+loaded into the process-wide generators when the learner takes the baton and stored back when it
+hands it on, so a learner's draws do not depend on the others' at all.
+
+**Rollout barrier.** :class:`RolloutBarrier`, a callback every team learner carries last, makes all
+learners meet at the start of each rollout (after every ``train()`` and estimator fit). There the
+team's :attr:`ParallelEnvMultiplexer.on_sync` hook runs alone, with every learner at the same
+point: that is where checkpoints are taken, and where a stop requested by Ctrl-C takes effect.
+
 **Episode ends.** The env ends every episode by truncation at ``max_cycles``. As in SB3's
 ``DummyVecEnv`` with a ``TimeLimit``, a finished copy is reset at once; the step reports
 ``done=True``, ``info["terminal_observation"]`` (the last real observation, so PPO bootstraps from
@@ -25,8 +34,9 @@ env's own ``info["metrics"]`` is passed through.
 
 **Failure.** If a learner raises, or stops early (a callback returned ``False``), the multiplexer
 is aborted: every agent blocked in ``step_wait`` raises :class:`TeamAborted`, which
-:func:`learn_concurrently` swallows, and the original error is re-raised to the caller. Waits use
-timeouts, so nothing can deadlock even if a thread dies without reporting.
+:func:`learn_concurrently` swallows, and the original error is re-raised to the caller. Blocked
+agents wake every :data:`POLL_INTERVAL` to check for an abort; a ``timeout`` bounds how long an
+agent waits for the others.
 """
 
 from __future__ import annotations
@@ -39,8 +49,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+
+from sb3_pm.agents.streams import StreamState, capture_stream, load_stream
 
 #: How often (seconds) a blocked agent re-checks the abort flag even without a notification.
 POLL_INTERVAL = 0.5
@@ -98,6 +111,15 @@ class ParallelEnvMultiplexer:
         self._agent_seeds: list[int | None] = [None] * self.n_agents
         #: called after every joint step with the number of agent-steps taken (progress bars)
         self.on_round: Callable[[int], None] | None = None
+        #: called at every rollout barrier, every learner waiting; a returned string stops the team
+        #: with that reason (see :class:`RolloutBarrier`)
+        self.on_sync: Callable[[], str | None] | None = None
+        #: one random stream per agent (see :mod:`sb3_pm.agents.streams`); None: the shared one
+        self.streams: list[StreamState] | None = None
+        #: set by :meth:`request_stop`: the ``on_sync`` hook should stop the team at the next barrier
+        self.stop_requested = False
+        #: the reason the last ``on_sync`` stopped the team, if it did
+        self.stopped: str | None = None
 
         # Per agent and copy: running return; per copy: running length (Monitor-style stats).
         self._ep_returns = np.zeros((self.n_agents, self.n_envs), dtype=np.float64)
@@ -128,12 +150,36 @@ class ParallelEnvMultiplexer:
         """The reason the team was aborted, or ``None``."""
         return self._aborted
 
+    def set_streams(self, streams: Sequence[StreamState] | None) -> None:
+        """Give each agent its own random stream (one per agent, in agent order), or ``None``.
+
+        :raises ValueError: if there is not one stream per agent, or the baton is off.
+        """
+        if streams is not None:
+            if len(streams) != self.n_agents:
+                raise ValueError(f"need one random stream per agent ({self.n_agents}), got {len(streams)}")
+            if not self.strict_order:
+                raise ValueError("per-agent random streams need strict_order=True (the baton)")
+        self.streams = None if streams is None else list(streams)
+
+    def request_stop(self) -> None:
+        """Ask the ``on_sync`` hook to stop the team at the next rollout barrier (Ctrl-C)."""
+        with self._cond:
+            self.stop_requested = True
+            self._cond.notify_all()
+
+    def sync(self, index: int) -> None:
+        """Agent ``index`` waits at the rollout barrier until every agent reaches it."""
+        self._submit(index, "sync", None)
+
     def restart(self) -> None:
         """Make the multiplexer usable for another ``learn()`` after all agents finished or aborted.
 
         The env copies keep their state, so a continued run picks up mid-episode.
         """
         with self._cond:
+            self.stop_requested = False
+            self.stopped = None
             self._kinds = [None] * self.n_agents
             self._results = [None] * self.n_agents
             self._round = 0
@@ -148,6 +194,7 @@ class ParallelEnvMultiplexer:
             self._finished[index] = True
             self._kinds[index] = None
             if self._baton == index:
+                self._store_stream(index)
                 self._pass_baton(index)
             self._maybe_complete()
             self._cond.notify_all()
@@ -156,12 +203,23 @@ class ParallelEnvMultiplexer:
         """Block until agent ``index`` holds the baton (a learner thread calls this first)."""
         with self._cond:
             self._wait(index, lambda: not self.strict_order or self._baton == index)
+            self._load_stream(index)
 
     def close(self) -> None:
         for env in self.envs:
             env.close()
 
     # ---------------------------------------------------------------- internal
+    def _load_stream(self, index: int) -> None:
+        """Agent ``index`` took the baton: its random stream becomes the process-wide one."""
+        if self.streams is not None:
+            load_stream(self.streams[index])
+
+    def _store_stream(self, index: int) -> None:
+        """Agent ``index`` hands the baton on: keep where its random stream stands."""
+        if self.streams is not None:
+            self.streams[index] = capture_stream()
+
     def _wait(self, index: int, ready: Callable[[], bool]) -> None:
         """Wait (holding ``_cond``) until ``ready()``; raise :class:`TeamAborted` on abort or timeout."""
         deadline = None if self.timeout is None else time.monotonic() + self.timeout
@@ -203,11 +261,13 @@ class ParallelEnvMultiplexer:
             if actions is not None:
                 self._actions[index] = actions
             if self.strict_order:
+                self._store_stream(index)
                 self._pass_baton(index)
             try:
                 self._maybe_complete()
-            except Exception as error:  # an env error ends the whole team, reported by this agent
-                self._aborted = f"the environment raised {type(error).__name__}: {error}"
+            except Exception as error:  # an env or hook error ends the whole team, reported by this agent
+                source = "the rollout barrier" if kind == "sync" else "the environment"
+                self._aborted = f"{source} raised {type(error).__name__}: {error}"
                 self._cond.notify_all()
                 raise
             self._cond.notify_all()
@@ -215,6 +275,7 @@ class ParallelEnvMultiplexer:
                 index,
                 lambda: self._result_round >= my_round and (not self.strict_order or self._baton == index),
             )
+            self._load_stream(index)
             result = self._results[index]
             self._results[index] = None
             assert result is not None
@@ -232,18 +293,28 @@ class ParallelEnvMultiplexer:
             return
         kinds = set(self._kinds)
         if len(kinds) != 1:
-            resetting = [self.agents[i] for i in range(self.n_agents) if self._kinds[i] == "reset"]
+            asked = ", ".join(f"{self.agents[i]}: {self._kinds[i]}" for i in range(self.n_agents))
             raise MultiplexerError(
-                f"agents disagree: {resetting} asked for reset() while the others stepped; every learner "
-                "of a team must reset together (same n_steps, n_envs and total timesteps)"
+                f"agents disagree about the next joint call ({asked}); every learner of a team must "
+                "step, reset and start rollouts together (same n_steps, n_envs and total timesteps)"
             )
         if kinds == {"reset"}:
             self._joint_reset()
+        elif kinds == {"sync"}:
+            self._joint_sync()
         else:
             self._joint_step()
         self._kinds = [None] * self.n_agents
         self._result_round = self._round
         self._round += 1
+
+    def _joint_sync(self) -> None:
+        """Every agent is at the rollout barrier: run the ``on_sync`` hook, alone."""
+        self._results = [() for _ in range(self.n_agents)]
+        reason = None if self.on_sync is None else self.on_sync()
+        if reason is not None:
+            self.stopped = reason
+            self._aborted = reason
 
     def _joint_reset(self) -> None:
         seed = self._explicit_seed
@@ -407,6 +478,8 @@ def learn_concurrently(
     hub: ParallelEnvMultiplexer,
     learn_kwargs: Sequence[dict[str, Any]],
     join_timeout: float | None = None,
+    graceful_interrupt: bool = False,
+    on_interrupt: Callable[[], None] | None = None,
 ) -> list[BaseException | None]:
     """Run ``model.learn(**kwargs)`` for every agent, each in its own thread, in baton order.
 
@@ -417,6 +490,10 @@ def learn_concurrently(
         ``hub.vec_envs[i]``.
     :param learn_kwargs: keyword arguments of each ``learn()`` call.
     :param join_timeout: seconds to wait for all threads (``None``: no limit).
+    :param graceful_interrupt: on a first ``KeyboardInterrupt``, :meth:`~ParallelEnvMultiplexer.request_stop`
+        and let the learners run to the next rollout barrier (where the ``on_sync`` hook stops them);
+        a second one stops them at once. Either way the interrupt is re-raised once they stopped.
+    :param on_interrupt: called on that first interrupt (to tell the user what happens next).
     """
     if len(models) != hub.n_agents or len(learn_kwargs) != hub.n_agents:
         raise ValueError(f"need one model and one set of learn() arguments per agent ({hub.n_agents})")
@@ -442,20 +519,38 @@ def learn_concurrently(
     for thread in threads:
         thread.start()
     deadline = None if join_timeout is None else time.monotonic() + join_timeout
-    try:
-        for thread in threads:
-            while thread.is_alive():
-                if deadline is not None and time.monotonic() > deadline:
-                    hub.abort(f"training did not finish within {join_timeout} s")
-                    raise TimeoutError(f"training did not finish within {join_timeout} s")
-                thread.join(POLL_INTERVAL)
-    except BaseException:
-        # KeyboardInterrupt or timeout in the caller: stop the learners, then let them unwind.
-        hub.abort("interrupted")
-        for thread in threads:
-            thread.join(5 * POLL_INTERVAL)
-        raise
+    interrupted = False
+    while True:
+        try:
+            for thread in threads:
+                while thread.is_alive():
+                    if deadline is not None and time.monotonic() > deadline:
+                        hub.abort(f"training did not finish within {join_timeout} s")
+                        raise TimeoutError(f"training did not finish within {join_timeout} s")
+                    thread.join(POLL_INTERVAL)
+            break
+        except KeyboardInterrupt:
+            if graceful_interrupt and not interrupted:
+                interrupted = True  # the learners go on to the next barrier, which stops them
+                hub.request_stop()
+                if on_interrupt is not None:
+                    on_interrupt()
+                continue
+            _stop_now(hub, threads)
+            raise
+        except BaseException:
+            _stop_now(hub, threads)
+            raise
+    if interrupted and hub.stopped is not None:
+        raise KeyboardInterrupt  # the team stopped at a barrier; had it finished, that would be all
     return errors
+
+
+def _stop_now(hub: ParallelEnvMultiplexer, threads: Sequence[threading.Thread]) -> None:
+    """Abort the team (the caller was interrupted or timed out) and let the learners unwind."""
+    hub.abort("interrupted")
+    for thread in threads:
+        thread.join(5 * POLL_INTERVAL)
 
 
 def raise_first_error(errors: Iterable[BaseException | None]) -> None:
@@ -465,8 +560,26 @@ def raise_first_error(errors: Iterable[BaseException | None]) -> None:
             raise error
 
 
+class RolloutBarrier(BaseCallback):
+    """Makes a team learner wait at the start of each rollout until every learner is there.
+
+    It must be the learner's last callback, so the barrier comes after everything the learner does
+    between two rollouts (``train()``, the estimator fit). Its env must be an :class:`AgentVecEnv`.
+    """
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_start(self) -> None:
+        env = self.training_env
+        if not isinstance(env, AgentVecEnv):
+            raise TypeError(f"RolloutBarrier needs an AgentVecEnv, got {type(env).__name__}")
+        env.hub.sync(env.index)
+
+
 __all__ = [
     "AgentVecEnv",
+    "RolloutBarrier",
     "MultiplexerError",
     "ParallelEnvMultiplexer",
     "TeamAborted",

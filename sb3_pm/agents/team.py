@@ -3,7 +3,8 @@
 Each agent is its own SB3 algorithm (``DCBFPPO`` by default, or sb3-contrib's ``MaskablePPO`` or
 plain ``PPO``) with its own parameters, buffers and optimizer. They are stepped together through a
 :class:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer`, each learner in its own thread, in a
-fixed turn order, so a team run is reproducible from its seed (issue 4).
+fixed turn order, each drawing from its own random stream, so a team run is reproducible from
+its seed and can be checkpointed and resumed bit for bit (:mod:`sb3_pm.agents.checkpoints`).
 
 The team implements the :class:`~sb3_pm.baselines.base.Team` interface, so evaluation drives a
 learned team exactly as it drives a baseline.
@@ -35,7 +36,29 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.utils import set_random_seed
 
-from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, learn_concurrently, raise_first_error
+from sb3_pm.agents.checkpoints import (
+    CHECKPOINTS,
+    RECORD,
+    CheckpointSchedule,
+    TrainingInterrupted,
+    latest_checkpoint,
+    read_record,
+    restore_state,
+    write_checkpoint,
+)
+from sb3_pm.agents.multiplexer import (
+    ParallelEnvMultiplexer,
+    RolloutBarrier,
+    learn_concurrently,
+    raise_first_error,
+)
+from sb3_pm.agents.streams import (
+    StreamState,
+    capture_stream,
+    learner_stream_seed,
+    load_stream,
+    seeded_stream,
+)
 from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.files import write_atomic
 from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
@@ -90,6 +113,22 @@ class EpisodeMetricsCallback(BaseCallback):
         for key, values in self.history.items():
             if values:
                 self.logger.record(f"metrics/{key}", float(np.mean(values)))
+
+
+def learner_callbacks(model: BaseAlgorithm, callback: BaseCallback | None) -> CallbackList:
+    """A team learner's callbacks, in order: an :class:`EpisodeMetricsCallback`, the caller's, the
+    estimator fit (for a DCBF-PPO learner with an estimator, which would otherwise attach it
+    itself, after everything else), and a :class:`RolloutBarrier` last, so the barrier sees each
+    learner with its ``train()`` and estimator fit done."""
+    callbacks = list(with_episode_metrics(callback).callbacks)
+    if getattr(model, "estimator_update_at", None) and getattr(model.policy, "estimator", None) is not None:
+        from sb3_pm.callbacks import EstimatorCallback
+        from sb3_pm.ppo_dcbf.ppo_dcbf import _contains_estimator_callback
+
+        if not _contains_estimator_callback(callbacks):
+            callbacks.append(EstimatorCallback(update_at=model.estimator_update_at))  # type: ignore[attr-defined]
+    callbacks.append(RolloutBarrier())
+    return CallbackList(callbacks)
 
 
 def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> CallbackList:
@@ -221,6 +260,10 @@ class IndependentPPO(Team):
         if unknown:
             raise ValueError(f"per-agent overrides for unknown agents {unknown}; the team has {self.agents}")
         self.models: dict[str, Any] = {}
+        #: random streams restored from a checkpoint, used by the next ``learn(reset_num_timesteps=False)``
+        self._resume_streams: list[StreamState] | None = None
+        #: the checkpoint this team was restored from, if any
+        self.checkpoint: Path | None = None
         if _init_models:
             kwargs = {agent: self.agent_kwargs(agent) for agent in self.agents}
             _check_same({agent: kw.get("n_steps", 2048) for agent, kw in kwargs.items()}, "n_steps")
@@ -280,6 +323,44 @@ class IndependentPPO(Team):
         """Timesteps taken by each learner (they are equal: the learners step together)."""
         return int(self.models[self.agents[0]].num_timesteps)
 
+    @property
+    def rollout_size(self) -> int:
+        """Steps each learner takes per rollout (``n_steps`` x ``n_envs``)."""
+        return int(self.models[self.agents[0]].n_steps) * self.n_envs
+
+    @property
+    def remaining_timesteps(self) -> int:
+        """Steps left of the last ``learn()`` call's total (what a resumed run still has to do)."""
+        model = self.models[self.agents[0]]
+        return max(0, int(getattr(model, "_total_timesteps", 0)) - int(model.num_timesteps))
+
+    def _learner_streams(self, reset_num_timesteps: bool) -> list[StreamState]:
+        """Each learner's random stream for a ``learn()`` call: the checkpoint's when resuming one,
+        else fresh ones seeded from (seed, step count, learner)."""
+        if not reset_num_timesteps and self._resume_streams is not None:
+            streams = self._resume_streams
+        else:
+            streams = [
+                seeded_stream(learner_stream_seed(self.seed, self.num_timesteps, i))
+                for i in range(self.n_agents)
+            ]
+        self._resume_streams = None
+        return streams
+
+    def _at_barrier(self, checkpoints: CheckpointSchedule | None) -> str | None:
+        """The multiplexer's ``on_sync`` hook: write a checkpoint when one is due; after an
+        interrupt, write one and stop the team."""
+        if checkpoints is None:
+            return None
+        rollouts = self.num_timesteps // self.rollout_size
+        if not checkpoints.due(rollouts, self.hub.stop_requested):
+            return None
+        folder = write_checkpoint(self, checkpoints, rollouts)
+        logger.info("checkpoint %s written", folder)
+        if self.hub.stop_requested:
+            return f"interrupted; checkpoint {folder} saved"
+        return None
+
     def _validate_learners(self, reset_num_timesteps: bool) -> None:
         _check_same({a: int(m.n_steps) for a, m in self.models.items()}, "n_steps")
         _check_same({a: int(m.n_envs) for a, m in self.models.items()}, "n_envs")
@@ -315,17 +396,30 @@ class IndependentPPO(Team):
         reset_num_timesteps: bool = True,
         log_interval: int = 1,
         tb_log_name: str | None = None,
+        checkpoints: CheckpointSchedule | None = None,
+        on_interrupt: Callable[[], None] | None = None,
     ) -> IndependentPPO:
         """Train every learner for ``total_timesteps`` of its own steps (as SB3 counts them).
 
         A team of n agents at T therefore takes n·T agent-steps. To resume a loaded team, pass
-        ``reset_num_timesteps=False``: the count then continues from the saved one.
+        ``reset_num_timesteps=False``: the count then continues from the saved one. A team restored
+        with :meth:`from_checkpoint` continues bit for bit with
+        ``learn(team.remaining_timesteps, reset_num_timesteps=False)``.
+
+        Each learner draws from its own random stream, seeded from the team seed, the step count and
+        its index (:mod:`sb3_pm.agents.streams`); the caller's process-wide generators are left as
+        they were.
 
         :param callback: per-agent callbacks: a list, an ``{agent: callback}`` dict or a factory
             ``agent_name -> callback`` (a single callback object only for a one-agent team).
         :param progress_bar: report the team's agent-steps (a tqdm bar on a terminal, a plain line every
             30 s elsewhere; :mod:`sb3_pm.progress`).
         :param tb_log_name: TensorBoard run name prefix; each agent logs to ``<prefix><agent>``.
+        :param checkpoints: where and how often to write checkpoints (none by default). With
+            checkpoints, a first Ctrl-C lets the team run to the next rollout barrier, writes a
+            checkpoint there and raises :class:`~sb3_pm.agents.checkpoints.TrainingInterrupted`; a
+            second one stops at once (the last periodic checkpoint stays).
+        :param on_interrupt: called on that first Ctrl-C (to tell the user what happens next).
         :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``.
         :raises Exception: the first error a learner raised (the others are stopped cleanly).
         """
@@ -336,18 +430,22 @@ class IndependentPPO(Team):
             # All learners must reset together (the multiplexer steps them as one).
             for model in self.models.values():
                 model._last_obs = None
-        # Reseed the process-wide generators (python, NumPy, torch) from the team seed and the step
-        # count: learners share them, and whatever ran since construction (another team, an
-        # evaluation) would otherwise leak into this run. With the baton, the run is then a
-        # function of (seed, num_timesteps, parameters) alone.
-        set_random_seed(learn_seed(self.seed, self.num_timesteps))
+        # Whatever ran since construction (another team, an evaluation) must not leak into this
+        # run: with the baton, each learner draws from its own stream, seeded here, so the run is a
+        # function of (seed, num_timesteps, parameters) alone. Without it, a shared reseed.
+        caller_stream = capture_stream()
+        if self.hub.strict_order:
+            self.hub.set_streams(self._learner_streams(reset_num_timesteps))
+        else:
+            self.hub.set_streams(None)
+            set_random_seed(learn_seed(self.seed, self.num_timesteps))
         user_callbacks = self._callbacks(callback)
         learn_kwargs = []
         for agent, user in zip(self.agents, user_callbacks):
             learn_kwargs.append(
                 {
                     "total_timesteps": int(total_timesteps),
-                    "callback": with_episode_metrics(user),
+                    "callback": learner_callbacks(self.models[agent], user),
                     "log_interval": log_interval,
                     "tb_log_name": f"{tb_log_name or ''}{agent}",
                     "reset_num_timesteps": reset_num_timesteps,
@@ -364,10 +462,23 @@ class IndependentPPO(Team):
                 rollouts * rollout * self.n_agents, f"{self.algo} x{self.n_agents}", unit="agent-step"
             )
             self.hub.on_round = bar.update
+        self.hub.on_sync = lambda: self._at_barrier(checkpoints)
         try:
-            errors = learn_concurrently([self.models[a] for a in self.agents], self.hub, learn_kwargs)
+            errors = learn_concurrently(
+                [self.models[a] for a in self.agents],
+                self.hub,
+                learn_kwargs,
+                graceful_interrupt=checkpoints is not None,
+                on_interrupt=on_interrupt,
+            )
+        except KeyboardInterrupt:
+            if checkpoints is not None and self.hub.stopped is not None and checkpoints.last is not None:
+                raise TrainingInterrupted(checkpoints.last) from None
+            raise
         finally:
             self.hub.on_round = None
+            self.hub.on_sync = None
+            load_stream(caller_stream)
             if bar is not None:
                 bar.close()
         raise_first_error(errors)
@@ -436,6 +547,7 @@ class IndependentPPO(Team):
         verbose: int | None = None,
         strict_order: bool = True,
         custom_objects: dict[str, Any] | None = None,
+        force_reset: bool = True,
     ) -> IndependentPPO:
         """Load a team saved with :meth:`save` (or the run folder of ``sb3-pm train`` holding it in
         ``team/``), ready to act or to resume training.
@@ -443,6 +555,8 @@ class IndependentPPO(Team):
         :param graph: the graph to run on; ``None`` uses the saved one. It must be the same problem
             (same fingerprint) as the one the team was trained on.
         :param n_envs: env copies for further training (default: the saved number).
+        :param force_reset: start further training with an env reset (SB3's default); False keeps the
+            saved last observations, for :meth:`from_checkpoint`, which restores the env copies too.
         :raises FileNotFoundError: if the folder, its manifest or an agent's zip is missing.
         :raises ValueError: if ``graph`` is not the graph the team was trained on.
         """
@@ -481,12 +595,42 @@ class IndependentPPO(Team):
                 env=team.hub.vec_envs[i],
                 device=device,
                 custom_objects=custom_objects,
+                force_reset=force_reset,
             )
             if tensorboard_log is not None:
                 model.tensorboard_log = str(tensorboard_log)
             if verbose is not None:
                 model.verbose = verbose
             team.models[agent] = model
+        return team
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        path: str | Path,
+        device: str = "cpu",
+        tensorboard_log: str | Path | None = None,
+        verbose: int | None = None,
+    ) -> IndependentPPO:
+        """A team restored from a checkpoint, ready to continue with
+        ``learn(team.remaining_timesteps, reset_num_timesteps=False)``.
+
+        :param path: a checkpoint folder, a ``checkpoints/`` folder or a run folder holding one (the
+            newest intact checkpoint is used).
+        :raises CheckpointError: if there is no intact checkpoint there.
+        """
+        folder = Path(path)
+        if (folder / RECORD).is_file():
+            read_record(folder)  # checks every file against its checksum
+            checkpoint = folder
+        else:
+            parent = folder / CHECKPOINTS if (folder / CHECKPOINTS).is_dir() else folder
+            checkpoint, _ = latest_checkpoint(parent)
+        team = cls.load(
+            checkpoint, device=device, tensorboard_log=tensorboard_log, verbose=verbose, force_reset=False
+        )
+        restore_state(team, checkpoint)
+        team.checkpoint = checkpoint
         return team
 
     def close(self) -> None:
@@ -637,8 +781,10 @@ def check_same_graph(expected: GraphSpec, actual: GraphSpec) -> None:
 
 
 __all__ = [
+    "CheckpointSchedule",
     "EpisodeMetricsCallback",
     "IndependentPPO",
+    "TrainingInterrupted",
     "agent_seed",
     "check_same_graph",
     "learn_seed",

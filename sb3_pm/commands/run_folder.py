@@ -23,7 +23,7 @@ LOCK = ".lock"
 #: Files that mark a folder as a run folder.
 RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
 #: Everything a run writes into its folder: all that ``--overwrite`` may remove.
-RUN_ENTRIES = frozenset({*RUN_MARKERS, "tb", LOCK})
+RUN_ENTRIES = frozenset({*RUN_MARKERS, "tb", "checkpoints", "resumed.txt", LOCK})
 
 
 class RunFolderError(Exception):
@@ -72,6 +72,11 @@ def contents_problem(folder: Path, overwrite: bool) -> str | None:
     if not folder.is_dir() or not any(entry.name != LOCK for entry in folder.iterdir()):
         return None
     if not overwrite:
+        if (folder / "checkpoints").is_dir() and not (folder / "team").exists():
+            return (
+                f"run folder {folder} holds an unfinished run; continue it with "
+                f"sb3-pm train --resume {folder}, or pass --overwrite to start again"
+            )
         return f"run folder {folder} already exists; pass --overwrite to replace it"
     foreign = foreign_entries(folder)
     if foreign:
@@ -84,15 +89,18 @@ def in_use_message(folder: Path, owner: str) -> str:
 
 
 @contextmanager
-def locked_run_folder(folder: Path, overwrite: bool) -> Iterator[Path]:
+def locked_run_folder(folder: Path, overwrite: bool, resume: bool = False) -> Iterator[Path]:
     """Create (or, with ``overwrite``, empty) ``folder`` and hold its lock until the block ends.
 
+    :param resume: lock an existing run folder as it is, to continue its run (nothing is removed).
     :raises RunFolderError: if another live process holds the lock, the folder exists and is not
         empty without ``overwrite``, or it holds files no run writes.
     """
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise RunFolderError(f"{folder} exists and is not a folder")
+    if resume and not folder.is_dir():
+        raise RunFolderError(f"no run folder at {folder}")
     folder.mkdir(parents=True, exist_ok=True)
     descriptor = os.open(folder / LOCK, os.O_CREAT | os.O_RDWR, 0o644)
     try:
@@ -102,6 +110,9 @@ def locked_run_folder(folder: Path, overwrite: bool) -> Iterator[Path]:
             raise RunFolderError(in_use_message(folder, _holder(folder / LOCK))) from None
         os.ftruncate(descriptor, 0)
         os.write(descriptor, f"{os.getpid()}@{socket.gethostname()}".encode())
+        if resume:
+            yield folder
+            return
         problem = contents_problem(folder, overwrite)
         if problem is not None:
             raise RunFolderError(problem)

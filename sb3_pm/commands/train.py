@@ -3,19 +3,31 @@
 ::
 
     sb3-pm train [--config ippo] --env paper-50 --seed 0 [--timesteps T] [--out DIR]
+    sb3-pm train --resume DIR
 
 ``--config`` defaults to the shipped ``ippo`` config (the repository's ``zoo/ippo.yml``), the best
 configuration measured; ``--config ippo_paper`` trains the paper-faithful one.
 
 The run folder (default ``runs/<graph>_<algo>_s<seed>``, relative to the working directory)
 records ``config.yml`` (the resolved entry), ``args.yml``, ``command.txt``, TensorBoard logs per
-agent in ``tb/`` and the saved team in ``team/`` (what ``sb3-pm evaluate --policy RUN_DIR`` loads).
+agent in ``tb/``, checkpoints in ``checkpoints/`` and the saved team in ``team/`` (what
+``sb3-pm evaluate --policy RUN_DIR`` loads).
+
+Checkpoints (every ``--checkpoint-every`` rollouts, the newest two kept) hold everything the run
+depends on, so ``--resume DIR`` continues an interrupted run bit for bit: its final team equals the
+one an uninterrupted run would have saved. Ctrl-C (or SIGTERM) lets the team finish its current
+rollout, writes a checkpoint and exits with status 130; a second Ctrl-C exits at once, keeping the
+last periodic checkpoint.
 """
 
 from __future__ import annotations
 
 import argparse
 import shlex
+import signal
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -40,19 +52,19 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--config",
-        default="ippo",
+        default=None,
         help="rl-zoo style YAML: a path, or the name of a shipped config (ippo, ippo_paper, ippo_improved). "
         "Default: ippo, the package's copy of zoo/ippo.yml, the best configuration measured "
         "(docs/RESULTS.md); ippo_paper is the paper-faithful one",
     )
     parser.add_argument(
         "--env",
-        default="paper-50",
+        default=None,
         help="a preset (paper-50/100/200: the paper's published graphs; er-50/100/200: seeded "
         "Erdős–Rényi draws) or a .graphml path (default paper-50)",
     )
     parser.add_argument(
-        "--seed", type=int, default=0, help="seeds the env copies and every learner (default 0)"
+        "--seed", type=int, default=None, help="seeds the env copies and every learner (default 0)"
     )
     parser.add_argument(
         "--timesteps", type=int, metavar="T", help="steps per learner (default: the config's n_timesteps)"
@@ -77,10 +89,31 @@ def register(subparsers: Any) -> None:
         help="override environment arguments, e.g. reward:reduction max_cycles:200",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+    parser.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=DEFAULT_CHECKPOINT_EVERY,
+        metavar="N",
+        help=f"write a checkpoint every N rollouts into DIR/checkpoints (default {DEFAULT_CHECKPOINT_EVERY}; "
+        "0: none, then Ctrl-C keeps nothing)",
+    )
+    parser.add_argument(
+        "--resume",
+        type=Path,
+        metavar="DIR",
+        help="continue the interrupted run in DIR from its newest checkpoint, with the settings recorded "
+        "in DIR/args.yml (give no other training option)",
+    )
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity of every learner (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_compute_options(parser, training=True)
     parser.set_defaults(func=run)
+
+
+#: Default ``--checkpoint-every``: at the paper's budget (100 rollouts) about one checkpoint a minute.
+DEFAULT_CHECKPOINT_EVERY = 10
+#: Options that define a run; ``--resume`` takes them from the run folder instead.
+RUN_OPTIONS = ("config", "env", "seed", "timesteps", "n_envs", "out", "hyperparams", "env_kwargs")
 
 
 def _package_dir() -> Path:
@@ -116,12 +149,19 @@ def run(args: argparse.Namespace) -> int:
     from sb3_pm.graphs import graph_label, resolve_graph
     from sb3_pm.zoo import load_config
 
+    if args.resume is not None:
+        return resume(args)
+    args.config = args.config or "ippo"
+    args.env = args.env or "paper-50"
+    args.seed = 0 if args.seed is None else args.seed
     for flag in ("timesteps", "n_envs", "threads"):
         value = getattr(args, flag)
         if value is not None and value < 1:
             raise UsageError(f"--{flag.replace('_', '-')} must be at least 1, got {value}")
     if args.seed < 0:
         raise UsageError(f"--seed must be at least 0, got {args.seed}")
+    if args.checkpoint_every < 0:
+        raise UsageError(f"--checkpoint-every must be at least 0, got {args.checkpoint_every}")
     graph = resolve_graph(args.env)
     overrides = parse_overrides(args.hyperparams, "--hyperparams")
     env_overrides = parse_overrides(args.env_kwargs, "--env-kwargs")
@@ -162,15 +202,142 @@ def run(args: argparse.Namespace) -> int:
                 f"({graph.n_nodes} nodes, {graph.n_targets} targets), "
                 f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
             )
-            team.learn(config.n_timesteps, progress_bar=not args.no_progress)
-            folder = team.save(out / "team")
+            return _learn_and_save(team, config.n_timesteps, True, args, out, args.checkpoint_every, args.env)
     except RunFolderError as error:
         raise UsageError(str(error)) from None
     finally:
         team.close()
+
+
+def resume(args: argparse.Namespace) -> int:
+    """``--resume DIR``: continue the run in DIR from its newest intact checkpoint."""
+    from sb3_pm.agents.checkpoints import CheckpointError
+    from sb3_pm.agents.team import MANIFEST, IndependentPPO
+    from sb3_pm.cli import UsageError
+
+    given = [f"--{name.replace('_', '-')}" for name in RUN_OPTIONS if getattr(args, name) not in (None, [])]
+    if args.overwrite:
+        given.append("--overwrite")
+    if given:
+        raise UsageError(
+            f"--resume continues the run recorded in {args.resume}/args.yml; drop {', '.join(given)}"
+        )
+    out: Path = args.resume
+    if not (out / "args.yml").is_file():
+        raise UsageError(f"{out} is not a run folder of sb3-pm train (no args.yml)")
+    if (out / "team" / MANIFEST).is_file():
+        raise UsageError(
+            f"the run in {out} has finished (its team is saved in {out / 'team'}); nothing to resume"
+        )
+    owner = lock_owner(out)
+    if owner is not None:
+        raise UsageError(in_use_message(out, owner))
+    try:
+        recorded = yaml.safe_load((out / "args.yml").read_text())
+    except yaml.YAMLError as error:
+        raise UsageError(f"{out / 'args.yml'} is not valid YAML ({error})") from None
+    if not isinstance(recorded, dict):
+        raise UsageError(f"{out / 'args.yml'} is not a record of sb3-pm train's arguments")
+    import torch
+
+    torch.set_num_threads(int(recorded.get("threads", 1)))  # the interrupted run's: same arithmetic
+    try:
+        team = IndependentPPO.from_checkpoint(
+            out, device=str(recorded.get("device", "cpu")), tensorboard_log=out / "tb", verbose=args.verbose
+        )
+    except CheckpointError as error:
+        raise UsageError(f"cannot resume {out}: {error}; start again with --overwrite") from None
+    every = int(recorded.get("checkpoint_every", DEFAULT_CHECKPOINT_EVERY))
+    try:
+        with locked_run_folder(out, overwrite=False, resume=True):
+            line = (
+                f"{time.strftime('%Y-%m-%dT%H:%M:%S')} resumed from {team.checkpoint} at step "
+                f"{team.num_timesteps}: {shlex.join(args.command_line)}\n"
+            )
+            with (out / "resumed.txt").open("a") as handle:
+                handle.write(line)
+            print(
+                f"resuming {out} from {team.checkpoint}: {team.num_timesteps} steps per learner done, "
+                f"{team.remaining_timesteps} to go"
+            )
+            return _learn_and_save(
+                team,
+                team.remaining_timesteps,
+                False,
+                args,
+                out,
+                every,
+                str(recorded.get("env", team.graph.name)),
+            )
+    except RunFolderError as error:
+        raise UsageError(str(error)) from None
+    finally:
+        team.close()
+
+
+def _learn_and_save(
+    team: Any, steps: int, reset: bool, args: argparse.Namespace, out: Path, every: int, graph: str
+) -> int:
+    """Train ``team`` for ``steps`` more steps with checkpoints, then save it to ``out/team``.
+
+    :returns: the exit status: 0, or 130 when interrupted (after saying how to resume).
+    """
+    from sb3_pm.agents.checkpoints import CHECKPOINTS, CheckpointSchedule, TrainingInterrupted
+
+    schedule = CheckpointSchedule(out / CHECKPOINTS, every=every) if every > 0 else None
+    if schedule is not None:
+        schedule.last = team.checkpoint
+
+    def tell() -> None:
+        print(
+            "\ninterrupt: finishing this rollout to write a checkpoint; interrupt again to stop now",
+            flush=True,
+        )
+
+    try:
+        with _sigterm_as_interrupt():
+            if steps > 0:
+                team.learn(
+                    steps,
+                    progress_bar=not args.no_progress,
+                    reset_num_timesteps=reset,
+                    checkpoints=schedule,
+                    on_interrupt=tell,
+                )
+    except TrainingInterrupted as stop:
+        print(f"interrupted at step {team.num_timesteps} per learner; checkpoint saved to {stop.checkpoint}")
+        print(f"continue with: sb3-pm train --resume {out}")
+        return 130
+    except KeyboardInterrupt:
+        last = None if schedule is None else schedule.last
+        if last is None:
+            print("interrupted before any checkpoint was written; nothing to resume")
+        else:
+            print(f"interrupted; the last checkpoint is {last}")
+            print(f"continue with: sb3-pm train --resume {out}")
+        return 130
+    folder = team.save(out / "team")
     print(f"team saved to {folder}")
-    print(f"evaluate it with: sb3-pm evaluate --policy {out} --graph {args.env}")
+    print(f"evaluate it with: sb3-pm evaluate --policy {out} --graph {graph}")
     return 0
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Treat SIGTERM (a cluster's preemption, ``kill``) like Ctrl-C while training."""
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
@@ -221,6 +388,8 @@ def _argv_from(args: argparse.Namespace, out: Path) -> list[str]:
         argv += ["--device", args.device]
     if args.threads != 1:
         argv += ["--threads", str(args.threads)]
+    if args.checkpoint_every != DEFAULT_CHECKPOINT_EVERY:
+        argv += ["--checkpoint-every", str(args.checkpoint_every)]
     if args.overwrite:
         argv.append("--overwrite")
     return argv

@@ -9,23 +9,14 @@ is reported and run again.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
 
-from sb3_pm.files import move_aside, write_atomic
+from sb3_pm.files import move_aside, sha256_file, write_atomic
 
 #: The file a cell writes last.
 DONE = "DONE"
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def cell_files(folder: Path) -> list[Path]:
@@ -40,7 +31,7 @@ def write_done(folder: Path) -> None:
     """Mark ``folder`` finished, with the checksum of every file it vouches for."""
     record = {
         "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
-        "sha256": {str(p.relative_to(folder)): _sha256(p) for p in cell_files(folder)},
+        "sha256": {str(p.relative_to(folder)): sha256_file(p) for p in cell_files(folder)},
     }
     write_atomic(folder / DONE, json.dumps(record, indent=1) + "\n")
 
@@ -67,7 +58,7 @@ def check_done(folder: Path) -> tuple[Path, str] | None:
         path = folder / name
         if not path.is_file():
             return path, "missing"
-        if _sha256(path) != expected:
+        if sha256_file(path) != expected:
             return path, "changed since the cell finished"
     return None
 

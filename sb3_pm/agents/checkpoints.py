@@ -1,0 +1,226 @@
+"""Team checkpoints: everything needed to continue a training run bit for bit.
+
+A checkpoint is taken at a rollout barrier (:class:`~sb3_pm.agents.multiplexer.RolloutBarrier`),
+where every learner has finished ``train()`` and its estimator fit and none has started the next
+rollout. What the run still depends on at that point is saved:
+
+* the learners, as a saved team (SB3 zips: parameters, optimizer states, step counts, the last
+  observation of each env copy);
+* the env copies themselves (pickled: node uncertainties, positions, mental maps, their generators)
+  and the multiplexer's running episode returns and lengths;
+* every learner's random stream (:mod:`sb3_pm.agents.streams`).
+
+Layout, inside a run folder::
+
+    checkpoints/
+      rollout_000010/       the barrier after 10 rollouts (counted from the run's start)
+        manifest.json ...   a saved team (see :mod:`sb3_pm.agents.team`)
+        state.pkl           env copies, multiplexer counters, random streams
+        checkpoint.json     written last: step counts and the SHA-256 of every file
+
+A checkpoint is written to a hidden temporary folder and renamed into place, so a crash leaves the
+previous checkpoints intact; the ``keep`` newest are kept. On resume, a checkpoint whose files no
+longer match their checksums is skipped with a warning, and the one before it is used.
+
+``state.pkl`` is a pickle, read back only by the same sb3_pm version (``checkpoint.json`` records
+it): load checkpoints you wrote yourself only.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import pickle
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from sb3_pm.files import sha256_file, write_atomic
+from sb3_pm.version import __version__
+
+if TYPE_CHECKING:
+    from sb3_pm.agents.team import IndependentPPO
+
+logger = logging.getLogger(__name__)
+
+#: The checkpoints folder of a run folder.
+CHECKPOINTS = "checkpoints"
+#: The file a checkpoint writes last.
+RECORD = "checkpoint.json"
+STATE = "state.pkl"
+RECORD_FORMAT = "sb3_pm.checkpoint/1"
+
+
+class CheckpointError(ValueError):
+    """No usable checkpoint: none written yet, all damaged, or from another sb3_pm version."""
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped on Ctrl-C after writing a checkpoint; ``checkpoint`` is its folder."""
+
+    def __init__(self, checkpoint: Path) -> None:
+        super().__init__(f"interrupted; checkpoint saved to {checkpoint}")
+        self.checkpoint = Path(checkpoint)
+
+
+@dataclass
+class CheckpointSchedule:
+    """When and where a team writes checkpoints during ``learn()``.
+
+    :param folder: the checkpoints folder (created when the first checkpoint is written).
+    :param every: write one at every ``every``-th rollout barrier (counted from step 0), and always
+        when a stop was requested (Ctrl-C).
+    :param keep: how many of the newest checkpoints to keep (at least 1).
+    """
+
+    folder: Path
+    every: int = 10
+    keep: int = 2
+
+    def __post_init__(self) -> None:
+        self.folder = Path(self.folder)
+        if self.every < 1:
+            raise ValueError(f"checkpoint every must be at least 1 rollout, got {self.every}")
+        if self.keep < 1:
+            raise ValueError(f"checkpoints to keep must be at least 1, got {self.keep}")
+        #: the last checkpoint written or resumed from
+        self.last: Path | None = None
+
+    def due(self, rollouts: int, stop_requested: bool) -> bool:
+        """Whether the barrier after ``rollouts`` rollouts writes a checkpoint."""
+        return rollouts > 0 and (stop_requested or rollouts % self.every == 0)
+
+
+def checkpoint_name(rollouts: int) -> str:
+    return f"rollout_{rollouts:06d}"
+
+
+def write_checkpoint(team: IndependentPPO, schedule: CheckpointSchedule, rollouts: int) -> Path:
+    """Save ``team`` (stopped at a rollout barrier) as checkpoint ``rollouts``; returns its folder.
+
+    An existing checkpoint of that name is kept as it is: it holds this very state (a resumed run
+    meets its own starting checkpoint again at its first barrier).
+    """
+    final = schedule.folder / checkpoint_name(rollouts)
+    if final.is_dir() and (final / RECORD).is_file():
+        schedule.last = final
+        return final
+    schedule.folder.mkdir(parents=True, exist_ok=True)
+    temporary = schedule.folder / f".{final.name}.tmp"
+    if temporary.exists():
+        shutil.rmtree(temporary)  # a checkpoint a crash left half written
+    team.save(temporary)
+    hub = team.hub
+    state = {
+        "envs": hub.envs,
+        "ep_returns": hub._ep_returns,
+        "ep_lengths": hub._ep_lengths,
+        "last_obs": hub._last_obs,
+        "streams": hub.streams,
+    }
+    with (temporary / STATE).open("wb") as handle:
+        pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
+    model = team.models[team.agents[0]]
+    record = {
+        "format": RECORD_FORMAT,
+        "sb3_pm": __version__,
+        "rollouts": rollouts,
+        "num_timesteps": int(model.num_timesteps),
+        "total_timesteps": int(model._total_timesteps),
+        "sha256": {path.name: sha256_file(path) for path in sorted(temporary.iterdir()) if path.is_file()},
+    }
+    write_atomic(temporary / RECORD, json.dumps(record, indent=1, sort_keys=True) + "\n")
+    if final.exists():
+        shutil.rmtree(final)  # an incomplete folder of that name (no record): never a finished one
+    temporary.rename(final)
+    schedule.last = final
+    _prune(schedule)
+    return final
+
+
+def _prune(schedule: CheckpointSchedule) -> None:
+    """Remove all but the ``keep`` newest finished checkpoints."""
+    finished = sorted(p for p in schedule.folder.glob("rollout_*") if (p / RECORD).is_file())
+    for old in finished[: -schedule.keep]:
+        shutil.rmtree(old)
+
+
+def read_record(folder: Path) -> dict[str, Any]:
+    """A checkpoint's ``checkpoint.json``, checked against its files.
+
+    :raises CheckpointError: if it is missing, malformed, from another sb3_pm version, or a file
+        does not match its checksum (naming the file).
+    """
+    path = folder / RECORD
+    try:
+        record = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise CheckpointError(f"{folder} is not a finished checkpoint ({RECORD} is missing)") from None
+    except ValueError as error:
+        raise CheckpointError(f"{path} is not valid JSON ({error})") from None
+    if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
+        raise CheckpointError(f"{path} is not an sb3_pm checkpoint record")
+    if record.get("sb3_pm") != __version__:
+        raise CheckpointError(
+            f"{folder} was written by sb3_pm {record.get('sb3_pm')}, this is {__version__}; "
+            "resume it with that version"
+        )
+    for name, expected in record["sha256"].items():
+        file = folder / name
+        if not file.is_file():
+            raise CheckpointError(f"{file} is missing")
+        if sha256_file(file) != expected:
+            raise CheckpointError(f"{file} is damaged (its checksum changed since it was written)")
+    return dict(record)
+
+
+def latest_checkpoint(folder: Path) -> tuple[Path, dict[str, Any]]:
+    """The newest intact checkpoint in the checkpoints ``folder`` and its record.
+
+    Damaged newer ones are skipped with a warning (and left where they are).
+
+    :raises CheckpointError: if there is none.
+    """
+    candidates = sorted(Path(folder).glob("rollout_*"), reverse=True) if Path(folder).is_dir() else []
+    problems = []
+    for candidate in candidates:
+        try:
+            return candidate, read_record(candidate)
+        except CheckpointError as error:
+            logger.warning("skipping checkpoint %s: %s", candidate, error)
+            problems.append(str(error))
+    if problems:
+        raise CheckpointError(f"no intact checkpoint in {folder}: {problems[0]}")
+    raise CheckpointError(f"no checkpoint in {folder}")
+
+
+def restore_state(team: IndependentPPO, checkpoint: Path) -> None:
+    """Put a checkpoint's env copies, counters and random streams into a team loaded from it."""
+    with (checkpoint / STATE).open("rb") as handle:
+        state = pickle.load(handle)  # noqa: S301 - our own file, checked against its checksum
+    hub = team.hub
+    if len(state["envs"]) != hub.n_envs or len(state["last_obs"]) != hub.n_agents:
+        raise CheckpointError(f"{checkpoint / STATE} does not match the team saved beside it")
+    for env in hub.envs:
+        env.close()
+    hub.envs[:] = state["envs"]
+    hub._ep_returns[:] = state["ep_returns"]
+    hub._ep_lengths[:] = state["ep_lengths"]
+    hub._last_obs = state["last_obs"]
+    # The env copies carry on from where they were: no seeded reset is pending.
+    hub._explicit_seed = None
+    hub._agent_seeds = [None] * hub.n_agents
+    team._resume_streams = state["streams"]
+
+
+__all__ = [
+    "CHECKPOINTS",
+    "CheckpointError",
+    "CheckpointSchedule",
+    "TrainingInterrupted",
+    "latest_checkpoint",
+    "read_record",
+    "restore_state",
+    "write_checkpoint",
+]

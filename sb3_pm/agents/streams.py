@@ -1,0 +1,74 @@
+"""One random stream per learner, carried through the process-wide generators.
+
+SB3 learners draw from the process-wide generators: torch's default CPU generator (action sampling,
+the estimator's minibatches), NumPy's legacy global ``RandomState`` (PPO's minibatch permutation)
+and Python's ``random``. In a team, every learner runs in its own thread, so a shared stream would
+make each learner's draws depend on what the others drew before it.
+
+Instead, each learner owns a :class:`StreamState`. The multiplexer loads a learner's state into the
+process-wide generators when that learner takes the baton and stores it back when it hands the
+baton on. A learner's draws then depend only on its own seed and its own code path, never on the
+interleaving of the team. That is what lets a checkpoint be taken at any rollout boundary, and a
+resumed run continue bit for bit: the state of every stream is part of the checkpoint.
+
+Only one learner runs learner code at a time (the baton), so swapping the process-wide state is
+safe. Without the baton (``strict_order=False``) streams are not used.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch as th
+
+
+@dataclass
+class StreamState:
+    """The state of the three process-wide generators a learner draws from.
+
+    :param python: ``random.getstate()``.
+    :param numpy: ``np.random.get_state()`` (the legacy global ``RandomState``).
+    :param torch: ``torch.get_rng_state()``, a ``(5056,)`` uint8 tensor (CPU generator).
+    """
+
+    python: tuple[Any, ...]
+    numpy: Any
+    torch: th.Tensor
+
+
+def seeded_stream(seed: int) -> StreamState:
+    """The state the process-wide generators would have after ``set_random_seed(seed)`` (CPU)."""
+    return StreamState(
+        python=random.Random(seed).getstate(),
+        numpy=np.random.RandomState(seed).get_state(),
+        torch=th.Generator().manual_seed(seed).get_state(),
+    )
+
+
+def capture_stream() -> StreamState:
+    """The process-wide generators' current state."""
+    numpy_state = np.random.get_state()  # noqa: NPY002 - the legacy global generator SB3 draws from
+    return StreamState(python=random.getstate(), numpy=numpy_state, torch=th.get_rng_state())
+
+
+def load_stream(state: StreamState) -> None:
+    """Put ``state`` into the process-wide generators."""
+    random.setstate(state.python)
+    np.random.set_state(state.numpy)  # noqa: NPY002 - SB3 draws from it
+    th.set_rng_state(state.torch)
+
+
+def learner_stream_seed(seed: int, num_timesteps: int, index: int) -> int:
+    """The seed of learner ``index``'s stream for a ``learn()`` call that starts at ``num_timesteps``.
+
+    A function of the team seed, the step count and the learner alone (NumPy ``SeedSequence``), so a
+    continued ``learn()`` gets fresh streams that do not repeat the first call's draws.
+    """
+    entropy = [int(seed), int(num_timesteps), 1, int(index)]
+    return int(np.random.SeedSequence(entropy).generate_state(1)[0])
+
+
+__all__ = ["StreamState", "capture_stream", "learner_stream_seed", "load_stream", "seeded_stream"]
