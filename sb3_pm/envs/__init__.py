@@ -11,7 +11,9 @@ from typing import Any
 
 _LAZY = {
     "persistent_monitoring_v0": ("sb3_pm.envs.persistent_monitoring_v0", None),
+    "FEATURES": ("sb3_pm.envs.mental_map", "FEATURES"),
     "IllegalActionError": ("sb3_pm.envs.core", "IllegalActionError"),
+    "MentalMaps": ("sb3_pm.envs.mental_map", "MentalMaps"),
     "MonitoringCore": ("sb3_pm.envs.core", "MonitoringCore"),
     "PersistentMonitoringEnv": ("sb3_pm.envs.persistent_monitoring", "PersistentMonitoringEnv"),
     "SingleAgentMonitoringEnv": ("sb3_pm.envs.single_agent", "SingleAgentMonitoringEnv"),

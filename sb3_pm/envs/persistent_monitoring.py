@@ -12,8 +12,8 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from sb3_pm.agents.mental_map import FEATURES, MentalMaps
 from sb3_pm.envs.core import MonitoringCore
+from sb3_pm.envs.mental_map import FEATURES, MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
 from sb3_pm.graphs import GraphLike, resolve_graph

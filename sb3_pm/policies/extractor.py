@@ -51,7 +51,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 from torch_geometric.nn import GATConv, TransformerConv
 
-from sb3_pm.agents.mental_map import U
+from sb3_pm.envs.mental_map import U
 from sb3_pm.policies.features import DERIVED_FEATURES, derived_node_features
 
 LAPLACIAN_MODES = ("rows", "eigen", "none")

@@ -33,7 +33,7 @@ from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_pm.agents.mental_map import FEATURES, U
+from sb3_pm.envs.mental_map import FEATURES, U
 from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
