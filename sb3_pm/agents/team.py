@@ -36,9 +36,9 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, learn_concurrently, raise_first_error
-from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.files import write_atomic
 from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
+from sb3_pm.team_interface import Observation, Team
 from sb3_pm.zoo.registry import (
     DEFAULT_POLICIES,
     algo_name,

@@ -17,7 +17,7 @@ default ``agent_0``) with its mental-map ``Dict`` observation and ``Discrete(N)`
     gym.make("sb3_pm/PersistentMonitoring-paper50-v0", teammates="runs/my_team")  # a saved team
 
 ``teammates`` is a baseline name (:data:`sb3_pm.baselines.BASELINES`), the folder of a saved
-trained team, a :class:`~sb3_pm.baselines.base.Team` instance, or ``None`` (uniform random moves
+trained team, a :class:`~sb3_pm.team_interface.Team` instance, or ``None`` (uniform random moves
 inside each teammate's reachable set; the same as ``"random"`` in spirit, without a Team object).
 A saved team brings its own team size and env options (observation radius, reward, ...), which
 explicit keyword arguments override. Every other keyword is an argument of the environment
@@ -67,9 +67,9 @@ def make_single_agent_env(
         (``n_agents``, ``max_cycles``, ``reward``, ``render_mode`` ...).
     :raises ValueError: for an unknown baseline name or an unloadable team folder.
     """
-    from sb3_pm.baselines.base import Team
     from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
     from sb3_pm.evaluation.teams import resolve_team, team_env_kwargs
+    from sb3_pm.team_interface import Team
 
     team: Team | None
     if teammates is None or isinstance(teammates, Team):
