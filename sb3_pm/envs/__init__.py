@@ -1,7 +1,7 @@
 """Environments: persistent monitoring on networks.
 
 Names load on first use, so that ``import sb3_pm`` (which registers the Gymnasium ids through
-:mod:`sb3_pm.envs.registration`) stays cheap.
+:mod:`sb3_pm.registration`) stays cheap.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Gymnasium registration of the single-agent view (issue 5): ``import sb3_pm`` makes these ids work.
+"""Gymnasium ids for the single-agent view: after ``import sb3_pm``, ``gym.make`` builds it by name.
 
 Registered ids (namespace ``sb3_pm``)::
 
@@ -29,6 +29,8 @@ step limit would disagree with ``max_cycles=...`` passed at make time and cut ep
 
 This module imports neither torch nor the environment: the ids point at
 :func:`make_single_agent_env` by its ``"module:function"`` string, loaded on the first ``gym.make``.
+It sits at the top of the package, beside ``sb3_pm/__init__.py``, because resolving
+``teammates`` reaches every layer up to evaluation (baselines by name, saved trained teams).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from typing import Any
 #: Gymnasium namespace of every id registered here.
 NAMESPACE = "sb3_pm"
 #: The entry point of every id (a string, so that registering imports nothing heavy).
-ENTRY_POINT = "sb3_pm.envs.registration:make_single_agent_env"
+ENTRY_POINT = "sb3_pm.registration:make_single_agent_env"
 #: Registered id -> the graph it defaults to.
 ENV_IDS: dict[str, str] = {
     f"{NAMESPACE}/PersistentMonitoring-v0": "paper-50",
