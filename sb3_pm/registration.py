@@ -21,7 +21,7 @@ trained team, a :class:`~sb3_pm.team_interface.Team` instance, or ``None`` (unif
 inside each teammate's reachable set; the same as ``"random"`` in spirit, without a Team object).
 A saved team brings its own team size and env options (observation radius, reward, ...), which
 explicit keyword arguments override. Every other keyword is an argument of the environment
-(:mod:`sb3_pm.envs.persistent_monitoring_v0`).
+(:mod:`sb3_pm.envs.persistent_monitoring`).
 
 Episode length: the env truncates by itself after ``max_cycles`` steps (``truncated=True``), so
 the specs carry no ``max_episode_steps`` and ``gym.make`` adds no ``TimeLimit``: a registered

@@ -7,7 +7,7 @@ uniformly at random within their own reachable sets. It is the test bed of the D
 basis of a Gymnasium registration; training a whole team of learners goes through the multiplexer
 in :mod:`sb3_pm.agents` instead.
 
-Spaces are the learner's own (:mod:`sb3_pm.envs.persistent_monitoring_v0`): a ``Dict`` mental map
+Spaces are the learner's own (:mod:`sb3_pm.envs.persistent_monitoring`): a ``Dict`` mental map
 and ``Discrete(N)`` actions. ``action_masks()`` returns the learner's reachable set as bool (for
 sb3-contrib's MaskablePPO). Episodes end by truncation after ``max_cycles`` steps; the last
 step's ``info`` holds the env's ``"metrics"``.

@@ -1,7 +1,7 @@
 """Graph-attention features extractor over an agent's mental map (docs/METHOD.md "Network of one agent").
 
 The extractor turns one SB3-preprocessed mental-map observation (see
-:mod:`sb3_pm.envs.persistent_monitoring_v0`) into per-node embeddings ``H``:
+:mod:`sb3_pm.envs.persistent_monitoring`) into per-node embeddings ``H``:
 
 1. node features ``[u, age, target, occupied, self]`` divided by the observation space's highs, so
    every column lies in ``[0, 1]`` whatever ``u_max`` and ``max_cycles`` are;

@@ -71,7 +71,7 @@ def masked_mode(logits: th.Tensor, masks: th.Tensor) -> th.Tensor:
 class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     """Masked actor-critic over a mental map, with a GAT encoder, a state estimator and a DCBF filter.
 
-    :param observation_space: the map observation ``Dict`` of :mod:`sb3_pm.envs.persistent_monitoring_v0`.
+    :param observation_space: the map observation ``Dict`` of :mod:`sb3_pm.envs.persistent_monitoring`.
     :param action_space: ``Discrete(N)``.
     :param lr_schedule: learning-rate schedule of the actor-critic optimizer.
     :param net_arch: hidden sizes of the heads, ``dict(pi=[...], vf=[...])`` or one list for both
