@@ -34,10 +34,10 @@ from typing import Any
 import numpy as np
 from sb3_contrib import MaskablePPO
 
-from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.evaluation import evaluate, markdown_table, resolve_team, summarize
 from sb3_pm.sharing import make_parameter_sharing_vec_env
 from sb3_pm.sharing.supersuit_vec_env import TRUNCATED_KEY
+from sb3_pm.team_interface import Observation, Team
 
 
 class SharedPolicyTeam(Team):

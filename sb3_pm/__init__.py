@@ -9,11 +9,12 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from sb3_pm.envs.registration import register_envs
+from sb3_pm.registration import register_envs
 from sb3_pm.version import __version__
 
 # Gymnasium ids (sb3_pm/PersistentMonitoring-paper50-v0, ...): registering them imports neither
-# torch nor the env, whose module is named by a string and loaded on the first gym.make (issue 5).
+# torch nor the env, whose module is named by a string and loaded on the first gym.make, so that
+# ``import sb3_pm`` stays cheap.
 register_envs()
 
 _LAZY = {

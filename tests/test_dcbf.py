@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch as th
 
-from sb3_pm.agents.mental_map import AGE, OCCUPIED, TARGET, U
+from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
 from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask, dcbf_mask_from_map
 
 N = 6

@@ -8,7 +8,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.preprocessing import preprocess_obs
 
-from sb3_pm.agents.mental_map import AGE, TARGET, U
+from sb3_pm.envs.mental_map import AGE, TARGET, U
 from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.policies import DCBFActorCriticPolicy, GATFeaturesExtractor

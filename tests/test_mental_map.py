@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sb3_pm.agents.mental_map import AGE, FEATURES, OCCUPIED, SELF, TARGET, MentalMaps, U
 from sb3_pm.envs import persistent_monitoring_v0
+from sb3_pm.envs.mental_map import AGE, FEATURES, OCCUPIED, SELF, TARGET, MentalMaps, U
 from tests.conftest import path_graph
 
 

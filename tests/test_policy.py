@@ -77,7 +77,7 @@ class TestLayers:
         )
 
     def test_auto_backend_follows_density(self) -> None:
-        from sb3_pm.policies.extractor import _use_dense
+        from sb3_pm.policies.attention import use_dense as _use_dense
 
         assert _use_dense(random_graphs(16, 80, 0.2), "auto")
         assert not _use_dense(random_graphs(16, 80, 0.01), "auto")
@@ -91,7 +91,7 @@ class TestLayers:
     @pytest.mark.parametrize("chunk", [1, 3, 64])
     def test_chunked_attention_matches_autograd(self, chunk: int) -> None:
         """The fused kernel's values and gradients equal plain autograd's over the unfused maths."""
-        from sb3_pm.policies.extractor import _ChunkedAttention, attention_bias, unique_graphs
+        from sb3_pm.policies.attention import _ChunkedAttention, attention_bias, unique_graphs
 
         th.manual_seed(0)
         batch, heads, n, c = 10, 3, 9, 4
@@ -115,7 +115,7 @@ class TestLayers:
             th.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
 
     def test_unique_graphs_with_equal_edge_counts(self) -> None:
-        from sb3_pm.policies.extractor import unique_graphs
+        from sb3_pm.policies.attention import unique_graphs
 
         adjacency = th.zeros(12, 4, 4)
         adjacency[:6, 0, 1] = adjacency[:6, 1, 0] = 1.0
@@ -125,7 +125,8 @@ class TestLayers:
 
     def test_encoding_per_graph_matches_concatenated_input(self) -> None:
         """The first layer's per-distinct-graph product with the encoding equals the plain layer."""
-        from sb3_pm.policies.extractor import laplacian_rows, unique_graphs
+        from sb3_pm.policies.attention import unique_graphs
+        from sb3_pm.policies.encodings import laplacian_rows
 
         th.manual_seed(0)
         layer = GraphAttention(5 + 11, 8, heads=2)

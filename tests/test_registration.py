@@ -15,10 +15,10 @@ from stable_baselines3.common.env_checker import check_env
 
 import sb3_pm
 from sb3_pm.baselines import LocalGreedyTeam
-from sb3_pm.envs.registration import ENV_IDS, register_envs
 from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
 from sb3_pm.evaluation import PolicyError
 from sb3_pm.ppo_dcbf import DCBFPPO
+from sb3_pm.registration import ENV_IDS, register_envs
 
 th.set_num_threads(1)
 

@@ -9,9 +9,9 @@ import pytest
 from sb3_contrib import MaskablePPO
 from stable_baselines3.common.env_checker import check_env
 
-from sb3_pm.baselines.base import Team
 from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
 from sb3_pm.graphs import erdos_renyi
+from sb3_pm.team_interface import Team
 
 GRAPH = erdos_renyi(12, 0.3, n_targets=3, seed=1)
 

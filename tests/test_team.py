@@ -8,9 +8,9 @@ import pytest
 import torch as th
 
 from sb3_pm.agents.team import IndependentPPO, agent_seed
-from sb3_pm.baselines.base import Team
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
+from sb3_pm.team_interface import Team
 
 th.set_num_threads(1)
 GRAPH = erdos_renyi(12, 0.3, n_targets=3, seed=1)

@@ -21,8 +21,8 @@ import pytest
 import torch as th
 import yaml
 
-from sb3_pm.envs.registration import ENV_IDS
 from sb3_pm.graphs import PRESETS
+from sb3_pm.registration import ENV_IDS
 from sb3_pm.zoo import load_config
 
 rl_zoo3 = pytest.importorskip("rl_zoo3", reason="rl-zoo is the optional extra sb3_pm[zoo]")

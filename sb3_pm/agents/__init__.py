@@ -1,5 +1,5 @@
-"""Per-agent machinery: mental maps (and, with the learners, the multiplexer and the team)."""
+"""Independent learners: :mod:`sb3_pm.agents.team` (``IndependentPPO``, one learner per agent) and
+:mod:`sb3_pm.agents.multiplexer` (one parallel env seen as one vec env per learner).
 
-from sb3_pm.agents.mental_map import FEATURES, MentalMaps
-
-__all__ = ["FEATURES", "MentalMaps"]
+Both load on first import of their module; this package itself imports nothing.
+"""

@@ -59,9 +59,9 @@ from sb3_pm.agents.streams import (
     load_stream,
     seeded_stream,
 )
-from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.files import write_atomic
 from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
+from sb3_pm.team_interface import Observation, Team
 from sb3_pm.zoo.registry import (
     DEFAULT_POLICIES,
     algo_name,

@@ -37,9 +37,9 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
-from sb3_pm.agents.mental_map import AGE, OCCUPIED, TARGET, U
 from sb3_pm.baselines._common import nearest_first
-from sb3_pm.baselines.base import Observation, Team
+from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
+from sb3_pm.team_interface import Observation, Team
 
 UNREACHABLE = np.iinfo(np.int32).max
 

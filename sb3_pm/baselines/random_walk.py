@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sb3_pm.baselines.base import Observation, Team
+from sb3_pm.team_interface import Observation, Team
 
 
 class RandomTeam(Team):

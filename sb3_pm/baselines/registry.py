@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from sb3_pm.baselines.base import Team
 from sb3_pm.baselines.grazing import GrazingTeam
 from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.baselines.random_walk import RandomTeam
 from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
 from sb3_pm.baselines.tour_patrol import TourPatrolTeam
+from sb3_pm.team_interface import Team
 
 #: Baseline name -> team class, in the order reports list them.
 BASELINES: dict[str, type[Team]] = {

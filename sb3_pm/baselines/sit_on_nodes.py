@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from sb3_pm.baselines._common import agent_positions, env_graph, nearest_first, step_towards
-from sb3_pm.baselines.base import Observation, Team
+from sb3_pm.team_interface import Observation, Team
 
 
 class SitOnNodesTeam(Team):

@@ -22,8 +22,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from sb3_pm.baselines._common import agent_positions, env_graph, own_uncertainty
-from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.graphs import GraphSpec
+from sb3_pm.team_interface import Observation, Team
 
 
 def tour_length(tour: np.ndarray, distances: np.ndarray) -> int:

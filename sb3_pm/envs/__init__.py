@@ -1,7 +1,7 @@
 """Environments: persistent monitoring on networks.
 
 Names load on first use, so that ``import sb3_pm`` (which registers the Gymnasium ids through
-:mod:`sb3_pm.envs.registration`) stays cheap.
+:mod:`sb3_pm.registration`) stays cheap.
 """
 
 from __future__ import annotations
@@ -11,7 +11,9 @@ from typing import Any
 
 _LAZY = {
     "persistent_monitoring_v0": ("sb3_pm.envs.persistent_monitoring_v0", None),
+    "FEATURES": ("sb3_pm.envs.mental_map", "FEATURES"),
     "IllegalActionError": ("sb3_pm.envs.core", "IllegalActionError"),
+    "MentalMaps": ("sb3_pm.envs.mental_map", "MentalMaps"),
     "MonitoringCore": ("sb3_pm.envs.core", "MonitoringCore"),
     "PersistentMonitoringEnv": ("sb3_pm.envs.persistent_monitoring", "PersistentMonitoringEnv"),
     "SingleAgentMonitoringEnv": ("sb3_pm.envs.single_agent", "SingleAgentMonitoringEnv"),

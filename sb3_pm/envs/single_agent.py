@@ -2,12 +2,12 @@
 
 :class:`SingleAgentMonitoringEnv` wraps :class:`~sb3_pm.envs.PersistentMonitoringEnv` with mental-map
 observations. One agent (default ``agent_0``) is controlled through the Gymnasium API; the others
-are driven by a fixed :class:`~sb3_pm.baselines.base.Team`, or, with ``teammates=None``, move
+are driven by a fixed :class:`~sb3_pm.team_interface.Team`, or, with ``teammates=None``, move
 uniformly at random within their own reachable sets. It is the test bed of the DCBF policy and the
 basis of a Gymnasium registration; training a whole team of learners goes through the multiplexer
 in :mod:`sb3_pm.agents` instead.
 
-Spaces are the learner's own (:mod:`sb3_pm.envs.persistent_monitoring_v0`): a ``Dict`` mental map
+Spaces are the learner's own (:mod:`sb3_pm.envs.persistent_monitoring`): a ``Dict`` mental map
 and ``Discrete(N)`` actions. ``action_masks()`` returns the learner's reachable set as bool (for
 sb3-contrib's MaskablePPO). Episodes end by truncation after ``max_cycles`` steps; the last
 step's ``info`` holds the env's ``"metrics"``.
@@ -21,13 +21,27 @@ totals from earlier episodes are kept, as docs/METHOD.md prescribes.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
 
-from sb3_pm.baselines.base import Team
 from sb3_pm.envs.persistent_monitoring import PersistentMonitoringEnv
+
+
+class Teammates(Protocol):
+    """The two methods of :class:`~sb3_pm.team_interface.Team` this env calls on its teammates.
+
+    Every ``Team`` has them. The env names this protocol instead of importing ``Team`` because the
+    team interface is the layer above the environments.
+    """
+
+    def reset(self, env: Any, seed: int | None = None) -> None: ...
+
+    def predict(
+        self, observations: dict[str, dict[str, Any]], deterministic: bool = True
+    ) -> Mapping[str, Any]: ...
 
 
 class SingleAgentMonitoringEnv(gym.Env):
@@ -50,7 +64,7 @@ class SingleAgentMonitoringEnv(gym.Env):
         self,
         graph: Any = "paper-50",
         agent: str = "agent_0",
-        teammates: Team | None = None,
+        teammates: Teammates | None = None,
         **env_kwargs: Any,
     ) -> None:
         super().__init__()

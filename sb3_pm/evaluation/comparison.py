@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sb3_pm.baselines.base import Team
 from sb3_pm.evaluation.harness import EvaluationResult, evaluate
 from sb3_pm.evaluation.plots import plot_table, plot_uncertainty
 from sb3_pm.evaluation.reports import (
@@ -35,6 +34,7 @@ from sb3_pm.evaluation.statistics import (
     summarize_by_graph,
 )
 from sb3_pm.evaluation.teams import team_env_kwargs
+from sb3_pm.team_interface import Team
 
 SEED_STRIDE = 1000
 

@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pm.baselines.base import Team
 from sb3_pm.evaluation.harness import EpisodeRecord, run_episode
 from sb3_pm.graphs import GraphLike, resolve_graph
+from sb3_pm.team_interface import Team
 
 
 def record_gif(

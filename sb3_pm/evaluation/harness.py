@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pm.baselines.base import Team
 from sb3_pm.graphs import GraphLike, graph_label, resolve_graph
+from sb3_pm.team_interface import Team
 
 #: Mixed into the team's seed so that it differs from the env's seed for the same episode.
 _TEAM_SEED_TAG = 0x7EA
@@ -139,7 +139,7 @@ def evaluate(
 ) -> EvaluationResult:
     """Run ``team`` for ``episodes`` full episodes on ``graph`` and collect their metrics.
 
-    :param team: any :class:`~sb3_pm.baselines.base.Team` (a baseline or a trained team).
+    :param team: any :class:`~sb3_pm.team_interface.Team` (a baseline or a trained team).
     :param graph: a preset name, a ``.graphml`` path or a :class:`~sb3_pm.graphs.GraphSpec`.
     :param n_agents: team size.
     :param episodes: number of episodes, at least 1.

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_pm.baselines import BASELINES, make_team
-from sb3_pm.baselines.base import Team
+from sb3_pm.team_interface import Team
 
 
 class PolicyError(ValueError):

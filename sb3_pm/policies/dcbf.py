@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import torch as th
 
-from sb3_pm.agents.mental_map import AGE, OCCUPIED, TARGET, U
+from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
 
 
 @dataclass(frozen=True)

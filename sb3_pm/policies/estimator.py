@@ -26,7 +26,7 @@ import numpy as np
 import torch as th
 from torch import nn
 
-from sb3_pm.agents.mental_map import AGE, TARGET, U
+from sb3_pm.envs.mental_map import AGE, TARGET, U
 
 ESTIMATOR_TARGETS = ("map", "observed")
 #: Batches with at least this many node rows run the MLP on known targets' rows only.

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import torch as th
 
-from sb3_pm.agents.mental_map import AGE, TARGET, U
+from sb3_pm.envs.mental_map import AGE, TARGET, U
 
 DERIVED_FEATURES = ("projected", "closeness")
 
@@ -59,7 +59,7 @@ def derived_node_features(
     """``[projected, closeness]`` per node (see the module docstring), both in ``[0, 1]``.
 
     :param nodes: raw (unnormalized) mental-map node features, columns as in
-        :data:`sb3_pm.agents.mental_map.FEATURES`.
+        :data:`sb3_pm.envs.mental_map.FEATURES`.
     :param adjacency: the known adjacency.
     :param position: the agent's node, one-hot.
     :param u_max: the uncertainty cap.

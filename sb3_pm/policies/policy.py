@@ -33,7 +33,7 @@ from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_pm.agents.mental_map import FEATURES, U
+from sb3_pm.envs.mental_map import FEATURES, U
 from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
@@ -71,7 +71,7 @@ def masked_mode(logits: th.Tensor, masks: th.Tensor) -> th.Tensor:
 class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     """Masked actor-critic over a mental map, with a GAT encoder, a state estimator and a DCBF filter.
 
-    :param observation_space: the map observation ``Dict`` of :mod:`sb3_pm.envs.persistent_monitoring_v0`.
+    :param observation_space: the map observation ``Dict`` of :mod:`sb3_pm.envs.persistent_monitoring`.
     :param action_space: ``Discrete(N)``.
     :param lr_schedule: learning-rate schedule of the actor-critic optimizer.
     :param net_arch: hidden sizes of the heads, ``dict(pi=[...], vf=[...])`` or one list for both

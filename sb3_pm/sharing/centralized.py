@@ -38,9 +38,9 @@ from sb3_pm.agents.team import (
     with_episode_metrics,
     write_manifest,
 )
-from sb3_pm.baselines.base import Observation, Team
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
+from sb3_pm.team_interface import Observation, Team
 from sb3_pm.zoo.registry import (
     uses_masks,
 )

@@ -12,7 +12,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-#: Algorithms a team can be built from. ``dcbf_ppo`` is the paper's method (issue 4).
+#: Algorithms a team can be built from. ``dcbf_ppo`` is the paper's method (PPO with the DCBF policy).
 ALGORITHMS: dict[str, str] = {
     "dcbf_ppo": "sb3_pm.ppo_dcbf:DCBFPPO",
     "maskable_ppo": "sb3_contrib:MaskablePPO",

@@ -1,4 +1,4 @@
-"""Train our algorithms through rl-baselines3-zoo's own ``train`` (issue 5).
+"""Train our algorithms through rl-baselines3-zoo's own ``train``.
 
 rl-zoo picks the algorithm class from its ``rl_zoo3.utils.ALGOS`` table, which knows SB3 and some
 sb3-contrib algorithms but neither :class:`~sb3_pm.ppo_dcbf.DCBFPPO` nor sb3-contrib's
@@ -12,7 +12,8 @@ sb3-contrib algorithms but neither :class:`~sb3_pm.ppo_dcbf.DCBFPPO` nor sb3-con
 
 :func:`main` registers them, then runs rl-zoo's ``train()`` on the given arguments: every rl-zoo
 option works (``-conf``, ``-n``, ``--hyperparams``, ``-f``, ``--seed``, ``--eval-freq`` ...), and
-our Gymnasium ids are registered already (``import sb3_pm``), so ``--gym-packages`` is optional::
+our Gymnasium ids are registered already (importing this module runs ``sb3_pm/__init__.py``,
+which registers them), so ``--gym-packages`` is optional::
 
     python -m sb3_pm.zoo --algo dcbf_ppo --env sb3_pm/PersistentMonitoring-paper50-v0 \\
         -conf zoo/dcbf_ppo.yml -n 2048
@@ -25,7 +26,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-import sb3_pm  # noqa: F401  (registers the Gymnasium ids before rl-zoo looks them up)
+# The Gymnasium ids are registered before rl-zoo looks them up: Python runs sb3_pm/__init__.py
+# (which calls register_envs) before any module of the package, this one included.
 from sb3_pm.zoo.registry import ALGORITHMS, import_path
 
 #: rl-zoo algorithm name -> our registry name (:data:`sb3_pm.zoo.registry.ALGORITHMS`).

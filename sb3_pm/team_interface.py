@@ -1,5 +1,9 @@
 """The one team interface shared by baselines and learned teams.
 
+It sits just above :mod:`sb3_pm.envs` and below everything that builds or drives a team
+(baselines, learners, evaluation), so that each of them can depend on it without depending on the
+others. It imports nothing from ``sb3_pm``.
+
 The evaluation harness drives every team the same way::
 
     team.reset(env, seed=...)            # once per episode, after env.reset()
@@ -18,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+#: One agent's observation: the env's per-agent ``Dict`` (a mental map by default).
 Observation = dict[str, Any]
 
 
@@ -42,3 +47,6 @@ class Team(ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(name={self.name!r})"
+
+
+__all__ = ["Observation", "Team"]

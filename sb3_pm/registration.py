@@ -1,4 +1,4 @@
-"""Gymnasium registration of the single-agent view (issue 5): ``import sb3_pm`` makes these ids work.
+"""Gymnasium ids for the single-agent view: after ``import sb3_pm``, ``gym.make`` builds it by name.
 
 Registered ids (namespace ``sb3_pm``)::
 
@@ -17,11 +17,11 @@ default ``agent_0``) with its mental-map ``Dict`` observation and ``Discrete(N)`
     gym.make("sb3_pm/PersistentMonitoring-paper50-v0", teammates="runs/my_team")  # a saved team
 
 ``teammates`` is a baseline name (:data:`sb3_pm.baselines.BASELINES`), the folder of a saved
-trained team, a :class:`~sb3_pm.baselines.base.Team` instance, or ``None`` (uniform random moves
+trained team, a :class:`~sb3_pm.team_interface.Team` instance, or ``None`` (uniform random moves
 inside each teammate's reachable set; the same as ``"random"`` in spirit, without a Team object).
 A saved team brings its own team size and env options (observation radius, reward, ...), which
 explicit keyword arguments override. Every other keyword is an argument of the environment
-(:mod:`sb3_pm.envs.persistent_monitoring_v0`).
+(:mod:`sb3_pm.envs.persistent_monitoring`).
 
 Episode length: the env truncates by itself after ``max_cycles`` steps (``truncated=True``), so
 the specs carry no ``max_episode_steps`` and ``gym.make`` adds no ``TimeLimit``: a registered
@@ -29,6 +29,8 @@ step limit would disagree with ``max_cycles=...`` passed at make time and cut ep
 
 This module imports neither torch nor the environment: the ids point at
 :func:`make_single_agent_env` by its ``"module:function"`` string, loaded on the first ``gym.make``.
+It sits at the top of the package, beside ``sb3_pm/__init__.py``, because resolving
+``teammates`` reaches every layer up to evaluation (baselines by name, saved trained teams).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from typing import Any
 #: Gymnasium namespace of every id registered here.
 NAMESPACE = "sb3_pm"
 #: The entry point of every id (a string, so that registering imports nothing heavy).
-ENTRY_POINT = "sb3_pm.envs.registration:make_single_agent_env"
+ENTRY_POINT = "sb3_pm.registration:make_single_agent_env"
 #: Registered id -> the graph it defaults to.
 ENV_IDS: dict[str, str] = {
     f"{NAMESPACE}/PersistentMonitoring-v0": "paper-50",
@@ -67,9 +69,9 @@ def make_single_agent_env(
         (``n_agents``, ``max_cycles``, ``reward``, ``render_mode`` ...).
     :raises ValueError: for an unknown baseline name or an unloadable team folder.
     """
-    from sb3_pm.baselines.base import Team
     from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
     from sb3_pm.evaluation.teams import resolve_team, team_env_kwargs
+    from sb3_pm.team_interface import Team
 
     team: Team | None
     if teammates is None or isinstance(teammates, Team):
