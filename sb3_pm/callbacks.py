@@ -27,6 +27,7 @@ import torch as th
 from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_pm.errors import InputError
 from sb3_pm.policies.estimator import transition_pairs
 
 if TYPE_CHECKING:
@@ -48,7 +49,7 @@ class EstimatorCallback(BaseCallback):
     def __init__(self, update_at: str = "after_train", verbose: int = 0) -> None:
         super().__init__(verbose)
         if update_at not in UPDATE_AT:
-            raise ValueError(f"update_at must be one of {UPDATE_AT}, got {update_at!r}")
+            raise InputError(f"update_at must be one of {UPDATE_AT}, got {update_at!r}")
         self.update_at = update_at
         self._pending: tuple[np.ndarray, np.ndarray] | None = None
         #: Mean loss of the last fit's final epoch (``nan`` before the first fit).

@@ -2,7 +2,8 @@
 
 Each command lives in its own module under :mod:`sb3_pm.commands` and provides
 ``register(subparsers)``; it sets ``func`` on its parser. Errors a user can fix (a bad graph, a
-missing file, a malformed config) print one line and exit with status 2, not a traceback.
+missing file, a malformed config: :class:`~sb3_pm.errors.Sb3PmError`, and ``OSError``) print one
+line and exit with status 2, not a traceback; any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -11,14 +12,13 @@ import argparse
 import importlib
 import sys
 
+from sb3_pm.errors import Sb3PmError, UsageError
 from sb3_pm.version import __version__
+
+__all__ = ["UsageError", "build_parser", "main"]
 
 #: Command modules, in help order.
 COMMAND_MODULES = ("evaluate", "compare", "train", "reproduce")
-
-
-class UsageError(Exception):
-    """A problem with the user's input; the CLI prints its message and exits with status 2."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,8 +34,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sb3_pm.graphs import GraphError
-
     parser = build_parser()
     args = parser.parse_args(argv)
     # The command line as typed, for the records commands write (a run's command.txt); from the
@@ -46,12 +44,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except (UsageError, GraphError, FileNotFoundError, FileExistsError, ValueError) as error:
+    except Sb3PmError as error:  # the project's own errors: problems the user can fix
         print(f"sb3-pm {args.command}: error: {error}", file=sys.stderr)
         return 2
-    except OSError as error:  # an unwritable path, a full disk: the file and the reason, in one line
-        where = f" {error.filename}" if getattr(error, "filename", None) else ""
-        print(f"sb3-pm {args.command}: error:{where}: {error.strerror or error}", file=sys.stderr)
+    except OSError as error:  # an unwritable path, a missing file, a full disk: the file and the reason
+        if error.strerror is None:  # raised with a message of ours, which names the file
+            print(f"sb3-pm {args.command}: error: {error}", file=sys.stderr)
+        else:
+            where = f" {error.filename}:" if error.filename else ""
+            print(f"sb3-pm {args.command}: error:{where} {error.strerror}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"sb3-pm {args.command}: interrupted", file=sys.stderr)

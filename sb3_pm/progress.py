@@ -12,6 +12,8 @@ import sys
 import time
 from typing import IO, Any
 
+from sb3_pm.errors import InputError
+
 #: Seconds between two plain progress lines; ``SB3_PM_PROGRESS_SECONDS`` overrides it.
 DEFAULT_INTERVAL = 30.0
 
@@ -23,9 +25,9 @@ def _interval() -> float:
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"SB3_PM_PROGRESS_SECONDS must be a number of seconds, got {text!r}") from None
+        raise InputError(f"SB3_PM_PROGRESS_SECONDS must be a number of seconds, got {text!r}") from None
     if not value >= 0:  # also refuses nan, which would silence every line
-        raise ValueError(f"SB3_PM_PROGRESS_SECONDS must be at least 0, got {text!r}")
+        raise InputError(f"SB3_PM_PROGRESS_SECONDS must be at least 0, got {text!r}")
     return value
 
 

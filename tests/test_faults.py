@@ -228,3 +228,23 @@ def test_ray_problems_are_one_line_before_anything_is_written(tmp_path, monkeypa
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "needs Ray" in err and len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_only_the_projects_errors_become_one_line(monkeypatch, capsys) -> None:
+    """A user's mistake is one line; a bug (any other exception) keeps its traceback."""
+    from sb3_pm.commands import evaluate
+    from sb3_pm.errors import InputError
+
+    def bug(args):
+        raise ValueError("an internal invariant broke")
+
+    monkeypatch.setattr(evaluate, "run", bug)
+    with pytest.raises(ValueError, match="internal invariant"):
+        main(["evaluate", "--policy", "grazing"])
+
+    def mistake(args):
+        raise InputError("a value the user can fix")
+
+    monkeypatch.setattr(evaluate, "run", mistake)
+    assert main(["evaluate", "--policy", "grazing"]) == 2
+    assert capsys.readouterr().err == "sb3-pm evaluate: error: a value the user can fix\n"

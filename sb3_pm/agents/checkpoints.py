@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sb3_pm.errors import InputError
 from sb3_pm.files import sha256_file, write_atomic
 from sb3_pm.version import __version__
 
@@ -52,7 +53,7 @@ STATE = "state.pkl"
 RECORD_FORMAT = "sb3_pm.checkpoint/1"
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InputError):
     """No usable checkpoint: none written yet, all damaged, or from another sb3_pm version."""
 
 
@@ -81,9 +82,9 @@ class CheckpointSchedule:
     def __post_init__(self) -> None:
         self.folder = Path(self.folder)
         if self.every < 1:
-            raise ValueError(f"checkpoint every must be at least 1 rollout, got {self.every}")
+            raise InputError(f"checkpoint every must be at least 1 rollout, got {self.every}")
         if self.keep < 1:
-            raise ValueError(f"checkpoints to keep must be at least 1, got {self.keep}")
+            raise InputError(f"checkpoints to keep must be at least 1, got {self.keep}")
         #: the last checkpoint written or resumed from
         self.last: Path | None = None
 

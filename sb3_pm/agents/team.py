@@ -59,6 +59,7 @@ from sb3_pm.agents.streams import (
     load_stream,
     seeded_stream,
 )
+from sb3_pm.errors import InputError
 from sb3_pm.files import write_atomic
 from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
 from sb3_pm.team_interface import Observation, Team
@@ -188,7 +189,7 @@ def learn_seed(seed: int, num_timesteps: int) -> int:
 def _check_same(values: Mapping[str, Any], key: str) -> None:
     if len(set(values.values())) > 1:
         listed = ", ".join(f"{agent}={value}" for agent, value in values.items())
-        raise ValueError(
+        raise InputError(
             f"every learner of a team must use the same {key} (they are stepped together); got {listed}"
         )
 
@@ -237,9 +238,9 @@ class IndependentPPO(Team):
     ) -> None:
         self.graph: GraphSpec = resolve_graph(graph)
         if n_agents < 1:
-            raise ValueError(f"n_agents must be at least 1, got {n_agents}")
+            raise InputError(f"n_agents must be at least 1, got {n_agents}")
         if n_envs < 1:
-            raise ValueError(f"n_envs must be at least 1, got {n_envs}")
+            raise InputError(f"n_envs must be at least 1, got {n_envs}")
         self.n_agents = int(n_agents)
         self.n_envs = int(n_envs)
         self.seed = int(seed)
@@ -250,7 +251,7 @@ class IndependentPPO(Team):
         self.algo_class, self.algo, self.policy, self.env_kwargs = resolve_learner(algo, policy, env_kwargs)
         for key in ("graph", "n_agents"):
             if key in self.env_kwargs:
-                raise ValueError(f"env_kwargs must not hold {key!r}: pass it to IndependentPPO itself")
+                raise InputError(f"env_kwargs must not hold {key!r}: pass it to IndependentPPO itself")
         self.hyperparams = dict(hyperparams or {})
         self.per_agent = {agent: dict(values) for agent, values in (per_agent or {}).items()}
 
@@ -258,7 +259,7 @@ class IndependentPPO(Team):
         self.agents: list[str] = list(self.hub.agents)
         unknown = sorted(set(self.per_agent) - set(self.agents))
         if unknown:
-            raise ValueError(f"per-agent overrides for unknown agents {unknown}; the team has {self.agents}")
+            raise InputError(f"per-agent overrides for unknown agents {unknown}; the team has {self.agents}")
         self.models: dict[str, Any] = {}
         #: random streams restored from a checkpoint, used by the next ``learn(reset_num_timesteps=False)``
         self._resume_streams: list[StreamState] | None = None
@@ -306,12 +307,12 @@ class IndependentPPO(Team):
         merged = {**self.hyperparams, **self.per_agent.get(agent, {})}
         for key in RESERVED_KEYS:
             if key in merged and key != "policy":
-                raise ValueError(
+                raise InputError(
                     f"hyperparameter {key!r} ({agent}) is set by the team; pass it to IndependentPPO"
                 )
         if "n_envs" in merged:
             if int(merged.pop("n_envs")) != self.n_envs:
-                raise ValueError(
+                raise InputError(
                     f"every learner of a team must use the same n_envs; {agent} asks for a different one "
                     f"than the team's {self.n_envs}"
                 )
@@ -385,7 +386,7 @@ class IndependentPPO(Team):
             return [callback(agent) for agent in self.agents]
         callbacks = list(callback)
         if len(callbacks) != self.n_agents:
-            raise ValueError(f"got {len(callbacks)} callbacks for {self.n_agents} agents")
+            raise InputError(f"got {len(callbacks)} callbacks for {self.n_agents} agents")
         return callbacks
 
     def learn(
@@ -424,7 +425,7 @@ class IndependentPPO(Team):
         :raises Exception: the first error a learner raised (the others are stopped cleanly).
         """
         if total_timesteps < 1:
-            raise ValueError(f"total_timesteps must be positive, got {total_timesteps}")
+            raise InputError(f"total_timesteps must be positive, got {total_timesteps}")
         self._validate_learners(reset_num_timesteps)
         if not reset_num_timesteps and any(m._last_obs is None for m in self.models.values()):
             # All learners must reset together (the multiplexer steps them as one).
@@ -727,7 +728,7 @@ def load_model_file(algo_class: type[BaseAlgorithm], path: Path, **kwargs: Any) 
         if isinstance(error, FileNotFoundError):
             raise
         reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise ValueError(
+        raise InputError(
             f"{path} cannot be loaded, the file is damaged or not a saved model ({reason})"
         ) from error
 
@@ -748,7 +749,7 @@ def read_manifest(folder: Path) -> dict[str, Any]:
     try:
         return dict(json.loads(path.read_text()))
     except json.JSONDecodeError as error:
-        raise ValueError(f"{path} is not valid JSON: {error}") from error
+        raise InputError(f"{path} is not valid JSON: {error}") from error
 
 
 def graph_for_saved_team(folder: Path, manifest: Mapping[str, Any], graph: GraphLike | None) -> GraphSpec:
@@ -763,7 +764,7 @@ def graph_for_saved_team(folder: Path, manifest: Mapping[str, Any], graph: Graph
     else:
         spec = resolve_graph(graph)
     if spec.fingerprint != saved["fingerprint"]:
-        raise ValueError(
+        raise InputError(
             f"the team in {folder} was trained on graph {saved['name']!r} "
             f"(fingerprint {saved['fingerprint']}), "
             f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
@@ -774,7 +775,7 @@ def graph_for_saved_team(folder: Path, manifest: Mapping[str, Any], graph: Graph
 def check_same_graph(expected: GraphSpec, actual: GraphSpec) -> None:
     """Raise a ``ValueError`` naming both graphs if they are not the same problem."""
     if expected.fingerprint != actual.fingerprint:
-        raise ValueError(
+        raise InputError(
             f"the team was trained on graph {expected.name!r} (fingerprint {expected.fingerprint}), "
             f"not on graph {actual.name!r} (fingerprint {actual.fingerprint})"
         )

@@ -39,6 +39,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from sb3_pm.baselines._common import nearest_first
 from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
+from sb3_pm.errors import InputError
 from sb3_pm.team_interface import Observation, Team
 
 UNREACHABLE = np.iinfo(np.int32).max
@@ -98,7 +99,7 @@ class LocalGreedyTeam(Team):
     def act(self, agent: str, obs: Observation) -> int:
         """One agent's destination from its own observation."""
         if "nodes" not in obs:
-            raise ValueError(
+            raise InputError(
                 "local_greedy needs mental-map observations: create the env with observation='map'"
             )
         nodes = np.asarray(obs["nodes"])

@@ -9,6 +9,7 @@ from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.baselines.random_walk import RandomTeam
 from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
 from sb3_pm.baselines.tour_patrol import TourPatrolTeam
+from sb3_pm.errors import InputError
 from sb3_pm.team_interface import Team
 
 #: Baseline name -> team class, in the order reports list them.
@@ -27,5 +28,5 @@ def make_team(name: str, **kwargs: Any) -> Team:
     try:
         cls = BASELINES[name]
     except KeyError:
-        raise ValueError(f"unknown baseline {name!r}; baselines are {', '.join(BASELINES)}") from None
+        raise InputError(f"unknown baseline {name!r}; baselines are {', '.join(BASELINES)}") from None
     return cls(**kwargs)

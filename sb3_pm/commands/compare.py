@@ -41,7 +41,7 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
     from sb3_pm.evaluation import compare, markdown_table, policy_label, resolve_team
     from sb3_pm.graphs import resolve_graph
 

@@ -44,7 +44,7 @@ def register(subparsers: Any) -> None:
 
 def check_counts(args: argparse.Namespace) -> None:
     """Reject non-positive sizes with one clear line before any work starts."""
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
 
     for flag in ("agents", "steps", "episodes"):
         value = getattr(args, flag)
@@ -77,7 +77,7 @@ def print_summary(result: Any, stream: Any = None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
     from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
     from sb3_pm.evaluation.teams import team_env_kwargs
     from sb3_pm.graphs import resolve_graph

@@ -30,7 +30,7 @@ def add_compute_options(parser: argparse.ArgumentParser, training: bool = False)
 
 def check_compute_options(args: Any) -> None:
     """Refuse ``--threads`` below 1 with one line, before any work starts."""
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
 
     if args.threads < 1:
         raise UsageError(f"--threads must be at least 1, got {args.threads}")
@@ -45,7 +45,7 @@ def check_writable(path: Any, flag: str) -> None:
     import tempfile
     from pathlib import Path
 
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
 
     if path is None:
         return

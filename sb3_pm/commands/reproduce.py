@@ -67,7 +67,7 @@ def check_ray(address: str | None) -> None:
     import importlib.util
     import socket
 
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
 
     if importlib.util.find_spec("ray") is None:
         raise UsageError("--backend ray needs Ray: pip install -e '.[ray]' (or pip install ray)")
@@ -89,7 +89,7 @@ def _exit_on_sigterm(signum: int, frame: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
     from sb3_pm.experiments import load_experiment, reproduce
     from sb3_pm.graphs import resolve_graph
 

@@ -18,6 +18,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from sb3_pm.errors import Sb3PmError
+
 #: The lock file inside a run folder.
 LOCK = ".lock"
 #: Files that mark a folder as a run folder.
@@ -26,7 +28,7 @@ RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
 RUN_ENTRIES = frozenset({*RUN_MARKERS, "tb", "checkpoints", "resumed.txt", LOCK})
 
 
-class RunFolderError(Exception):
+class RunFolderError(Sb3PmError):
     """A run folder that cannot be used: in use by another process, or not a run folder."""
 
 

@@ -124,7 +124,7 @@ def _package_dir() -> Path:
 
 def check_run_folder(out: Path, overwrite: bool) -> None:
     """Everything about ``out`` that can be checked without touching it, before any work starts."""
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
 
     resolved = out.resolve()
     if resolved == _package_dir() or _package_dir() in resolved.parents:
@@ -145,7 +145,7 @@ def check_run_folder(out: Path, overwrite: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
     from sb3_pm.graphs import graph_label, resolve_graph
     from sb3_pm.zoo import load_config
 
@@ -213,7 +213,7 @@ def resume(args: argparse.Namespace) -> int:
     """``--resume DIR``: continue the run in DIR from its newest intact checkpoint."""
     from sb3_pm.agents.checkpoints import CheckpointError
     from sb3_pm.agents.team import MANIFEST, IndependentPPO
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
 
     given = [f"--{name.replace('_', '-')}" for name in RUN_OPTIONS if getattr(args, name) not in (None, [])]
     if args.overwrite:
@@ -358,7 +358,7 @@ def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
 def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:
     """``["key:value", ...]`` -> ``{key: YAML-parsed value}`` (rl-zoo's ``--hyperparams`` syntax,
     with YAML instead of Python ``eval`` for the values)."""
-    from sb3_pm.cli import UsageError
+    from sb3_pm.errors import UsageError
 
     parsed: dict[str, Any] = {}
     for item in items:

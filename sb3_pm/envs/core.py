@@ -11,10 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 
 
-class IllegalActionError(ValueError):
+class IllegalActionError(InputError):
     """An agent asked to move to a node outside its reachable set."""
 
 
@@ -51,11 +52,11 @@ class MonitoringCore:
 
     def __init__(self, graph: GraphSpec, n_agents: int, u_max: int = 100) -> None:
         if n_agents < 1:
-            raise ValueError(f"n_agents must be at least 1, got {n_agents}")
+            raise InputError(f"n_agents must be at least 1, got {n_agents}")
         if n_agents > graph.n_nodes:
-            raise ValueError(f"more agents ({n_agents}) than nodes ({graph.n_nodes}) in graph {graph.name!r}")
+            raise InputError(f"more agents ({n_agents}) than nodes ({graph.n_nodes}) in graph {graph.name!r}")
         if u_max < 1:
-            raise ValueError(f"u_max must be a positive integer, got {u_max}")
+            raise InputError(f"u_max must be a positive integer, got {u_max}")
         self.graph = graph
         self.n_agents = n_agents
         self.u_max = int(u_max)
@@ -68,9 +69,9 @@ class MonitoringCore:
         """Place the agents and set the initial uncertainties (zeros by default; non-targets stay 0)."""
         positions = np.asarray(positions, dtype=np.int64)
         if positions.shape != (self.n_agents,):
-            raise ValueError(f"expected {self.n_agents} initial positions, got {positions.tolist()}")
+            raise InputError(f"expected {self.n_agents} initial positions, got {positions.tolist()}")
         if ((positions < 0) | (positions >= self.graph.n_nodes)).any():
-            raise ValueError(
+            raise InputError(
                 f"initial positions {positions.tolist()} are not all nodes of 0..{self.graph.n_nodes - 1}"
             )
         self.positions = positions.copy()
@@ -78,7 +79,7 @@ class MonitoringCore:
         if uncertainty is not None:
             values = np.asarray(uncertainty, dtype=np.int64)
             if values.shape != (self.graph.n_nodes,) or (values < 0).any() or (values > self.u_max).any():
-                raise ValueError(
+                raise InputError(
                     f"initial uncertainty must be {self.graph.n_nodes} integers in [0, {self.u_max}]"
                 )
             self.uncertainty[self._target_idx] = values[self._target_idx]

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sb3_pm.errors import InputError
+
 FEATURES = ("u", "age", "target", "occupied", "self")
 U, AGE, TARGET, OCCUPIED, SELF = range(len(FEATURES))
 GRAPH_KNOWLEDGE = ("discovered", "known")
@@ -41,7 +43,7 @@ class MentalMaps:
 
     def __init__(self, n_agents: int, adjacency: np.ndarray, graph_knowledge: str = "discovered") -> None:
         if graph_knowledge not in GRAPH_KNOWLEDGE:
-            raise ValueError(f"graph_knowledge must be one of {GRAPH_KNOWLEDGE}, got {graph_knowledge!r}")
+            raise InputError(f"graph_knowledge must be one of {GRAPH_KNOWLEDGE}, got {graph_knowledge!r}")
         self.n_agents = n_agents
         self.n_nodes = adjacency.shape[0]
         self.graph_knowledge = graph_knowledge

@@ -102,6 +102,7 @@ from sb3_pm.envs.core import MonitoringCore
 from sb3_pm.envs.mental_map import FEATURES, MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
+from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, resolve_graph
 
 OBSERVATION_MODES = ("map", "local")
@@ -138,19 +139,19 @@ class PersistentMonitoringEnv(ParallelEnv):
         super().__init__()
         self.graph = resolve_graph(graph)
         if max_cycles < 1:
-            raise ValueError(f"max_cycles must be at least 1, got {max_cycles}")
+            raise InputError(f"max_cycles must be at least 1, got {max_cycles}")
         if obs_radius < 0:
-            raise ValueError(f"obs_radius must be >= 0, got {obs_radius}")
+            raise InputError(f"obs_radius must be >= 0, got {obs_radius}")
         for value, allowed, label in (
             (observation, OBSERVATION_MODES, "observation"),
             (initial_uncertainty, INITIAL_UNCERTAINTY, "initial_uncertainty"),
             (illegal_action, ILLEGAL_ACTION_MODES, "illegal_action"),
         ):
             if value not in allowed:
-                raise ValueError(f"{label} must be one of {allowed}, got {value!r}")
+                raise InputError(f"{label} must be one of {allowed}, got {value!r}")
         render_modes = list(self.metadata["render_modes"])  # type: ignore[call-overload]
         if render_mode is not None and render_mode not in render_modes:
-            raise ValueError(
+            raise InputError(
                 f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
             )
         self.core = MonitoringCore(self.graph, n_agents, u_max)
@@ -158,7 +159,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         if initial_positions is not None:
             initial_positions = [int(p) for p in initial_positions]
             if len(initial_positions) != n_agents or not all(0 <= p < n_nodes for p in initial_positions):
-                raise ValueError(
+                raise InputError(
                     f"initial_positions must list {n_agents} nodes in 0..{n_nodes - 1}, "
                     f"got {initial_positions}"
                 )
@@ -281,7 +282,7 @@ class PersistentMonitoringEnv(ParallelEnv):
             raise RuntimeError("step() called on a finished episode; call reset() first")
         missing = [agent for agent in self.agents if agent not in actions]
         if missing:
-            raise ValueError(f"no action given for {missing}")
+            raise InputError(f"no action given for {missing}")
         destinations = np.array([actions[agent] for agent in self.possible_agents], dtype=np.int64)
         previous = self.core.positions
         outcome = self.core.step(destinations, self.illegal_action, self.possible_agents)
@@ -384,7 +385,7 @@ class PersistentMonitoringEnv(ParallelEnv):
     # ------------------------------------------------------------ rendering
     def render(self) -> Any:
         if self.render_mode is None:
-            raise ValueError("render() needs a render_mode: pass render_mode='rgb_array', 'human' or 'ansi'")
+            raise InputError("render() needs a render_mode: pass render_mode='rgb_array', 'human' or 'ansi'")
         from sb3_pm.envs import rendering
 
         if self.render_mode == "ansi":

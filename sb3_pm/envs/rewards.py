@@ -31,6 +31,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from sb3_pm.envs.core import StepOutcome
+from sb3_pm.errors import InputError
 
 TERMS = ("collision", "momentum", "change", "reduction", "clearing")
 REWARD_PRESETS: dict[str, dict[str, float]] = {
@@ -45,14 +46,14 @@ def resolve_reward(reward: str | Mapping[str, float]) -> dict[str, float]:
     """A preset name or a ``{term: weight}`` mapping -> validated weights."""
     if isinstance(reward, str):
         if reward not in REWARD_PRESETS:
-            raise ValueError(f"unknown reward preset {reward!r}; presets are {sorted(REWARD_PRESETS)}")
+            raise InputError(f"unknown reward preset {reward!r}; presets are {sorted(REWARD_PRESETS)}")
         return dict(REWARD_PRESETS[reward])
     weights = {str(k): float(v) for k, v in dict(reward).items()}
     unknown = sorted(set(weights) - set(TERMS))
     if unknown:
-        raise ValueError(f"unknown reward terms {unknown}; terms are {list(TERMS)}")
+        raise InputError(f"unknown reward terms {unknown}; terms are {list(TERMS)}")
     if not weights:
-        raise ValueError("reward needs at least one term")
+        raise InputError("reward needs at least one term")
     return weights
 
 

@@ -28,6 +28,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_pm.envs.persistent_monitoring import PersistentMonitoringEnv
+from sb3_pm.errors import InputError
 
 
 class Teammates(Protocol):
@@ -69,11 +70,11 @@ class SingleAgentMonitoringEnv(gym.Env):
     ) -> None:
         super().__init__()
         if env_kwargs.get("observation", "map") != "map":
-            raise ValueError("SingleAgentMonitoringEnv needs observation='map'")
+            raise InputError("SingleAgentMonitoringEnv needs observation='map'")
         env_kwargs.setdefault("illegal_action", "stay")
         self.env = PersistentMonitoringEnv(graph=graph, **env_kwargs)
         if agent not in self.env.possible_agents:
-            raise ValueError(f"agent must be one of {self.env.possible_agents}, got {agent!r}")
+            raise InputError(f"agent must be one of {self.env.possible_agents}, got {agent!r}")
         self.agent = agent
         self.teammate_names = [a for a in self.env.possible_agents if a != agent]
         self.teammates = teammates

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import EvaluationResult, evaluate
 from sb3_pm.evaluation.plots import plot_table, plot_uncertainty
 from sb3_pm.evaluation.reports import (
@@ -151,13 +152,13 @@ def compare(
     :param threads: torch CPU threads while evaluating (see :func:`~sb3_pm.evaluation.evaluate`).
     """
     if not teams:
-        raise ValueError("compare needs at least one policy")
+        raise InputError("compare needs at least one policy")
     if not graphs:
-        raise ValueError("compare needs at least one graph")
+        raise InputError("compare needs at least one graph")
     if episodes < 1:
-        raise ValueError(f"episodes must be at least 1, got {episodes}")
+        raise InputError(f"episodes must be at least 1, got {episodes}")
     if episodes > SEED_STRIDE:
-        raise ValueError(f"at most {SEED_STRIDE} episodes per seed, got {episodes}")
+        raise InputError(f"at most {SEED_STRIDE} episodes per seed, got {episodes}")
     comparison = Comparison(
         config={
             "policies": list(teams),

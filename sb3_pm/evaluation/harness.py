@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, graph_label, resolve_graph
 from sb3_pm.team_interface import Team
 
@@ -160,9 +161,9 @@ def evaluate(
     from sb3_pm.envs import persistent_monitoring_v0
 
     if episodes < 1:
-        raise ValueError(f"episodes must be at least 1, got {episodes}")
+        raise InputError(f"episodes must be at least 1, got {episodes}")
     if threads is not None and threads < 1:
-        raise ValueError(f"threads must be at least 1, got {threads}")
+        raise InputError(f"threads must be at least 1, got {threads}")
     spec = resolve_graph(graph)
     kwargs = dict(env_kwargs or {})
     env = persistent_monitoring_v0.parallel_env(

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import EvaluationResult
 
 #: The paper's two Table I metrics.
@@ -163,7 +164,7 @@ def effect(
     """The :class:`Effect` of ``policy`` against ``reference`` on ``graph``."""
     ours, theirs = _by_episode(policy, graph, metric), _by_episode(reference, graph, metric)
     if not ours or not theirs:
-        raise ValueError(f"no episodes of {names[0] if not ours else names[1]!r} on graph {graph!r}")
+        raise InputError(f"no episodes of {names[0] if not ours else names[1]!r} on graph {graph!r}")
     paired = ours.keys() == theirs.keys()
     a = np.array(list(ours.values()))
     b = np.array([theirs[k] for k in ours] if paired else list(theirs.values()))
@@ -242,7 +243,7 @@ def effects(
     times a 50-node graph's), so a difference pooled over graphs would mostly measure the largest.
     """
     if reference not in by_policy:
-        raise ValueError(f"unknown reference algorithm {reference!r}; have {sorted(by_policy)}")
+        raise InputError(f"unknown reference algorithm {reference!r}; have {sorted(by_policy)}")
     rows = []
     for graph, on_graph in split_by_graph(by_policy).items():
         for policy, results in on_graph.items():

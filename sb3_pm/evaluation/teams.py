@@ -7,10 +7,11 @@ from pathlib import Path
 from typing import Any
 
 from sb3_pm.baselines import BASELINES, make_team
+from sb3_pm.errors import InputError
 from sb3_pm.team_interface import Team
 
 
-class PolicyError(ValueError):
+class PolicyError(InputError):
     """A ``--policy`` that names no baseline and no loadable trained team."""
 
 

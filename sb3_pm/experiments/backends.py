@@ -13,6 +13,8 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
 
+from sb3_pm.errors import InputError
+
 BACKENDS = ("local", "ray")
 
 
@@ -42,7 +44,7 @@ def run_jobs(
     :raises ImportError: for ``"ray"`` when Ray is not installed (``pip install sb3_pm[ray]``).
     """
     if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; choose one of {BACKENDS}")
+        raise InputError(f"unknown backend {backend!r}; choose one of {BACKENDS}")
     if not jobs:
         return []
     if backend == "ray":

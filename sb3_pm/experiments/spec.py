@@ -37,6 +37,8 @@ from typing import Any
 
 import yaml
 
+from sb3_pm.errors import InputError
+
 VARIANT_KINDS = ("independent", "centralized", "baseline")
 _TOP_KEYS = {
     "name",
@@ -56,7 +58,7 @@ _TOP_KEYS = {
 _VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label", "train", "config"}
 
 
-class ExperimentError(ValueError):
+class ExperimentError(InputError):
     """A malformed experiment file (the message names the file and the key)."""
 
 

@@ -15,11 +15,13 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, shortest_path
 
+from sb3_pm.errors import InputError
+
 if TYPE_CHECKING:
     import networkx as nx
 
 
-class GraphError(ValueError):
+class GraphError(InputError):
     """A graph that cannot be used for persistent monitoring (the message names why)."""
 
 

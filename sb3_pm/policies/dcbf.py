@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import torch as th
 
 from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
+from sb3_pm.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -59,9 +60,9 @@ class DCBFConfig:
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
-            raise ValueError(f"eta must be in [0, 1], got {self.eta}")
+            raise InputError(f"eta must be in [0, 1], got {self.eta}")
         if self.freeze_steps < 0:
-            raise ValueError(f"freeze_steps must be >= 0, got {self.freeze_steps}")
+            raise InputError(f"freeze_steps must be >= 0, got {self.freeze_steps}")
 
 
 def _non_empty(mask: th.Tensor, fallback: th.Tensor) -> th.Tensor:

@@ -27,6 +27,7 @@ import torch as th
 from torch import nn
 
 from sb3_pm.envs.mental_map import AGE, TARGET, U
+from sb3_pm.errors import InputError
 
 ESTIMATOR_TARGETS = ("map", "observed")
 #: Batches with at least this many node rows run the MLP on known targets' rows only.
@@ -88,7 +89,7 @@ class StateEstimator(nn.Module):
         :param target: ``"map"`` (all nodes) or ``"observed"`` (nodes with ``age == 0`` in ``M_k``).
         """
         if target not in ESTIMATOR_TARGETS:
-            raise ValueError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {target!r}")
+            raise InputError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {target!r}")
         error = (self.forward_normalized(previous) - current[..., U] / self.u_max) ** 2
         if target == "map":
             return error.mean()

@@ -27,6 +27,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from sb3_pm.envs.mental_map import U
+from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import BACKENDS, UNIQUE_MIN_BATCH, attention_bias, unique_graphs, use_dense
 from sb3_pm.policies.encodings import LAPLACIAN_MODES, encoding_dim, positional_encoding
 from sb3_pm.policies.features import DERIVED_FEATURES, derived_node_features
@@ -72,14 +73,14 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         custom_kernel: bool = True,
     ) -> None:
         if laplacian not in LAPLACIAN_MODES:
-            raise ValueError(f"laplacian must be one of {LAPLACIAN_MODES}, got {laplacian!r}")
+            raise InputError(f"laplacian must be one of {LAPLACIAN_MODES}, got {laplacian!r}")
         if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+            raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
         if gat_layers < 1:
-            raise ValueError(f"gat_layers must be at least 1, got {gat_layers}")
+            raise InputError(f"gat_layers must be at least 1, got {gat_layers}")
         nodes_space = observation_space["nodes"]
         if not isinstance(nodes_space, spaces.Box) or len(nodes_space.shape) != 2:
-            raise ValueError("GATFeaturesExtractor needs a mental-map observation with a (N, F) 'nodes' Box")
+            raise InputError("GATFeaturesExtractor needs a mental-map observation with a (N, F) 'nodes' Box")
         n_nodes, n_features = nodes_space.shape
         super().__init__(observation_space, features_dim=n_nodes * hidden_dim)
         self.n_nodes, self.hidden_dim, self.laplacian, self.laplacian_k = (

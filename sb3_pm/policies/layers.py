@@ -15,6 +15,7 @@ import torch as th
 from torch import nn
 from torch_geometric.nn import GATConv, TransformerConv
 
+from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import (
     BACKENDS,
     FUSED_MIN_SCORES,
@@ -57,7 +58,7 @@ class GraphAttention(nn.Module):
     ) -> None:
         super().__init__()
         if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+            raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self.in_channels, self.out_channels, self.heads, self.backend = (
             in_channels,
             out_channels,
@@ -168,7 +169,7 @@ class GraphTransformer(nn.Module):
     def __init__(self, channels: int, backend: str = "auto") -> None:
         super().__init__()
         if backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+            raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self.channels, self.backend = channels, backend
         self.conv = TransformerConv(channels, channels, heads=1, concat=True, root_weight=True)
 

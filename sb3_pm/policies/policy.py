@@ -34,6 +34,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_pm.envs.mental_map import FEATURES, U
+from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
@@ -141,15 +142,15 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         if not isinstance(observation_space, spaces.Dict) or any(
             k not in observation_space.spaces for k in MAP_KEYS
         ):
-            raise ValueError(
+            raise InputError(
                 f"DCBFActorCriticPolicy needs the mental-map Dict observation with keys {MAP_KEYS}"
             )
         if not isinstance(action_space, spaces.Discrete):
-            raise ValueError(f"DCBFActorCriticPolicy needs a Discrete action space, got {action_space}")
+            raise InputError(f"DCBFActorCriticPolicy needs a Discrete action space, got {action_space}")
         if not share_features_extractor:
-            raise ValueError("DCBFActorCriticPolicy shares its graph encoder between actor and critic")
+            raise InputError("DCBFActorCriticPolicy shares its graph encoder between actor and critic")
         if estimator_target not in ESTIMATOR_TARGETS:
-            raise ValueError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {estimator_target!r}")
+            raise InputError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {estimator_target!r}")
         # Plain attributes are set before nn.Module.__init__ (allowed for non-tensors) because the
         # parent constructor calls our _build, which reads them.
         self.use_dcbf, self.use_estimator = bool(use_dcbf), bool(use_estimator)
@@ -181,7 +182,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         )
         if clash:
             names = ", ".join(f"{key} (pass {argument_for.get(key, key)}=...)" for key in clash)
-            raise ValueError(
+            raise InputError(
                 f"features_extractor_kwargs sets {names}: DCBFActorCriticPolicy sets the graph encoder "
                 "from its own arguments; give them as policy_kwargs instead"
             )

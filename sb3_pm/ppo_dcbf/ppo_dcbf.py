@@ -38,6 +38,7 @@ from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_pm.callbacks import UPDATE_AT, EstimatorCallback
+from sb3_pm.errors import InputError
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
 from sb3_pm.ppo_dcbf.policies import DCBFPolicy
 
@@ -71,14 +72,14 @@ class DCBFPPO(MaskablePPO):
 
     def __init__(self, *args: Any, estimator_update_at: str = "after_train", **kwargs: Any) -> None:
         if estimator_update_at not in UPDATE_AT:
-            raise ValueError(f"estimator_update_at must be one of {UPDATE_AT}, got {estimator_update_at!r}")
+            raise InputError(f"estimator_update_at must be one of {UPDATE_AT}, got {estimator_update_at!r}")
         self.estimator_update_at = estimator_update_at
         super().__init__(*args, **kwargs)
 
     def _setup_model(self) -> None:
         super()._setup_model()
         if not isinstance(self.policy, DCBFActorCriticPolicy):
-            raise ValueError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")
+            raise InputError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

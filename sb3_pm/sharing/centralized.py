@@ -38,6 +38,7 @@ from sb3_pm.agents.team import (
     with_episode_metrics,
     write_manifest,
 )
+from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
 from sb3_pm.team_interface import Observation, Team
@@ -110,7 +111,7 @@ class CentralizedPPO(Team):
         :raises ValueError: if the entry has per-agent overrides (there is only one network).
         """
         if config.agents:
-            raise ValueError(f"{config.source}: per-agent overrides make no sense for a centralized team")
+            raise InputError(f"{config.source}: per-agent overrides make no sense for a centralized team")
         options = {**config.team_kwargs(), **kwargs}
         options.pop("per_agent", None)
         return cls(graph, seed=seed, **options)
@@ -129,7 +130,7 @@ class CentralizedPPO(Team):
     ) -> CentralizedPPO:
         """Train for ``total_timesteps`` steps per agent (``n_agents`` times that for the model)."""
         if total_timesteps < 1:
-            raise ValueError(f"total_timesteps must be positive, got {total_timesteps}")
+            raise InputError(f"total_timesteps must be positive, got {total_timesteps}")
         set_random_seed(learn_seed(self.seed, self.num_timesteps))
         self.model.learn(
             total_timesteps * self.n_agents,
@@ -148,7 +149,7 @@ class CentralizedPPO(Team):
         if isinstance(getattr(unwrapped, "graph", None), GraphSpec):
             check_same_graph(self.graph, unwrapped.graph)
         if not getattr(unwrapped, "shared_map", True):
-            raise ValueError("a centralized team needs an env with shared_map=True (its env_kwargs)")
+            raise InputError("a centralized team needs an env with shared_map=True (its env_kwargs)")
         if seed is not None:
             th.manual_seed(seed)
 
@@ -191,7 +192,7 @@ class CentralizedPPO(Team):
         folder = Path(path)
         manifest = read_manifest(folder)
         if manifest.get("format") != MANIFEST_FORMAT:
-            raise ValueError(f"{folder} holds a {manifest.get('format')!r} team, not a centralized one")
+            raise InputError(f"{folder} holds a {manifest.get('format')!r} team, not a centralized one")
         spec = graph_for_saved_team(folder, manifest, graph)
         if not (folder / MODEL_FILE).exists():
             raise FileNotFoundError(f"saved team {folder} is incomplete: missing {folder / MODEL_FILE}")

@@ -35,6 +35,7 @@ from typing import Any
 
 import yaml
 
+from sb3_pm.errors import InputError
 from sb3_pm.zoo.registry import (
     DEFAULT_POLICIES,
     RegistryError,
@@ -55,7 +56,7 @@ MANAGED_ARGS = {"self", "policy", "env", "seed", "tensorboard_log", "verbose", "
 AGENT_FORBIDDEN = set(TEAM_KEYS)
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A malformed config; the message names the file, the entry and the key."""
 
 

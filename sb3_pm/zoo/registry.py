@@ -12,6 +12,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from sb3_pm.errors import InputError
+
 #: Algorithms a team can be built from. ``dcbf_ppo`` is the paper's method (PPO with the DCBF policy).
 ALGORITHMS: dict[str, str] = {
     "dcbf_ppo": "sb3_pm.ppo_dcbf:DCBFPPO",
@@ -47,7 +49,7 @@ CLASS_KEYS: dict[str, dict[str, str]] = {
 }
 
 
-class RegistryError(ValueError):
+class RegistryError(InputError):
     """A name that no registry knows and that is not an importable ``module:attr`` path."""
 
 

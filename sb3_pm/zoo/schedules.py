@@ -11,6 +11,8 @@ from typing import Any
 
 from stable_baselines3.common.utils import LinearSchedule
 
+from sb3_pm.errors import InputError
+
 #: Hyperparameters that SB3's PPO accepts as a schedule as well as a number.
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 
@@ -27,7 +29,7 @@ def parse_schedule(value: Any, key: str = "value") -> Any:
             try:
                 start = float(text[len("lin_") :])
             except ValueError as error:
-                raise ValueError(
+                raise InputError(
                     f"{key}: {value!r} is not a schedule; write lin_<number>, e.g. lin_3e-4"
                 ) from error
             return LinearSchedule(start, 0.0, 1.0)
