@@ -1,4 +1,4 @@
-"""``sb3-pm train`` end to end with a tiny budget (issue 4)."""
+"""``sb3-pm train`` end to end with a tiny budget."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Every script in ``examples/`` runs end to end in smoke mode (issue 5).
+"""Every script in ``examples/`` runs end to end in smoke mode.
 
 Each runs as a subprocess with ``SB3_PM_SMOKE=1`` and ``--out`` in a temp dir (examples never
 write into the source tree), one torch thread, and must exit 0.

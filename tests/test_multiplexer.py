@@ -1,4 +1,4 @@
-"""The multiplexer: one VecEnv per agent over n_envs copies of the parallel env (issue 4)."""
+"""The multiplexer: one VecEnv per agent over n_envs copies of the parallel env."""
 
 from __future__ import annotations
 
@@ -11,12 +11,8 @@ from sb3_contrib import MaskablePPO
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_pm.agents.multiplexer import (
-    ParallelEnvMultiplexer,
-    TeamAborted,
-    learn_concurrently,
-    raise_first_error,
-)
+from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
+from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, TeamAborted
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
@@ -109,6 +105,35 @@ def test_episode_returns_sum_rewards() -> None:
     for agent_records in records:
         total = sum(float(r[1][0]) for r in agent_records[1:])
         assert agent_records[-1][3][0]["episode"]["r"] == pytest.approx(total, abs=1e-5)
+
+
+def test_each_episode_return_starts_from_zero() -> None:
+    hub = make_hub(n_agents=2, n_envs=2, max_cycles=4)
+    records = drive(hub, steps=8)
+    for agent_records in records:
+        for k in range(2):
+            second = sum(float(r[1][k]) for r in agent_records[5:9])
+            assert agent_records[8][3][k]["episode"]["r"] == pytest.approx(second, abs=1e-5)
+            assert agent_records[8][3][k]["episode"]["l"] == 4
+
+
+def test_a_stuck_learner_stops_the_team_with_a_clear_error() -> None:
+    from sb3_pm.agents.multiplexer import TeamTimeout
+
+    release = threading.Event()
+
+    class Stuck(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 8:
+                release.wait(120)  # a learner stuck outside the env, holding the baton
+            return True
+
+    team = IndependentPPO(GRAPH, n_agents=2, algo="maskable_ppo", hyperparams=TINY, wait_timeout=1.0)
+    try:
+        with pytest.raises(TeamTimeout, match="waited more than 1.0 s.*wait_timeout"):
+            team.learn(64, callback={"agent_1": Stuck()})
+    finally:
+        release.set()
 
 
 def test_same_seed_same_observations() -> None:

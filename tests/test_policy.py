@@ -1,4 +1,4 @@
-"""GAT extractor, state estimator and the DCBF policy's structure (issue 4)."""
+"""GAT extractor, state estimator and the DCBF policy's structure."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""DCBFPPO: tiny runs over the ablation flags, stored masks, save/load, determinism (issue 4)."""
+"""DCBFPPO: tiny runs over the ablation flags, stored masks, save/load, determinism."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Gymnasium registration of the single-agent view (issue 5): ids, check_env, stock SB3 learners."""
+"""Gymnasium registration of the single-agent view: ids, check_env, stock SB3 learners."""
 
 from __future__ import annotations
 

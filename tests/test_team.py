@@ -1,4 +1,4 @@
-"""IndependentPPO: the team API (learn, save/load, predict, resume, determinism) (issue 4)."""
+"""IndependentPPO: the team API (learn, save/load, predict, resume, determinism)."""
 
 from __future__ import annotations
 

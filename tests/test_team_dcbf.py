@@ -1,4 +1,4 @@
-"""IndependentPPO with its default algorithm, DCBFPPO (the paper's method), on a tiny graph (issue 4)."""
+"""IndependentPPO with its default algorithm, DCBFPPO (the paper's method), on a tiny graph."""
 
 from __future__ import annotations
 

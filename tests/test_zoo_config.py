@@ -1,4 +1,4 @@
-"""The rl-zoo style config loader, registries and schedules (issue 4)."""
+"""The rl-zoo style config loader, registries and schedules."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Every config in ``zoo/`` builds (issue 5), and rl-zoo trains on our ids end to end.
+"""Every config in ``zoo/`` builds, and rl-zoo trains on our ids end to end.
 
 * rl-zoo YAMLs (``zoo/<algo>.yml``, all but the team files ``zoo/ippo*.yml``): each entry is read
   by rl-zoo's own :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as

@@ -4,8 +4,10 @@ Each agent of a decentralized team is its own, unmodified SB3 learner. A learner
 drive a single-agent ``VecEnv``, while the environment needs every agent's action before it can
 step. :class:`ParallelEnvMultiplexer` bridges the two:
 
-* it owns ``n_envs`` copies of the parallel env and hands out one :class:`AgentVecEnv` per agent;
-* each learner runs its own ``learn()`` in its own thread (:func:`learn_concurrently`);
+* it owns ``n_envs`` copies of the parallel env and hands out one
+  :class:`~sb3_pm.agents.agent_vec_env.AgentVecEnv` per agent;
+* each learner runs its own ``learn()`` in its own thread
+  (:func:`~sb3_pm.agents.learner_threads.learn_concurrently`);
 * an agent's ``step_wait`` (and ``reset``) submits its action and blocks until every agent has
   submitted; the last one steps all copies at once and publishes every agent's slice.
 
@@ -20,10 +22,11 @@ Each learner also draws from its own random stream (:mod:`sb3_pm.agents.streams`
 loaded into the process-wide generators when the learner takes the baton and stored back when it
 hands it on, so a learner's draws do not depend on the others' at all.
 
-**Rollout barrier.** :class:`RolloutBarrier`, a callback every team learner carries last, makes all
-learners meet at the start of each rollout (after every ``train()`` and estimator fit). There the
-team's :attr:`ParallelEnvMultiplexer.on_sync` hook runs alone, with every learner at the same
-point: that is where checkpoints are taken, and where a stop requested by Ctrl-C takes effect.
+**Rollout barrier.** :class:`~sb3_pm.agents.agent_vec_env.RolloutBarrier`, a callback every team
+learner carries last, makes all learners meet at the start of each rollout (after every
+``train()`` and estimator fit). There the team's :attr:`ParallelEnvMultiplexer.on_sync` hook runs
+alone, with every learner at the same point: that is where checkpoints are taken, and where a stop
+requested by Ctrl-C takes effect.
 
 **Episode ends.** The env ends every episode by truncation at ``max_cycles``. As in SB3's
 ``DummyVecEnv`` with a ``TimeLimit``, a finished copy is reset at once; the step reports
@@ -34,25 +37,23 @@ env's own ``info["metrics"]`` is passed through.
 
 **Failure.** If a learner raises, or stops early (a callback returned ``False``), the multiplexer
 is aborted: every agent blocked in ``step_wait`` raises :class:`TeamAborted`, which
-:func:`learn_concurrently` swallows, and the original error is re-raised to the caller. Blocked
-agents wake every :data:`POLL_INTERVAL` to check for an abort; a ``timeout`` bounds how long an
-agent waits for the others.
+:func:`~sb3_pm.agents.learner_threads.learn_concurrently` swallows, and the original error is
+re-raised to the caller. Blocked agents wake every :data:`POLL_INTERVAL` to check for an abort; a
+``timeout`` bounds how long an agent waits for the others.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecEnv
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
 
+from sb3_pm.agents.agent_vec_env import AgentVecEnv
 from sb3_pm.agents.streams import StreamState, capture_stream, load_stream
 
 #: How often (seconds) a blocked agent re-checks the abort flag even without a notification.
@@ -61,6 +62,10 @@ POLL_INTERVAL = 0.5
 
 class TeamAborted(RuntimeError):
     """Raised inside a learner blocked on the multiplexer when the team is being shut down."""
+
+
+class TeamTimeout(RuntimeError):
+    """An agent waited longer than the multiplexer's ``timeout`` for the others: one is stuck."""
 
 
 class MultiplexerError(RuntimeError):
@@ -95,6 +100,8 @@ class ParallelEnvMultiplexer:
                 raise ValueError("every env copy must have the same possible_agents")
         self.strict_order = strict_order
         self.timeout = timeout
+        #: why the team was aborted on a timeout (``None``: no timeout happened)
+        self.timed_out: str | None = None
         self.observation_spaces = {agent: first.observation_space(agent) for agent in self.agents}
         self.action_spaces = {agent: first.action_space(agent) for agent in self.agents}
 
@@ -180,6 +187,7 @@ class ParallelEnvMultiplexer:
         with self._cond:
             self.stop_requested = False
             self.stopped = None
+            self.timed_out = None
             self._kinds = [None] * self.n_agents
             self._results = [None] * self.n_agents
             self._round = 0
@@ -235,6 +243,7 @@ class ParallelEnvMultiplexer:
                     self._aborted = (
                         f"{self.agents[index]} waited more than {self.timeout} s for the other agents"
                     )
+                    self.timed_out = self._aborted
                     self._cond.notify_all()
                     raise TeamAborted(self._aborted)
                 wait = min(wait, remaining)
@@ -391,198 +400,4 @@ class ParallelEnvMultiplexer:
         return np.stack([np.asarray(obs, dtype=space.dtype) for obs in observations])
 
 
-class AgentVecEnv(VecEnv):
-    """The ``VecEnv`` seen by one agent's learner; a view onto a :class:`ParallelEnvMultiplexer`.
-
-    ``env_method("action_masks")`` returns the agent's ``action_mask`` from its last observation
-    (what sb3-contrib's ``MaskablePPO`` asks for). Other attributes and methods are forwarded to the
-    env copies, which are shared by all agents.
-    """
-
-    def __init__(self, hub: ParallelEnvMultiplexer, index: int) -> None:
-        self.hub = hub
-        self.index = index
-        self.agent = hub.agents[index]
-        self._actions: np.ndarray | None = None
-        super().__init__(hub.n_envs, hub.observation_spaces[self.agent], hub.action_spaces[self.agent])
-
-    def reset(self) -> VecEnvObs:
-        obs, infos = self.hub._submit(self.index, "reset", None)
-        self.reset_infos = infos
-        self._reset_seeds()
-        self._reset_options()
-        return obs
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions).reshape(self.num_envs)
-
-    def step_wait(self) -> VecEnvStepReturn:
-        if self._actions is None:
-            raise RuntimeError("step_wait() called without step_async()")
-        actions, self._actions = self._actions, None
-        return self.hub._submit(self.index, "step", actions)
-
-    def seed(self, seed: int | None = None) -> Sequence[int | None]:
-        """Ask for the next joint reset to use ``seed`` (the lowest-indexed agent's request wins,
-        unless the multiplexer was seeded directly with :meth:`ParallelEnvMultiplexer.seed`)."""
-        with self.hub._cond:
-            self.hub._agent_seeds[self.index] = seed
-        return [None if seed is None else seed + k for k in range(self.num_envs)]
-
-    def action_masks(self) -> np.ndarray:
-        """``(n_envs, N)`` bool masks from the agent's last observation."""
-        return np.stack(
-            [np.asarray(obs["action_mask"], dtype=bool) for obs in self.hub._last_obs[self.index]]
-        )
-
-    def close(self) -> None:
-        # The env copies are shared: closing one agent's view must not close them for the others.
-        pass
-
-    def has_attr(self, attr_name: str) -> bool:
-        if attr_name == "action_masks":
-            return True
-        return super().has_attr(attr_name)
-
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        if attr_name == "action_masks":
-            masks = self.action_masks()
-            return [lambda m=masks[k]: m for k in self._get_indices(indices)]
-        return [getattr(self.hub.envs[k], attr_name) for k in self._get_indices(indices)]
-
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        for k in self._get_indices(indices):
-            setattr(self.hub.envs[k], attr_name, value)
-
-    def env_method(
-        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
-    ) -> list[Any]:
-        if method_name == "action_masks":
-            masks = self.action_masks()
-            return [masks[k] for k in self._get_indices(indices)]
-        return [
-            getattr(self.hub.envs[k], method_name)(*method_args, **method_kwargs)
-            for k in self._get_indices(indices)
-        ]
-
-    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
-        # The copies are PettingZoo envs, never gymnasium wrappers (so SB3 sees no Monitor either).
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [env.render() if env.render_mode == "rgb_array" else None for env in self.hub.envs]
-
-
-def learn_concurrently(
-    models: Sequence[Any],
-    hub: ParallelEnvMultiplexer,
-    learn_kwargs: Sequence[dict[str, Any]],
-    join_timeout: float | None = None,
-    graceful_interrupt: bool = False,
-    on_interrupt: Callable[[], None] | None = None,
-) -> list[BaseException | None]:
-    """Run ``model.learn(**kwargs)`` for every agent, each in its own thread, in baton order.
-
-    Returns one entry per agent: ``None`` if it finished (or was stopped by the team), else the
-    exception it raised. The first real error is re-raised by :func:`raise_first_error`.
-
-    :param models: one SB3 algorithm per agent, in ``hub.agents`` order, each built on
-        ``hub.vec_envs[i]``.
-    :param learn_kwargs: keyword arguments of each ``learn()`` call.
-    :param join_timeout: seconds to wait for all threads (``None``: no limit).
-    :param graceful_interrupt: on a first ``KeyboardInterrupt``, :meth:`~ParallelEnvMultiplexer.request_stop`
-        and let the learners run to the next rollout barrier (where the ``on_sync`` hook stops them);
-        a second one stops them at once. Either way the interrupt is re-raised once they stopped.
-    :param on_interrupt: called on that first interrupt (to tell the user what happens next).
-    """
-    if len(models) != hub.n_agents or len(learn_kwargs) != hub.n_agents:
-        raise ValueError(f"need one model and one set of learn() arguments per agent ({hub.n_agents})")
-    hub.restart()
-    errors: list[BaseException | None] = [None] * hub.n_agents
-
-    def run(index: int) -> None:
-        try:
-            hub.acquire(index)
-            models[index].learn(**learn_kwargs[index])
-        except TeamAborted:
-            pass  # another learner ended the run; its error (if any) is the one to report
-        except BaseException as error:  # noqa: BLE001 - reported to the caller, never lost
-            errors[index] = error
-            hub.abort(f"{hub.agents[index]} raised {type(error).__name__}: {error}")
-        finally:
-            hub.finish(index)
-
-    threads = [
-        threading.Thread(target=run, args=(i,), name=f"sb3_pm-learner-{hub.agents[i]}", daemon=True)
-        for i in range(hub.n_agents)
-    ]
-    for thread in threads:
-        thread.start()
-    deadline = None if join_timeout is None else time.monotonic() + join_timeout
-    interrupted = False
-    while True:
-        try:
-            for thread in threads:
-                while thread.is_alive():
-                    if deadline is not None and time.monotonic() > deadline:
-                        hub.abort(f"training did not finish within {join_timeout} s")
-                        raise TimeoutError(f"training did not finish within {join_timeout} s")
-                    thread.join(POLL_INTERVAL)
-            break
-        except KeyboardInterrupt:
-            if graceful_interrupt and not interrupted:
-                interrupted = True  # the learners go on to the next barrier, which stops them
-                hub.request_stop()
-                if on_interrupt is not None:
-                    on_interrupt()
-                continue
-            _stop_now(hub, threads)
-            raise
-        except BaseException:
-            _stop_now(hub, threads)
-            raise
-    if interrupted and hub.stopped is not None:
-        raise KeyboardInterrupt  # the team stopped at a barrier; had it finished, that would be all
-    return errors
-
-
-def _stop_now(hub: ParallelEnvMultiplexer, threads: Sequence[threading.Thread]) -> None:
-    """Abort the team (the caller was interrupted or timed out) and let the learners unwind."""
-    hub.abort("interrupted")
-    for thread in threads:
-        thread.join(5 * POLL_INTERVAL)
-
-
-def raise_first_error(errors: Iterable[BaseException | None]) -> None:
-    """Re-raise the first exception in ``errors`` (the learner that failed first in agent order)."""
-    for error in errors:
-        if error is not None:
-            raise error
-
-
-class RolloutBarrier(BaseCallback):
-    """Makes a team learner wait at the start of each rollout until every learner is there.
-
-    It must be the learner's last callback, so the barrier comes after everything the learner does
-    between two rollouts (``train()``, the estimator fit). Its env must be an :class:`AgentVecEnv`.
-    """
-
-    def _on_step(self) -> bool:
-        return True
-
-    def _on_rollout_start(self) -> None:
-        env = self.training_env
-        if not isinstance(env, AgentVecEnv):
-            raise TypeError(f"RolloutBarrier needs an AgentVecEnv, got {type(env).__name__}")
-        env.hub.sync(env.index)
-
-
-__all__ = [
-    "AgentVecEnv",
-    "RolloutBarrier",
-    "MultiplexerError",
-    "ParallelEnvMultiplexer",
-    "TeamAborted",
-    "learn_concurrently",
-    "raise_first_error",
-]
+__all__ = ["POLL_INTERVAL", "MultiplexerError", "ParallelEnvMultiplexer", "TeamAborted", "TeamTimeout"]

@@ -6,8 +6,9 @@ plain ``PPO``) with its own parameters, buffers and optimizer. They are stepped 
 fixed turn order, each drawing from its own random stream, so a team run is reproducible from
 its seed and can be checkpointed and resumed bit for bit (:mod:`sb3_pm.agents.checkpoints`).
 
-The team implements the :class:`~sb3_pm.baselines.base.Team` interface, so evaluation drives a
-learned team exactly as it drives a baseline.
+The team implements the :class:`~sb3_pm.team_interface.Team` interface (through
+:class:`~sb3_pm.agents.learned_team.LearnedTeam`), so evaluation drives a learned team exactly as
+it drives a baseline.
 
 A saved team is a folder::
 
@@ -19,21 +20,14 @@ A saved team is a folder::
 
 from __future__ import annotations
 
-import json
 import logging
-import os
-import pickle
-import platform
-import zipfile
-from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.checkpoints import (
@@ -46,12 +40,12 @@ from sb3_pm.agents.checkpoints import (
     restore_state,
     write_checkpoint,
 )
-from sb3_pm.agents.multiplexer import (
-    ParallelEnvMultiplexer,
-    RolloutBarrier,
-    learn_concurrently,
-    raise_first_error,
-)
+from sb3_pm.agents.learned_team import LearnedTeam
+from sb3_pm.agents.learner_callbacks import EpisodeMetricsCallback, learner_callbacks
+from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
+from sb3_pm.agents.learners import RESERVED_KEYS, agent_seed, check_same, learn_seed, resolve_hyperparams
+from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
+from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import (
     StreamState,
     capture_stream,
@@ -60,27 +54,14 @@ from sb3_pm.agents.streams import (
     seeded_stream,
 )
 from sb3_pm.errors import InputError
-from sb3_pm.files import write_atomic
-from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
-from sb3_pm.team_interface import Observation, Team
-from sb3_pm.zoo.registry import (
-    DEFAULT_POLICIES,
-    algo_name,
-    default_algo,
-    resolve_algo,
-    resolve_policy_kwargs,
-    uses_masks,
-)
-from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
+from sb3_pm.graphs import GraphLike
+from sb3_pm.team_interface import Observation
+from sb3_pm.zoo.registry import uses_masks
 
 logger = logging.getLogger(__name__)
 
-MANIFEST = "manifest.json"
-MANIFEST_FORMAT = "sb3_pm.team/1"
-#: Keys that must be equal for every learner: the multiplexer steps all agents together.
-TEAM_KEYS = ("n_steps", "n_envs")
-#: Keys the team sets itself; a hyperparameter dict must not hold them.
-RESERVED_KEYS = ("env", "policy", "seed", "tensorboard_log", "verbose", "device", "_init_setup_model")
+#: Default ``wait_timeout`` (seconds) of a team's learners.
+DEFAULT_WAIT_TIMEOUT = 1800.0
 
 CallbackArg = (
     BaseCallback
@@ -91,110 +72,7 @@ CallbackArg = (
 )
 
 
-class EpisodeMetricsCallback(BaseCallback):
-    """Logs the env's episode metrics (``avg_uncertainty``, ``max_neglect`` ...) as ``metrics/<name>``.
-
-    The mean is over this learner's last ``window`` episodes, recorded at each rollout's end, next
-    to SB3's ``rollout/ep_rew_mean``.
-    """
-
-    def __init__(self, window: int = 100, verbose: int = 0) -> None:
-        super().__init__(verbose)
-        self.window = window
-        self.history: dict[str, deque[float]] = {}
-
-    def _on_step(self) -> bool:
-        for info, done in zip(self.locals.get("infos", ()), self.locals.get("dones", ())):
-            if done and "metrics" in info:
-                for key, value in info["metrics"].items():
-                    self.history.setdefault(key, deque(maxlen=self.window)).append(float(value))
-        return True
-
-    def _on_rollout_end(self) -> None:
-        for key, values in self.history.items():
-            if values:
-                self.logger.record(f"metrics/{key}", float(np.mean(values)))
-
-
-def learner_callbacks(model: BaseAlgorithm, callback: BaseCallback | None) -> CallbackList:
-    """A team learner's callbacks, in order: an :class:`EpisodeMetricsCallback`, the caller's, the
-    estimator fit (for a DCBF-PPO learner with an estimator, which would otherwise attach it
-    itself, after everything else), and a :class:`RolloutBarrier` last, so the barrier sees each
-    learner with its ``train()`` and estimator fit done."""
-    callbacks = list(with_episode_metrics(callback).callbacks)
-    if getattr(model, "estimator_update_at", None) and getattr(model.policy, "estimator", None) is not None:
-        from sb3_pm.callbacks import EstimatorCallback
-        from sb3_pm.ppo_dcbf.ppo_dcbf import _contains_estimator_callback
-
-        if not _contains_estimator_callback(callbacks):
-            callbacks.append(EstimatorCallback(update_at=model.estimator_update_at))  # type: ignore[attr-defined]
-    callbacks.append(RolloutBarrier())
-    return CallbackList(callbacks)
-
-
-def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> CallbackList:
-    """A learner's callbacks: an :class:`EpisodeMetricsCallback` first, then the caller's (one, a
-    list, or none)."""
-    callbacks: list[BaseCallback] = [EpisodeMetricsCallback()]
-    if isinstance(callback, list):
-        callbacks += callback
-    elif callback is not None:
-        callbacks.append(callback)
-    return CallbackList(callbacks)
-
-
-def _versions() -> dict[str, str]:
-    """Versions of the packages a saved team depends on (recorded in the manifest)."""
-    import gymnasium
-    import pettingzoo
-    import stable_baselines3
-
-    from sb3_pm.version import __version__
-
-    versions = {
-        "sb3_pm": __version__,
-        "stable_baselines3": stable_baselines3.__version__,
-        "torch": th.__version__,
-        "numpy": np.__version__,
-        "gymnasium": gymnasium.__version__,
-        "pettingzoo": pettingzoo.__version__,
-        "python": platform.python_version(),
-    }
-    try:
-        import sb3_contrib
-
-        versions["sb3_contrib"] = sb3_contrib.__version__
-    except ImportError:  # pragma: no cover
-        pass
-    return versions
-
-
-def agent_seed(seed: int, index: int) -> int:
-    """A distinct, reproducible seed for agent ``index`` of a team seeded with ``seed``.
-
-    Derived through NumPy's ``SeedSequence`` so that agent 1 of seed 0 differs from agent 0 of
-    seed 1 (``seed + index`` would make them equal).
-    """
-    return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
-
-
-def learn_seed(seed: int, num_timesteps: int) -> int:
-    """The seed of the process-wide generators at the start of a ``learn()`` call.
-
-    Distinct from every :func:`agent_seed` (its entropy has three words, theirs two).
-    """
-    return int(np.random.SeedSequence([int(seed), int(num_timesteps), 1]).generate_state(1)[0])
-
-
-def _check_same(values: Mapping[str, Any], key: str) -> None:
-    if len(set(values.values())) > 1:
-        listed = ", ".join(f"{agent}={value}" for agent, value in values.items())
-        raise InputError(
-            f"every learner of a team must use the same {key} (they are stepped together); got {listed}"
-        )
-
-
-class IndependentPPO(Team):
+class IndependentPPO(LearnedTeam):
     """A team of independent PPO-style learners on one persistent-monitoring graph.
 
     :param graph: a preset name, a ``.graphml`` path or a :class:`GraphSpec`.
@@ -214,10 +92,14 @@ class IndependentPPO(Team):
     :param verbose: SB3 verbosity of every learner.
     :param device: torch device of every learner.
     :param strict_order: run learners in a fixed turn order (bit-for-bit reproducible).
+    :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
+        before training stops with :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
+        ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (under a
+        minute per rollout on the 200-node graph).
     """
 
     name = "ippo"
-    omniscient = False
+    MANIFEST_FORMAT = "sb3_pm.team/1"
 
     def __init__(
         self,
@@ -234,28 +116,19 @@ class IndependentPPO(Team):
         verbose: int = 0,
         device: str = "cpu",
         strict_order: bool = True,
+        wait_timeout: float | None = DEFAULT_WAIT_TIMEOUT,
         _init_models: bool = True,
     ) -> None:
-        self.graph: GraphSpec = resolve_graph(graph)
-        if n_agents < 1:
-            raise InputError(f"n_agents must be at least 1, got {n_agents}")
-        if n_envs < 1:
-            raise InputError(f"n_envs must be at least 1, got {n_envs}")
-        self.n_agents = int(n_agents)
-        self.n_envs = int(n_envs)
-        self.seed = int(seed)
+        self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs)
         self.verbose = verbose
         self.device = device
         self.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
-        self.algo_class: type[BaseAlgorithm]
-        self.algo_class, self.algo, self.policy, self.env_kwargs = resolve_learner(algo, policy, env_kwargs)
-        for key in ("graph", "n_agents"):
-            if key in self.env_kwargs:
-                raise InputError(f"env_kwargs must not hold {key!r}: pass it to IndependentPPO itself")
         self.hyperparams = dict(hyperparams or {})
         self.per_agent = {agent: dict(values) for agent, values in (per_agent or {}).items()}
 
-        self.hub = ParallelEnvMultiplexer([self._make_env] * self.n_envs, strict_order=strict_order)
+        self.hub = ParallelEnvMultiplexer(
+            [self._make_env] * self.n_envs, strict_order=strict_order, timeout=wait_timeout
+        )
         self.agents: list[str] = list(self.hub.agents)
         unknown = sorted(set(self.per_agent) - set(self.agents))
         if unknown:
@@ -267,7 +140,7 @@ class IndependentPPO(Team):
         self.checkpoint: Path | None = None
         if _init_models:
             kwargs = {agent: self.agent_kwargs(agent) for agent in self.agents}
-            _check_same({agent: kw.get("n_steps", 2048) for agent, kw in kwargs.items()}, "n_steps")
+            check_same({agent: kw.get("n_steps", 2048) for agent, kw in kwargs.items()}, "n_steps")
             for i, agent in enumerate(self.agents):
                 agent_kwargs = kwargs[agent]
                 policy_i = agent_kwargs.pop("policy", self.policy)
@@ -282,16 +155,6 @@ class IndependentPPO(Team):
                 )
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
-
-    @classmethod
-    def from_config(cls, config: Any, graph: GraphLike, seed: int = 0, **kwargs: Any) -> IndependentPPO:
-        """A team from a :class:`~sb3_pm.zoo.config.TrainConfig` (an entry of ``zoo/ippo.yml``).
-
-        :param kwargs: further ``IndependentPPO`` arguments (``tensorboard_log``, ``verbose`` ...),
-            overriding the config's.
-        """
-        options = {**config.team_kwargs(), **kwargs}
-        return cls(graph, seed=seed, **options)
 
     # ------------------------------------------------------------ building
     def _make_env(self) -> Any:
@@ -363,12 +226,10 @@ class IndependentPPO(Team):
         return None
 
     def _validate_learners(self, reset_num_timesteps: bool) -> None:
-        _check_same({a: int(m.n_steps) for a, m in self.models.items()}, "n_steps")
-        _check_same({a: int(m.n_envs) for a, m in self.models.items()}, "n_envs")
+        check_same({a: int(m.n_steps) for a, m in self.models.items()}, "n_steps")
+        check_same({a: int(m.n_envs) for a, m in self.models.items()}, "n_envs")
         if not reset_num_timesteps:
-            _check_same(
-                {a: int(m.num_timesteps) for a, m in self.models.items()}, "num_timesteps (to resume)"
-            )
+            check_same({a: int(m.num_timesteps) for a, m in self.models.items()}, "num_timesteps (to resume)")
 
     def _callbacks(self, callback: CallbackArg) -> list[BaseCallback | None]:
         if callback is None:
@@ -488,19 +349,6 @@ class IndependentPPO(Team):
         return self
 
     # ------------------------------------------------------------ acting
-    def reset(self, env: Any, seed: int | None = None) -> None:
-        """Start an episode on ``env``; checks it is the graph the team was built for.
-
-        With a ``seed``, torch's global generator is seeded too, so stochastic
-        (``deterministic=False``) actions are reproducible.
-        """
-        super().reset(env, seed)
-        other = getattr(getattr(env, "unwrapped", env), "graph", None)
-        if isinstance(other, GraphSpec):
-            check_same_graph(self.graph, other)
-        if seed is not None:
-            th.manual_seed(seed)
-
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
         """One destination node per agent in ``observations``, each from its own learner."""
         actions: dict[str, int] = {}
@@ -517,25 +365,12 @@ class IndependentPPO(Team):
 
     # ---------------------------------------------------------- save / load
     def manifest(self) -> dict[str, Any]:
-        """What :meth:`save` writes to ``manifest.json``."""
-        return {**team_manifest(self, MANIFEST_FORMAT), "agents": self.agents}
+        """What :meth:`save` writes to ``manifest.json``: the common fields and the agents' names."""
+        return {**super().manifest(), "agents": self.agents}
 
-    def save(self, path: str | Path, overwrite: bool = False) -> Path:
-        """Save the team to the folder ``path`` (created if needed).
-
-        :raises FileExistsError: if ``path`` already holds a team and ``overwrite`` is False.
-        """
-        folder = Path(path)
-        if folder.exists() and not folder.is_dir():
-            raise FileExistsError(f"{folder} exists and is not a folder")
-        if folder.is_dir() and not overwrite and ((folder / MANIFEST).exists() or any(folder.glob("*.zip"))):
-            raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
-        folder.mkdir(parents=True, exist_ok=True)
-        for agent in self.agents:
-            save_model_atomic(self.models[agent], folder / f"{agent}.zip")
-        save_graph_copy(self.graph, folder)
-        write_manifest(folder, self.manifest())  # last: a folder with a manifest holds a whole team
-        return folder
+    def model_files(self) -> dict[str, BaseAlgorithm]:
+        """One zip per agent, named after it."""
+        return {f"{agent}.zip": self.models[agent] for agent in self.agents}
 
     @classmethod
     def load(
@@ -561,20 +396,9 @@ class IndependentPPO(Team):
         :raises FileNotFoundError: if the folder, its manifest or an agent's zip is missing.
         :raises ValueError: if ``graph`` is not the graph the team was trained on.
         """
-        folder = Path(path)
-        if not (folder / MANIFEST).exists() and (folder / "team" / MANIFEST).exists():
-            folder = folder / "team"  # a run folder written by ``sb3-pm train``
-        manifest_path = folder / MANIFEST
-        if not folder.is_dir():
-            raise FileNotFoundError(f"no saved team at {folder} (not a folder)")
-        if not manifest_path.exists():
-            raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
-        manifest = read_manifest(folder)
-        spec = graph_for_saved_team(folder, manifest, graph)
-        zips = {agent: folder / f"{agent}.zip" for agent in manifest["agents"]}
-        missing = [str(p) for p in zips.values() if not p.exists()]
-        if missing:
-            raise FileNotFoundError(f"saved team {folder} is incomplete: missing {', '.join(missing)}")
+        folder, manifest, spec = cls.open_saved(
+            path, graph, lambda manifest: [f"{agent}.zip" for agent in manifest["agents"]]
+        )
         team = cls(
             spec,
             n_agents=int(manifest["n_agents"]),
@@ -592,7 +416,7 @@ class IndependentPPO(Team):
         for i, agent in enumerate(team.agents):
             model = load_model_file(
                 team.algo_class,
-                zips[agent],
+                folder / f"{agent}.zip",
                 env=team.hub.vec_envs[i],
                 device=device,
                 custom_objects=custom_objects,
@@ -644,152 +468,11 @@ class IndependentPPO(Team):
         )
 
 
-def resolve_learner(
-    algo: str | type | None, policy: str | type | None, env_kwargs: Mapping[str, Any] | None
-) -> tuple[Any, str, str | type, dict[str, Any]]:
-    """The algorithm class and its registry name, the policy (the algorithm's default when None),
-    and the env kwargs a learner of that algorithm needs.
-
-    ``algo=None`` picks ``dcbf_ppo`` when importable. An algorithm without action masks may pick
-    any node, and the env's default ``illegal_action="raise"`` would end training: such learners
-    get ``illegal_action="stay"`` unless the caller set it.
-    """
-    algo = algo if algo is not None else default_algo()
-    algo_class = resolve_algo(algo) if isinstance(algo, str) else algo
-    name = algo if isinstance(algo, str) else algo_name(algo)
-    policy = policy if policy is not None else DEFAULT_POLICIES.get(name, "MultiInputPolicy")
-    kwargs = dict(env_kwargs or {})
-    if not uses_masks(algo_class):
-        kwargs.setdefault("illegal_action", "stay")
-    return algo_class, name, policy, kwargs
-
-
-def resolve_hyperparams(hyperparams: Mapping[str, Any]) -> dict[str, Any]:
-    """Config values -> algorithm keyword arguments: ``lin_`` schedules become SB3 schedules and
-    ``policy_kwargs`` class names become classes."""
-    resolved = dict(hyperparams)
-    for key in SCHEDULE_KEYS:
-        if key in resolved:
-            resolved[key] = parse_schedule(resolved[key], key)
-    if "policy_kwargs" in resolved:
-        resolved["policy_kwargs"] = resolve_policy_kwargs(resolved["policy_kwargs"])
-    return resolved
-
-
-def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
-    """The manifest fields every saved team kind records (graph, sizes, env, algorithm, versions)."""
-    return {
-        "format": manifest_format,
-        "graph": graph_record(team.graph),
-        "n_agents": team.n_agents,
-        "env_kwargs": team.env_kwargs,
-        "algo": team.algo,
-        "policy": team.policy if isinstance(team.policy, str) else team.policy.__name__,
-        "n_envs": team.n_envs,
-        "seed": team.seed,
-        "num_timesteps": team.num_timesteps,
-        "versions": _versions(),
-    }
-
-
-def graph_record(graph: GraphSpec) -> dict[str, Any]:
-    """How a saved team's manifest names its graph."""
-    return {
-        "name": graph.name,
-        "fingerprint": graph.fingerprint,
-        "n_nodes": graph.n_nodes,
-        "n_targets": graph.n_targets,
-    }
-
-
-def save_graph_copy(graph: GraphSpec, folder: Path) -> None:
-    """Keep a GraphML copy next to a saved team, unless the graph is a preset (rebuilt by name)."""
-    if not (graph.name in PRESETS and resolve_graph(graph.name).same_problem(graph)):
-        save_graphml(graph, folder / "graph.graphml", overwrite=True)
-
-
-def save_model_atomic(model: Any, path: Path) -> None:
-    """``model.save`` to a temporary name beside ``path``, then a rename: an interrupted save
-    leaves the previous file or the new one, never a truncated zip."""
-    temporary = path.with_name(f".{path.stem}.tmp.zip")  # SB3 keeps a .zip suffix as given
-    model.save(temporary)
-    os.replace(temporary, path)
-
-
-def load_model_file(algo_class: type[BaseAlgorithm], path: Path, **kwargs: Any) -> Any:
-    """``algo_class.load(path, **kwargs)``, with a corrupt or foreign file as one ``ValueError``
-    that names it (a valid zip holding a damaged ``policy.pth`` raised torch's RuntimeError).
-
-    :raises ValueError: if the file cannot be read as a model of ``algo_class``.
-    """
-    try:
-        return algo_class.load(path, **kwargs)
-    except (RuntimeError, OSError, EOFError, KeyError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
-        if isinstance(error, FileNotFoundError):
-            raise
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise InputError(
-            f"{path} cannot be loaded, the file is damaged or not a saved model ({reason})"
-        ) from error
-
-
-def write_manifest(folder: Path, manifest: Mapping[str, Any]) -> None:
-    """Write ``manifest.json`` atomically (temporary file, then rename)."""
-    write_atomic(folder / MANIFEST, json.dumps(manifest, indent=2, sort_keys=True) + "\n")
-
-
-def read_manifest(folder: Path) -> dict[str, Any]:
-    """A saved team's ``manifest.json``.
-
-    :raises FileNotFoundError: if it is missing. :raises ValueError: if it is not valid JSON.
-    """
-    path = folder / MANIFEST
-    if not path.exists():
-        raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
-    try:
-        return dict(json.loads(path.read_text()))
-    except json.JSONDecodeError as error:
-        raise InputError(f"{path} is not valid JSON: {error}") from error
-
-
-def graph_for_saved_team(folder: Path, manifest: Mapping[str, Any], graph: GraphLike | None) -> GraphSpec:
-    """The graph to run a saved team on: ``graph`` if given, else the saved copy or preset.
-
-    :raises ValueError: if it is not the problem the team was trained on (naming both graphs).
-    """
-    saved = manifest["graph"]
-    if graph is None:
-        graph_file = folder / "graph.graphml"
-        spec = resolve_graph(graph_file if graph_file.exists() else saved["name"])
-    else:
-        spec = resolve_graph(graph)
-    if spec.fingerprint != saved["fingerprint"]:
-        raise InputError(
-            f"the team in {folder} was trained on graph {saved['name']!r} "
-            f"(fingerprint {saved['fingerprint']}), "
-            f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
-        )
-    return spec
-
-
-def check_same_graph(expected: GraphSpec, actual: GraphSpec) -> None:
-    """Raise a ``ValueError`` naming both graphs if they are not the same problem."""
-    if expected.fingerprint != actual.fingerprint:
-        raise InputError(
-            f"the team was trained on graph {expected.name!r} (fingerprint {expected.fingerprint}), "
-            f"not on graph {actual.name!r} (fingerprint {actual.fingerprint})"
-        )
-
-
 __all__ = [
+    "MANIFEST",
     "CheckpointSchedule",
     "EpisodeMetricsCallback",
     "IndependentPPO",
     "TrainingInterrupted",
     "agent_seed",
-    "check_same_graph",
-    "learn_seed",
-    "load_model_file",
-    "save_model_atomic",
-    "write_manifest",
 ]

@@ -20,37 +20,23 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch as th
 from stable_baselines3.common.utils import set_random_seed
 
-from sb3_pm.agents.team import (
-    MANIFEST,
-    check_same_graph,
-    graph_for_saved_team,
-    learn_seed,
-    load_model_file,
-    read_manifest,
-    resolve_hyperparams,
-    resolve_learner,
-    save_graph_copy,
-    save_model_atomic,
-    team_manifest,
-    with_episode_metrics,
-    write_manifest,
-)
+from sb3_pm.agents.learned_team import LearnedTeam
+from sb3_pm.agents.learner_callbacks import with_episode_metrics
+from sb3_pm.agents.learners import learn_seed, resolve_hyperparams
+from sb3_pm.agents.saved_teams import load_model_file
 from sb3_pm.errors import InputError
-from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
+from sb3_pm.graphs import GraphLike
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
-from sb3_pm.team_interface import Observation, Team
-from sb3_pm.zoo.registry import (
-    uses_masks,
-)
+from sb3_pm.team_interface import Observation
+from sb3_pm.zoo.registry import uses_masks
 
 MANIFEST_FORMAT = "sb3_pm.centralized/1"
 MODEL_FILE = "shared.zip"
 
 
-class CentralizedPPO(Team):
+class CentralizedPPO(LearnedTeam):
     """One shared map, estimator and network acting for the whole team.
 
     :param graph: a preset name, a ``.graphml`` path or a :class:`GraphSpec`.
@@ -64,6 +50,7 @@ class CentralizedPPO(Team):
     """
 
     name = "centralized"
+    MANIFEST_FORMAT = MANIFEST_FORMAT
     omniscient = False  # it sees only what its agents observe, pooled
 
     def __init__(
@@ -81,12 +68,8 @@ class CentralizedPPO(Team):
         device: str = "cpu",
         _init_model: bool = True,
     ) -> None:
-        self.graph: GraphSpec = resolve_graph(graph)
-        self.n_agents = int(n_agents)
-        self.n_envs = int(n_envs)
-        self.seed = int(seed)
-        self.algo_class, self.algo, self.policy, self.env_kwargs = resolve_learner(
-            algo, policy, {**dict(env_kwargs or {}), "shared_map": True}
+        self._set_problem(
+            graph, n_agents, n_envs, seed, algo, policy, {**dict(env_kwargs or {}), "shared_map": True}
         )
         self.hyperparams = dict(hyperparams or {})
         self.agents = [f"agent_{i}" for i in range(self.n_agents)]
@@ -105,16 +88,13 @@ class CentralizedPPO(Team):
             )
 
     @classmethod
-    def from_config(cls, config: Any, graph: GraphLike, seed: int = 0, **kwargs: Any) -> CentralizedPPO:
-        """A centralized team from the same config entry the decentralized team uses.
-
-        :raises ValueError: if the entry has per-agent overrides (there is only one network).
-        """
+    def _config_options(cls, config: Any) -> dict[str, Any]:
+        """The config entry's team arguments; per-agent overrides are refused (there is one network)."""
         if config.agents:
             raise InputError(f"{config.source}: per-agent overrides make no sense for a centralized team")
-        options = {**config.team_kwargs(), **kwargs}
+        options = super()._config_options(config)
         options.pop("per_agent", None)
-        return cls(graph, seed=seed, **options)
+        return options
 
     @property
     def num_timesteps(self) -> int:
@@ -145,13 +125,8 @@ class CentralizedPPO(Team):
     def reset(self, env: Any, seed: int | None = None) -> None:
         """Start an episode; the env needs ``shared_map=True``, the setting the team was trained in."""
         super().reset(env, seed)
-        unwrapped = getattr(env, "unwrapped", env)
-        if isinstance(getattr(unwrapped, "graph", None), GraphSpec):
-            check_same_graph(self.graph, unwrapped.graph)
-        if not getattr(unwrapped, "shared_map", True):
+        if not getattr(getattr(env, "unwrapped", env), "shared_map", True):
             raise InputError("a centralized team needs an env with shared_map=True (its env_kwargs)")
-        if seed is not None:
-            th.manual_seed(seed)
 
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
         """One batched forward pass of the shared network for every agent."""
@@ -168,19 +143,9 @@ class CentralizedPPO(Team):
             actions, _ = self.model.predict(batch, deterministic=deterministic)
         return {agent: int(action) for agent, action in zip(agents, np.asarray(actions).reshape(-1))}
 
-    def manifest(self) -> dict[str, Any]:
-        """What :meth:`save` writes to ``manifest.json``."""
-        return team_manifest(self, MANIFEST_FORMAT)
-
-    def save(self, path: str | Path, overwrite: bool = False) -> Path:
-        folder = Path(path)
-        if (folder / MANIFEST).exists() and not overwrite:
-            raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
-        folder.mkdir(parents=True, exist_ok=True)
-        save_model_atomic(self.model, folder / MODEL_FILE)
-        save_graph_copy(self.graph, folder)
-        write_manifest(folder, self.manifest())  # last
-        return folder
+    def model_files(self) -> dict[str, Any]:
+        """The one shared model."""
+        return {MODEL_FILE: self.model}
 
     @classmethod
     def load(cls, path: str | Path, graph: GraphLike | None = None, device: str = "cpu") -> CentralizedPPO:
@@ -189,13 +154,7 @@ class CentralizedPPO(Team):
         :raises FileNotFoundError: for a missing folder, manifest or model.
         :raises ValueError: if ``graph`` is not the graph the team was trained on.
         """
-        folder = Path(path)
-        manifest = read_manifest(folder)
-        if manifest.get("format") != MANIFEST_FORMAT:
-            raise InputError(f"{folder} holds a {manifest.get('format')!r} team, not a centralized one")
-        spec = graph_for_saved_team(folder, manifest, graph)
-        if not (folder / MODEL_FILE).exists():
-            raise FileNotFoundError(f"saved team {folder} is incomplete: missing {folder / MODEL_FILE}")
+        folder, manifest, spec = cls.open_saved(path, graph, lambda manifest: [MODEL_FILE])
         team = cls(
             spec,
             n_agents=int(manifest["n_agents"]),

@@ -1,0 +1,160 @@
+""":class:`LearnedTeam`: what every trained team shares, whether its agents learn apart or together.
+
+:class:`~sb3_pm.agents.team.IndependentPPO` (one learner per agent) and
+:class:`~sb3_pm.sharing.centralized.CentralizedPPO` (one shared network) differ in how they train and
+act. They share the rest: the problem they were built for (graph, team size, env settings,
+algorithm, seed), the check that an episode runs on that graph, and saving to and loading from a
+team folder (:mod:`sb3_pm.agents.saved_teams`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, ClassVar
+
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from sb3_pm.agents.learners import resolve_learner
+from sb3_pm.agents.saved_teams import (
+    MANIFEST,
+    check_same_graph,
+    graph_for_saved_team,
+    read_manifest,
+    save_graph_copy,
+    save_model_atomic,
+    team_manifest,
+    write_manifest,
+)
+from sb3_pm.errors import InputError
+from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
+from sb3_pm.team_interface import Team
+
+
+class LearnedTeam(Team):
+    """Base of the trained teams: the problem they were built for, the graph check, save and load.
+
+    Subclasses set :attr:`MANIFEST_FORMAT`, call :meth:`_set_problem` first in ``__init__``, and
+    provide :meth:`model_files` (which model goes in which zip).
+    """
+
+    #: The ``format`` field of this team kind's manifest.
+    MANIFEST_FORMAT: ClassVar[str]
+    omniscient = False
+
+    graph: GraphSpec
+    n_agents: int
+    n_envs: int
+    seed: int
+    algo_class: type[BaseAlgorithm]
+    algo: str
+    policy: str | type
+    env_kwargs: dict[str, Any]
+
+    def _set_problem(
+        self,
+        graph: GraphLike,
+        n_agents: int,
+        n_envs: int,
+        seed: int,
+        algo: str | type | None,
+        policy: str | type | None,
+        env_kwargs: Mapping[str, Any] | None,
+    ) -> None:
+        """Resolve and check what the team is built for (raises :class:`InputError` naming a bad value)."""
+        self.graph = resolve_graph(graph)
+        if n_agents < 1:
+            raise InputError(f"n_agents must be at least 1, got {n_agents}")
+        if n_envs < 1:
+            raise InputError(f"n_envs must be at least 1, got {n_envs}")
+        self.n_agents, self.n_envs, self.seed = int(n_agents), int(n_envs), int(seed)
+        self.algo_class, self.algo, self.policy, self.env_kwargs = resolve_learner(algo, policy, env_kwargs)
+        for key in ("graph", "n_agents"):
+            if key in self.env_kwargs:
+                raise InputError(f"env_kwargs must not hold {key!r}: pass it to {type(self).__name__} itself")
+
+    @classmethod
+    def from_config(cls, config: Any, graph: GraphLike, seed: int = 0, **kwargs: Any) -> Any:
+        """A team from a :class:`~sb3_pm.zoo.config.TrainConfig` (an entry of ``zoo/ippo.yml``).
+
+        :param kwargs: further constructor arguments (``tensorboard_log``, ``verbose`` ...),
+            overriding the config's.
+        """
+        options = {**cls._config_options(config), **kwargs}
+        return cls(graph, seed=seed, **options)  # type: ignore[call-arg]  # subclasses take these
+
+    @classmethod
+    def _config_options(cls, config: Any) -> dict[str, Any]:
+        """The constructor arguments a config entry sets."""
+        return dict(config.team_kwargs())
+
+    # ------------------------------------------------------------ acting
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Start an episode on ``env``; checks it is the graph the team was built for.
+
+        With a ``seed``, torch's global generator is seeded too, so stochastic
+        (``deterministic=False``) actions are reproducible.
+        """
+        super().reset(env, seed)
+        other = getattr(getattr(env, "unwrapped", env), "graph", None)
+        if isinstance(other, GraphSpec):
+            check_same_graph(self.graph, other)
+        if seed is not None:
+            th.manual_seed(seed)
+
+    # ---------------------------------------------------------- save / load
+    def model_files(self) -> dict[str, BaseAlgorithm]:
+        """``{file name: model}``: what :meth:`save` writes beside the manifest."""
+        raise NotImplementedError
+
+    def manifest(self) -> dict[str, Any]:
+        """What :meth:`save` writes to ``manifest.json``."""
+        return team_manifest(self, self.MANIFEST_FORMAT)
+
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Save the team to the folder ``path`` (created if needed); the manifest is written last.
+
+        :raises FileExistsError: if ``path`` already holds a team and ``overwrite`` is False.
+        """
+        folder = Path(path)
+        if folder.exists() and not folder.is_dir():
+            raise FileExistsError(f"{folder} exists and is not a folder")
+        if folder.is_dir() and not overwrite and ((folder / MANIFEST).exists() or any(folder.glob("*.zip"))):
+            raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, model in self.model_files().items():
+            save_model_atomic(model, folder / name)
+        save_graph_copy(self.graph, folder)
+        write_manifest(folder, self.manifest())  # last: a folder with a manifest holds a whole team
+        return folder
+
+    @classmethod
+    def open_saved(
+        cls, path: str | Path, graph: GraphLike | None, files: Any
+    ) -> tuple[Path, dict[str, Any], GraphSpec]:
+        """The folder, manifest and graph of a saved team of this kind, every model file checked present.
+
+        :param path: a saved team, or a run folder of ``sb3-pm train`` holding it in ``team/``.
+        :param graph: the graph to run on (``None``: the saved one); it must be the trained problem.
+        :param files: ``manifest -> [file names]``, the model files the team needs.
+        :raises FileNotFoundError: if the folder, its manifest or a model file is missing.
+        :raises InputError: if the folder holds another kind of team, or ``graph`` is another problem.
+        """
+        folder = Path(path)
+        if not (folder / MANIFEST).exists() and (folder / "team" / MANIFEST).exists():
+            folder = folder / "team"  # a run folder written by ``sb3-pm train``
+        if not folder.is_dir():
+            raise FileNotFoundError(f"no saved team at {folder} (not a folder)")
+        manifest = read_manifest(folder)
+        kind = manifest.get("format", cls.MANIFEST_FORMAT)
+        if kind != cls.MANIFEST_FORMAT:
+            raise InputError(f"{folder} holds a {kind!r} team, not a {cls.MANIFEST_FORMAT!r} one")
+        spec = graph_for_saved_team(folder, manifest, graph)
+        missing = [str(folder / name) for name in files(manifest) if not (folder / name).exists()]
+        if missing:
+            raise FileNotFoundError(f"saved team {folder} is incomplete: missing {', '.join(missing)}")
+        return folder, manifest, spec
+
+
+__all__ = ["LearnedTeam"]

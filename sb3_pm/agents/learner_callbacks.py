@@ -1,0 +1,66 @@
+"""The callbacks every team learner carries: episode metrics in TensorBoard, and their order."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+
+from sb3_pm.agents.agent_vec_env import RolloutBarrier
+
+
+class EpisodeMetricsCallback(BaseCallback):
+    """Logs the env's episode metrics (``avg_uncertainty``, ``max_neglect`` ...) as ``metrics/<name>``.
+
+    The mean is over this learner's last ``window`` episodes, recorded at each rollout's end, next
+    to SB3's ``rollout/ep_rew_mean``.
+    """
+
+    def __init__(self, window: int = 100, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.window = window
+        self.history: dict[str, deque[float]] = {}
+
+    def _on_step(self) -> bool:
+        for info, done in zip(self.locals.get("infos", ()), self.locals.get("dones", ())):
+            if done and "metrics" in info:
+                for key, value in info["metrics"].items():
+                    self.history.setdefault(key, deque(maxlen=self.window)).append(float(value))
+        return True
+
+    def _on_rollout_end(self) -> None:
+        for key, values in self.history.items():
+            if values:
+                self.logger.record(f"metrics/{key}", float(np.mean(values)))
+
+
+def learner_callbacks(model: BaseAlgorithm, callback: BaseCallback | None) -> CallbackList:
+    """A team learner's callbacks, in order: an :class:`EpisodeMetricsCallback`, the caller's, the
+    estimator fit (for a DCBF-PPO learner with an estimator, which would otherwise attach it
+    itself, after everything else), and a :class:`RolloutBarrier` last, so the barrier sees each
+    learner with its ``train()`` and estimator fit done."""
+    callbacks = list(with_episode_metrics(callback).callbacks)
+    if getattr(model, "estimator_update_at", None) and getattr(model.policy, "estimator", None) is not None:
+        from sb3_pm.callbacks import EstimatorCallback
+        from sb3_pm.ppo_dcbf.ppo_dcbf import _contains_estimator_callback
+
+        if not _contains_estimator_callback(callbacks):
+            callbacks.append(EstimatorCallback(update_at=model.estimator_update_at))  # type: ignore[attr-defined]
+    callbacks.append(RolloutBarrier())
+    return CallbackList(callbacks)
+
+
+def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> CallbackList:
+    """A learner's callbacks: an :class:`EpisodeMetricsCallback` first, then the caller's (one, a
+    list, or none)."""
+    callbacks: list[BaseCallback] = [EpisodeMetricsCallback()]
+    if isinstance(callback, list):
+        callbacks += callback
+    elif callback is not None:
+        callbacks.append(callback)
+    return CallbackList(callbacks)
+
+
+__all__ = ["EpisodeMetricsCallback", "learner_callbacks", "with_episode_metrics"]

@@ -1,0 +1,178 @@
+"""Saved-team files: the folder layout, the manifest, atomic model files and the graph check.
+
+A saved team is a folder::
+
+    team/
+      manifest.json     format, graph name + fingerprint, n_agents, env kwargs, algo, versions
+      <model>.zip ...   SB3 zips (one per agent for IndependentPPO, one shared for CentralizedPPO)
+      graph.graphml     only for graphs that are not presets
+
+Every file is written to a temporary name and renamed; the manifest goes last, so a folder with a
+manifest holds a whole team.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import platform
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from sb3_pm.errors import InputError
+from sb3_pm.files import write_atomic
+from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
+
+MANIFEST = "manifest.json"
+
+
+def _versions() -> dict[str, str]:
+    """Versions of the packages a saved team depends on (recorded in the manifest)."""
+    import gymnasium
+    import pettingzoo
+    import stable_baselines3
+
+    from sb3_pm.version import __version__
+
+    versions = {
+        "sb3_pm": __version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "torch": th.__version__,
+        "numpy": np.__version__,
+        "gymnasium": gymnasium.__version__,
+        "pettingzoo": pettingzoo.__version__,
+        "python": platform.python_version(),
+    }
+    try:
+        import sb3_contrib
+
+        versions["sb3_contrib"] = sb3_contrib.__version__
+    except ImportError:  # pragma: no cover
+        pass
+    return versions
+
+
+def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
+    """The manifest fields every saved team kind records (graph, sizes, env, algorithm, versions)."""
+    return {
+        "format": manifest_format,
+        "graph": graph_record(team.graph),
+        "n_agents": team.n_agents,
+        "env_kwargs": team.env_kwargs,
+        "algo": team.algo,
+        "policy": team.policy if isinstance(team.policy, str) else team.policy.__name__,
+        "n_envs": team.n_envs,
+        "seed": team.seed,
+        "num_timesteps": team.num_timesteps,
+        "versions": _versions(),
+    }
+
+
+def graph_record(graph: GraphSpec) -> dict[str, Any]:
+    """How a saved team's manifest names its graph."""
+    return {
+        "name": graph.name,
+        "fingerprint": graph.fingerprint,
+        "n_nodes": graph.n_nodes,
+        "n_targets": graph.n_targets,
+    }
+
+
+def save_graph_copy(graph: GraphSpec, folder: Path) -> None:
+    """Keep a GraphML copy next to a saved team, unless the graph is a preset (rebuilt by name)."""
+    if not (graph.name in PRESETS and resolve_graph(graph.name).same_problem(graph)):
+        save_graphml(graph, folder / "graph.graphml", overwrite=True)
+
+
+def save_model_atomic(model: Any, path: Path) -> None:
+    """``model.save`` to a temporary name beside ``path``, then a rename: an interrupted save
+    leaves the previous file or the new one, never a truncated zip."""
+    temporary = path.with_name(f".{path.stem}.tmp.zip")  # SB3 keeps a .zip suffix as given
+    model.save(temporary)
+    os.replace(temporary, path)
+
+
+def load_model_file(algo_class: type[BaseAlgorithm], path: Path, **kwargs: Any) -> Any:
+    """``algo_class.load(path, **kwargs)``, with a corrupt or foreign file as one ``ValueError``
+    that names it (a valid zip holding a damaged ``policy.pth`` raised torch's RuntimeError).
+
+    :raises ValueError: if the file cannot be read as a model of ``algo_class``.
+    """
+    try:
+        return algo_class.load(path, **kwargs)
+    except (RuntimeError, OSError, EOFError, KeyError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
+        if isinstance(error, FileNotFoundError):
+            raise
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise InputError(
+            f"{path} cannot be loaded, the file is damaged or not a saved model ({reason})"
+        ) from error
+
+
+def write_manifest(folder: Path, manifest: Mapping[str, Any]) -> None:
+    """Write ``manifest.json`` atomically (temporary file, then rename)."""
+    write_atomic(folder / MANIFEST, json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+
+
+def read_manifest(folder: Path) -> dict[str, Any]:
+    """A saved team's ``manifest.json``.
+
+    :raises FileNotFoundError: if it is missing. :raises ValueError: if it is not valid JSON.
+    """
+    path = folder / MANIFEST
+    if not path.exists():
+        raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
+    try:
+        return dict(json.loads(path.read_text()))
+    except json.JSONDecodeError as error:
+        raise InputError(f"{path} is not valid JSON: {error}") from error
+
+
+def graph_for_saved_team(folder: Path, manifest: Mapping[str, Any], graph: GraphLike | None) -> GraphSpec:
+    """The graph to run a saved team on: ``graph`` if given, else the saved copy or preset.
+
+    :raises ValueError: if it is not the problem the team was trained on (naming both graphs).
+    """
+    saved = manifest["graph"]
+    if graph is None:
+        graph_file = folder / "graph.graphml"
+        spec = resolve_graph(graph_file if graph_file.exists() else saved["name"])
+    else:
+        spec = resolve_graph(graph)
+    if spec.fingerprint != saved["fingerprint"]:
+        raise InputError(
+            f"the team in {folder} was trained on graph {saved['name']!r} "
+            f"(fingerprint {saved['fingerprint']}), "
+            f"not on graph {spec.name!r} (fingerprint {spec.fingerprint})"
+        )
+    return spec
+
+
+def check_same_graph(expected: GraphSpec, actual: GraphSpec) -> None:
+    """Raise a ``ValueError`` naming both graphs if they are not the same problem."""
+    if expected.fingerprint != actual.fingerprint:
+        raise InputError(
+            f"the team was trained on graph {expected.name!r} (fingerprint {expected.fingerprint}), "
+            f"not on graph {actual.name!r} (fingerprint {actual.fingerprint})"
+        )
+
+
+__all__ = [
+    "MANIFEST",
+    "check_same_graph",
+    "graph_for_saved_team",
+    "graph_record",
+    "load_model_file",
+    "read_manifest",
+    "save_graph_copy",
+    "save_model_atomic",
+    "team_manifest",
+    "write_manifest",
+]
