@@ -202,6 +202,58 @@ def test_interrupted_sweep_runs_only_the_missing_cells(
     assert (Path(cells[0].folder) / "DONE").exists()
 
 
+def test_a_cell_stopped_mid_training_resumes_from_its_checkpoint(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import torch as th
+
+    from sb3_pm.agents import team as team_module
+    from sb3_pm.agents.team import IndependentPPO
+
+    experiment = load_tiny(tmp_path)
+    reproduce(experiment, tmp_path / "whole", n_jobs=1, progress=False)
+
+    class Killed(Exception):
+        pass
+
+    write_checkpoint = team_module.write_checkpoint
+
+    def write_then_die(*args):
+        write_checkpoint(*args)
+        raise Killed  # the sweep dies right after the cell's first checkpoint
+
+    monkeypatch.setattr(runner_module, "CELL_CHECKPOINT_EVERY", 1)
+    monkeypatch.setattr(team_module, "write_checkpoint", write_then_die)
+    with pytest.raises(Killed):
+        reproduce(experiment, tmp_path / "cut", n_jobs=1, progress=False)
+    cut = [Path(c.folder) for c in plan_cells(experiment, tmp_path / "cut") if c.variant["key"] == "learned"]
+    assert list((cut[0] / "checkpoints").glob("rollout_*/checkpoint.json"))
+    assert not (cut[0] / "team").exists()
+
+    monkeypatch.setattr(team_module, "write_checkpoint", write_checkpoint)
+    calls = []
+    learn = IndependentPPO.learn
+
+    def spy(self, total_timesteps, *args, **kwargs):
+        calls.append((self.num_timesteps, total_timesteps, kwargs.get("reset_num_timesteps", True)))
+        return learn(self, total_timesteps, *args, **kwargs)
+
+    monkeypatch.setattr(IndependentPPO, "learn", spy)
+    reproduce(experiment, tmp_path / "cut", n_jobs=1, progress=False)
+    assert calls == [(32, 32, False), (0, 64, True)]  # the cut cell continued; the other started
+    whole = [
+        Path(c.folder) for c in plan_cells(experiment, tmp_path / "whole") if c.variant["key"] == "learned"
+    ]
+    for resumed, uninterrupted in zip(cut, whole):
+        assert not (resumed / "checkpoints").exists()  # the saved team supersedes them
+        a, b = IndependentPPO.load(resumed / "team"), IndependentPPO.load(uninterrupted / "team")
+        for agent in a.agents:
+            for x, y in zip(
+                a.models[agent].policy.state_dict().values(), b.models[agent].policy.state_dict().values()
+            ):
+                assert th.equal(x, y)
+
+
 def test_ray_backend_matches_local(tmp_path: Path) -> None:
     experiment = load_tiny(tmp_path)
     local = reproduce(experiment, tmp_path / "local", backend="local", n_jobs=1, progress=False)

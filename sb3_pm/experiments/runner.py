@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import shlex
+import shutil
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -125,16 +126,54 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
     """Train the learned team of a cell and save it to ``folder/team``."""
     config = cell_config(cell, variant)
     timesteps = cell.timesteps or config.n_timesteps
+    from sb3_pm.agents.checkpoints import CHECKPOINTS
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.sharing.centralized import CentralizedPPO
 
     team_class: Any = CentralizedPPO if variant.kind == "centralized" else IndependentPPO
-    team = team_class.from_config(
-        config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
-    )
-    if variant.train:
-        team.learn(timesteps)
+    if variant.train and team_class is IndependentPPO:
+        team = _train_with_checkpoints(cell, config, timesteps, folder)
+    else:
+        team = team_class.from_config(
+            config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
+        )
+        if variant.train:
+            team.learn(timesteps)
     team.save(folder / "team", overwrite=True)
+    shutil.rmtree(folder / CHECKPOINTS, ignore_errors=True)  # the saved team supersedes them
+    return team
+
+
+#: Rollouts between two checkpoints of a training cell (a 50,000-step cell has 100 rollouts).
+CELL_CHECKPOINT_EVERY = 10
+
+
+def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Path) -> Any:
+    """Train a decentralized cell with checkpoints in ``folder/checkpoints``, continuing from the
+    newest one a stopped sweep left there (bit for bit, so a resumed sweep loses no training)."""
+    from sb3_pm.agents.checkpoints import CHECKPOINTS, CheckpointError, CheckpointSchedule
+    from sb3_pm.agents.team import IndependentPPO
+
+    schedule = CheckpointSchedule(folder / CHECKPOINTS, every=CELL_CHECKPOINT_EVERY)
+    tensorboard_log = str(folder / "tb")
+    if (folder / CHECKPOINTS).is_dir():
+        try:
+            team = IndependentPPO.from_checkpoint(folder, device=cell.device, tensorboard_log=tensorboard_log)
+        except CheckpointError as error:
+            aside = move_aside(folder / CHECKPOINTS)
+            print(f"warning: {error}; kept as {aside}, training the cell from the start", file=sys.stderr)
+        else:
+            if team.seed == cell.seed and team.num_timesteps + team.remaining_timesteps == timesteps:
+                schedule.last = team.checkpoint
+                team.learn(team.remaining_timesteps, reset_num_timesteps=False, checkpoints=schedule)
+                return team
+            team.close()
+            aside = move_aside(folder / CHECKPOINTS)
+            print(f"warning: the checkpoints of {folder} are another run's; kept as {aside}", file=sys.stderr)
+    team = IndependentPPO.from_config(
+        config, cell.graph, seed=cell.seed, tensorboard_log=tensorboard_log, device=cell.device
+    )
+    team.learn(timesteps, checkpoints=schedule)
     return team
 
 
