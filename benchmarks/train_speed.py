@@ -1,7 +1,7 @@
 """Training speed of an independent team, next to stock SB3 PPO measured in the same run.
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
-                                     [--config ippo] [--repeats 1] [--threads 2]
+                                     [--config ippo] [--repeats 1] [--threads 2] [--profile]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -12,6 +12,11 @@ The team uses the config's entry for the graph (hyperparameters and ``policy_kwa
 ``sb3-pm train`` would); ``--n-envs``/``--n-steps`` override it, and ``batch_size`` follows
 ``n_steps`` only when overridden. With ``--repeats R`` each team figure is the median of R timed
 runs (the CPU may be shared; the load average is printed).
+
+``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
+the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
+fit, and the rest (buffers, callbacks, the multiplexer's hand-offs). Only the learner holding the
+baton runs, so these phases add up to the wall time; the figures are sums over the learners.
 """
 
 from __future__ import annotations
@@ -20,12 +25,48 @@ import argparse
 import os
 import statistics
 import time
+from collections import defaultdict
+from collections.abc import Callable
+from typing import Any
 
 import torch as th
 
 
+def _timed(phases: dict[str, float], name: str, method: Callable[..., Any]) -> Callable[..., Any]:
+    """``method``, adding its wall time to ``phases[name]``."""
+
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return method(*args, **kwargs)
+        finally:
+            phases[name] += time.perf_counter() - start
+
+    return wrapper
+
+
+def _instrument(team: Any, phases: dict[str, float]) -> None:
+    """Time the team's phases (see the module docstring) into ``phases``."""
+    from sb3_pm.callbacks import EstimatorCallback
+
+    team.hub._joint_step = _timed(phases, "environment step", team.hub._joint_step)
+    for model in team.models.values():
+        policy = model.policy
+        for name in ("forward_with_masks", "predict_values"):
+            if hasattr(policy, name):
+                setattr(policy, name, _timed(phases, "rollout inference", getattr(policy, name)))
+        model.train = _timed(phases, "train()", model.train)
+    EstimatorCallback.fit = _timed(phases, "estimator fit", EstimatorCallback.fit)
+
+
 def team_speed(
-    graph: str, config: str, algo: str | None, timesteps: int, n_envs: int | None, n_steps: int | None
+    graph: str,
+    config: str,
+    algo: str | None,
+    timesteps: int,
+    n_envs: int | None,
+    n_steps: int | None,
+    profile: bool = False,
 ) -> float:
     """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
@@ -45,9 +86,24 @@ def team_speed(
     team = IndependentPPO(graph, seed=0, **options)
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
     team.learn(rollout)  # warm-up: one rollout and one train() per learner
+    phases: dict[str, float] = defaultdict(float)
+    original_fit = None
+    if profile:
+        from sb3_pm.callbacks import EstimatorCallback
+
+        original_fit = EstimatorCallback.fit
+        _instrument(team, phases)
     start = time.perf_counter()
-    team.learn(timesteps, reset_num_timesteps=False)
+    try:
+        team.learn(timesteps, reset_num_timesteps=False)
+    finally:
+        if original_fit is not None:
+            EstimatorCallback.fit = original_fit  # type: ignore[method-assign]
     elapsed = time.perf_counter() - start
+    if profile:
+        phases["rest (buffers, callbacks, hand-offs)"] = elapsed - sum(phases.values())
+        for name, seconds in phases.items():
+            print(f"    {name:<44} {seconds:7.2f} s  {100 * seconds / elapsed:5.1f}%")
     return team.n_agents * (team.num_timesteps - rollout) / elapsed
 
 
@@ -76,6 +132,7 @@ def main() -> None:
     parser.add_argument("--n-steps", type=int, default=None, help="override n_steps (and batch_size)")
     parser.add_argument("--threads", type=int, default=th.get_num_threads(), help="torch threads")
     parser.add_argument("--repeats", type=int, default=1, help="timed runs per graph (median printed)")
+    parser.add_argument("--profile", action="store_true", help="print where each team's time goes")
     args = parser.parse_args()
     th.set_num_threads(args.threads)
     print(
@@ -89,7 +146,7 @@ def main() -> None:
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<48} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
         runs = [
-            team_speed(graph, args.config, args.algo, args.timesteps, args.n_envs, args.n_steps)
+            team_speed(graph, args.config, args.algo, args.timesteps, args.n_envs, args.n_steps, args.profile)
             for _ in range(args.repeats)
         ]
         speed = statistics.median(runs)
