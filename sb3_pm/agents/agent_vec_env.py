@@ -113,10 +113,18 @@ class RolloutBarrier(BaseCallback):
     def _on_step(self) -> bool:
         return True
 
-    def _on_rollout_start(self) -> None:
+    def _agent_env(self) -> AgentVecEnv:
         env = self.training_env
         if not isinstance(env, AgentVecEnv):
             raise TypeError(f"RolloutBarrier needs an AgentVecEnv, got {type(env).__name__}")
+        return env
+
+    def _on_rollout_end(self) -> None:
+        env = self._agent_env()
+        env.hub.enter_update(env.index)  # the update phase draws from all of the learner's stream
+
+    def _on_rollout_start(self) -> None:
+        env = self._agent_env()
         env.hub.sync(env.index)
 
 

@@ -20,7 +20,9 @@ seed. ``strict_order=False`` drops the baton (agents submit in any order), for e
 
 Each learner also draws from its own random stream (:mod:`sb3_pm.agents.streams`): its state is
 loaded into the process-wide generators when the learner takes the baton and stored back when it
-hands it on, so a learner's draws do not depend on the others' at all.
+hands it on, so a learner's draws do not depend on the others' at all. Torch's generator (action
+sampling) is swapped at every turn; NumPy's and Python's, which SB3 draws from only in a learner's
+update phase, at the start of a ``learn()`` and from each rollout's end to the next barrier.
 
 **Rollout barrier.** :class:`~sb3_pm.agents.agent_vec_env.RolloutBarrier`, a callback every team
 learner carries last, makes all learners meet at the start of each rollout (after every
@@ -123,6 +125,7 @@ class ParallelEnvMultiplexer:
         self.on_sync: Callable[[], str | None] | None = None
         #: one random stream per agent (see :mod:`sb3_pm.agents.streams`); None: the shared one
         self.streams: list[StreamState] | None = None
+        self._holds_full_stream = [False] * self.n_agents
         #: set by :meth:`request_stop`: the ``on_sync`` hook should stop the team at the next barrier
         self.stop_requested = False
         #: the reason the last ``on_sync`` stopped the team, if it did
@@ -168,6 +171,7 @@ class ParallelEnvMultiplexer:
             if not self.strict_order:
                 raise ValueError("per-agent random streams need strict_order=True (the baton)")
         self.streams = None if streams is None else list(streams)
+        self._holds_full_stream = [False] * self.n_agents
 
     def request_stop(self) -> None:
         """Ask the ``on_sync`` hook to stop the team at the next rollout barrier (Ctrl-C)."""
@@ -211,22 +215,37 @@ class ParallelEnvMultiplexer:
         """Block until agent ``index`` holds the baton (a learner thread calls this first)."""
         with self._cond:
             self._wait(index, lambda: not self.strict_order or self._baton == index)
-            self._load_stream(index)
+            self._load_stream(index, full=True)
 
     def close(self) -> None:
         for env in self.envs:
             env.close()
 
     # ---------------------------------------------------------------- internal
-    def _load_stream(self, index: int) -> None:
-        """Agent ``index`` took the baton: its random stream becomes the process-wide one."""
+    def _load_stream(self, index: int, full: bool = False) -> None:
+        """Agent ``index`` took the baton: its random stream becomes the process-wide one (torch's
+        generator only, unless ``full``: see :meth:`enter_update`)."""
         if self.streams is not None:
-            load_stream(self.streams[index])
+            load_stream(self.streams[index], torch_only=not full)
+            self._holds_full_stream[index] = self._holds_full_stream[index] or full
 
     def _store_stream(self, index: int) -> None:
-        """Agent ``index`` hands the baton on: keep where its random stream stands."""
+        """Agent ``index`` hands the baton on: keep where its random stream stands (all of it if
+        its full stream was loaded since it took the baton, else torch's generator only)."""
         if self.streams is not None:
-            self.streams[index] = capture_stream()
+            full = self._holds_full_stream[index]
+            self.streams[index] = capture_stream(None if full else self.streams[index])
+            self._holds_full_stream[index] = False
+
+    def enter_update(self, index: int) -> None:
+        """Agent ``index`` (holding the baton) starts its update phase: load all of its stream.
+
+        During a rollout only torch's generator is swapped per turn; SB3's learners draw from
+        NumPy's and Python's generators only between the end of a rollout and the next barrier
+        (PPO's minibatch permutation), so those are loaded here and stored at the barrier.
+        """
+        with self._cond:
+            self._load_stream(index, full=True)
 
     def _wait(self, index: int, ready: Callable[[], bool]) -> None:
         """Wait (holding ``_cond``) until ``ready()``; raise :class:`TeamAborted` on abort or timeout."""
