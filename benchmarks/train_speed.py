@@ -2,6 +2,7 @@
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
+                                     [--updates side-by-side serial]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -12,6 +13,10 @@ The team uses the config's entry for the graph (hyperparameters and ``policy_kwa
 ``sb3-pm train`` would); ``--n-envs``/``--n-steps`` override it, and ``batch_size`` follows
 ``n_steps`` only when overridden. With ``--repeats R`` each team figure is the median of R timed
 runs (the CPU may be shared; the load average is printed).
+
+``--updates`` picks how the learners' update phases run: ``side-by-side`` (the default,
+``IndependentPPO(concurrent_updates=True)``, each learner's ``train()`` in its own thread) and/or
+``serial`` (one after another); both give the same parameters, so listing both measures the gain.
 
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
@@ -67,6 +72,7 @@ def team_speed(
     n_envs: int | None,
     n_steps: int | None,
     profile: bool = False,
+    concurrent: bool = True,
 ) -> float:
     """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
@@ -83,7 +89,7 @@ def team_speed(
         options["hyperparams"] = {**options["hyperparams"], "n_steps": n_steps, "batch_size": n_steps}
     if options["algo"] != "dcbf_ppo":  # policy_kwargs of the DCBF policy mean nothing to others
         options["hyperparams"].pop("policy_kwargs", None)
-    team = IndependentPPO(graph, seed=0, **options)
+    team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, **options)
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
     team.learn(rollout)  # warm-up: one rollout and one train() per learner
     phases: dict[str, float] = defaultdict(float)
@@ -133,6 +139,13 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=th.get_num_threads(), help="torch threads")
     parser.add_argument("--repeats", type=int, default=1, help="timed runs per graph (median printed)")
     parser.add_argument("--profile", action="store_true", help="print where each team's time goes")
+    parser.add_argument(
+        "--updates",
+        nargs="+",
+        choices=["side-by-side", "serial"],
+        default=["side-by-side"],
+        help="how the learners' update phases run (default side-by-side; give both to compare)",
+    )
     args = parser.parse_args()
     th.set_num_threads(args.threads)
     print(
@@ -145,18 +158,28 @@ def main() -> None:
     cartpole = cartpole_speed(args.cartpole_timesteps)
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<48} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
-        runs = [
-            team_speed(graph, args.config, args.algo, args.timesteps, args.n_envs, args.n_steps, args.profile)
-            for _ in range(args.repeats)
-        ]
-        speed = statistics.median(runs)
-        paper = 4 * 50_000 / speed
-        spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
-        label = f"team {graph} ({args.algo or 'config'})"
-        print(
-            f"{label:<48} {speed:>10.0f} agent-steps/s   "
-            f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"
-        )
+        for mode in args.updates:
+            runs = [
+                team_speed(
+                    graph,
+                    args.config,
+                    args.algo,
+                    args.timesteps,
+                    args.n_envs,
+                    args.n_steps,
+                    args.profile,
+                    concurrent=mode == "side-by-side",
+                )
+                for _ in range(args.repeats)
+            ]
+            speed = statistics.median(runs)
+            paper = 4 * 50_000 / speed
+            spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
+            label = f"team {graph} ({args.algo or 'config'}, {mode})"
+            print(
+                f"{label:<48} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
+                f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"
+            )
 
 
 if __name__ == "__main__":

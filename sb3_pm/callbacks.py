@@ -52,6 +52,9 @@ class EstimatorCallback(BaseCallback):
             raise InputError(f"update_at must be one of {UPDATE_AT}, got {update_at!r}")
         self.update_at = update_at
         self._pending: tuple[np.ndarray, np.ndarray] | None = None
+        #: the generator of the minibatch orders (``None``: torch's global one). A team learner
+        #: that updates next to others is given its own, holding its random stream.
+        self.generator: th.Generator | None = None
         #: Mean loss of the last fit's final epoch (``nan`` before the first fit).
         self.last_loss = float("nan")
 
@@ -95,7 +98,7 @@ class EstimatorCallback(BaseCallback):
         losses: list[float] = []
         for _ in range(int(policy.estimator_epochs)):
             losses = []
-            order = th.randperm(len(prev_t), device=device)  # SB3's seeded torch RNG: reproducible
+            order = th.randperm(len(prev_t), device=device, generator=self.generator)
             for start in range(0, len(order), batch_size):
                 idx = order[start : start + batch_size]
                 loss = estimator.loss(prev_t[idx], curr_t[idx], policy.estimator_target)

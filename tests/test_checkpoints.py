@@ -178,3 +178,38 @@ def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys) -> None:
     error = capsys.readouterr().err
     assert "no checkpoint" in error and error.count("\n") == 1
     assert (out / "args.yml").exists()  # a refused resume removes nothing
+
+
+def test_side_by_side_updates_give_the_serial_parameters(monkeypatch) -> None:
+    """Concurrent update phases (each learner's train() and estimator fit in its own thread) give
+    the parameters of the serial path, bit for bit, and really run side by side."""
+    from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
+
+    side_by_side = []
+    enter_update = ParallelEnvMultiplexer.enter_update
+
+    def spy(self, index, draw=None):
+        generator = enter_update(self, index, draw)
+        side_by_side.append(generator is not None)
+        return generator
+
+    monkeypatch.setattr(ParallelEnvMultiplexer, "enter_update", spy)
+
+    def trained(concurrent: bool) -> list[th.Tensor]:
+        team = IndependentPPO(
+            GRAPH,
+            n_agents=3,
+            n_envs=2,
+            seed=2,
+            hyperparams={**HYPERPARAMS, "n_epochs": 3},
+            env_kwargs={"max_cycles": 20},
+            concurrent_updates=concurrent,
+        )
+        return _state(team.learn(32 * 4))
+
+    serial = trained(False)
+    assert side_by_side and not any(side_by_side)
+    side_by_side.clear()
+    concurrent = trained(True)
+    assert side_by_side and all(side_by_side)
+    _assert_same(serial, concurrent)

@@ -108,7 +108,17 @@ class RolloutBarrier(BaseCallback):
 
     It must be the learner's last callback, so the barrier comes after everything the learner does
     between two rollouts (``train()``, the estimator fit). Its env must be an :class:`AgentVecEnv`.
+    At each rollout's end it opens the learner's update phase
+    (:meth:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer.enter_update`); when the phase runs
+    side by side with the others, ``estimator`` (the learner's estimator callback, if any) draws
+    from the learner's own generator until the barrier.
+
+    :param estimator: the learner's :class:`~sb3_pm.callbacks.EstimatorCallback`, or ``None``.
     """
+
+    def __init__(self, estimator: Any = None, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.estimator = estimator
 
     def _on_step(self) -> bool:
         return True
@@ -121,11 +131,26 @@ class RolloutBarrier(BaseCallback):
 
     def _on_rollout_end(self) -> None:
         env = self._agent_env()
-        env.hub.enter_update(env.index)  # the update phase draws from all of the learner's stream
+        buffer: Any = getattr(self.model, "rollout_buffer", None)
+        epochs = getattr(self.model, "n_epochs", None)
+        draw = None
+        # Side by side only where every draw of the update can be made now: the minibatch orders
+        # (and no early stop on target_kl, which would leave some of them undrawn in a lone update).
+        if (
+            hasattr(buffer, "draw_orders")
+            and epochs is not None
+            and getattr(self.model, "target_kl", None) is None
+        ):
+            draw = lambda: buffer.draw_orders(int(epochs))  # noqa: E731
+        generator = env.hub.enter_update(env.index, draw)
+        if self.estimator is not None:
+            self.estimator.generator = generator
 
     def _on_rollout_start(self) -> None:
         env = self._agent_env()
         env.hub.sync(env.index)
+        if self.estimator is not None:
+            self.estimator.generator = None
 
 
 __all__ = ["AgentVecEnv", "RolloutBarrier"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -42,14 +43,24 @@ def learner_callbacks(model: BaseAlgorithm, callback: BaseCallback | None) -> Ca
     itself, after everything else), and a :class:`RolloutBarrier` last, so the barrier sees each
     learner with its ``train()`` and estimator fit done."""
     callbacks = list(with_episode_metrics(callback).callbacks)
+    estimator = None
     if getattr(model, "estimator_update_at", None) and getattr(model.policy, "estimator", None) is not None:
         from sb3_pm.callbacks import EstimatorCallback
-        from sb3_pm.ppo_dcbf.ppo_dcbf import _contains_estimator_callback
 
-        if not _contains_estimator_callback(callbacks):
-            callbacks.append(EstimatorCallback(update_at=model.estimator_update_at))  # type: ignore[attr-defined]
-    callbacks.append(RolloutBarrier())
+        estimator = next((c for c in _flat(callbacks) if isinstance(c, EstimatorCallback)), None)
+        if estimator is None:
+            estimator = EstimatorCallback(update_at=model.estimator_update_at)  # type: ignore[attr-defined]
+            callbacks.append(estimator)
+    callbacks.append(RolloutBarrier(estimator))
     return CallbackList(callbacks)
+
+
+def _flat(callbacks: list[BaseCallback]) -> list[BaseCallback]:
+    """Every callback in ``callbacks``, with ``CallbackList``s opened."""
+    flat: list[BaseCallback] = []
+    for callback in callbacks:
+        flat += _flat(callback.callbacks) if isinstance(callback, CallbackList) else [callback]
+    return flat
 
 
 def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> CallbackList:
@@ -63,4 +74,12 @@ def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> 
     return CallbackList(callbacks)
 
 
-__all__ = ["EpisodeMetricsCallback", "learner_callbacks", "with_episode_metrics"]
+def close_loggers(models: Iterable[BaseAlgorithm]) -> None:
+    """Close each model's SB3 logger, if it was configured (``learn()`` configures it)."""
+    for model in models:
+        logger = getattr(model, "_logger", None)
+        if logger is not None:
+            logger.close()
+
+
+__all__ = ["EpisodeMetricsCallback", "close_loggers", "learner_callbacks", "with_episode_metrics"]

@@ -49,9 +49,11 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
 
@@ -126,6 +128,10 @@ class ParallelEnvMultiplexer:
         #: one random stream per agent (see :mod:`sb3_pm.agents.streams`); None: the shared one
         self.streams: list[StreamState] | None = None
         self._holds_full_stream = [False] * self.n_agents
+        #: let learners run their update phases side by side (see :meth:`enter_update`)
+        self.concurrent_updates = False
+        #: per agent in a side-by-side update phase: the torch generator holding its stream
+        self._update_generators: list[th.Generator | None] = [None] * self.n_agents
         #: set by :meth:`request_stop`: the ``on_sync`` hook should stop the team at the next barrier
         self.stop_requested = False
         #: the reason the last ``on_sync`` stopped the team, if it did
@@ -205,7 +211,7 @@ class ParallelEnvMultiplexer:
         with self._cond:
             self._finished[index] = True
             self._kinds[index] = None
-            if self._baton == index:
+            if not self._end_update(index) and self._baton == index:
                 self._store_stream(index)
                 self._pass_baton(index)
             self._maybe_complete()
@@ -237,15 +243,44 @@ class ParallelEnvMultiplexer:
             self.streams[index] = capture_stream(None if full else self.streams[index])
             self._holds_full_stream[index] = False
 
-    def enter_update(self, index: int) -> None:
-        """Agent ``index`` (holding the baton) starts its update phase: load all of its stream.
+    def enter_update(self, index: int, draw: Callable[[], None] | None = None) -> th.Generator | None:
+        """Agent ``index`` (holding the baton) starts its update phase (rollout end to barrier).
 
         During a rollout only torch's generator is swapped per turn; SB3's learners draw from
-        NumPy's and Python's generators only between the end of a rollout and the next barrier
-        (PPO's minibatch permutation), so those are loaded here and stored at the barrier.
+        NumPy's and Python's generators only in the update phase (PPO's minibatch permutation), so
+        all of the agent's stream is loaded here, and stored at the barrier.
+
+        With :attr:`concurrent_updates` and a ``draw`` that makes, now, every NumPy draw of the
+        update phase (:meth:`~sb3_pm.ppo_dcbf.buffers.OrderedRolloutBuffer.draw_orders`), the agent
+        hands the baton on at once and updates side by side with the others. Its remaining draws
+        come from the returned torch generator, which holds its stream (the estimator's minibatch
+        orders); nothing else in an update draws. The arithmetic is the same either way, so the
+        parameters are too, bit for bit.
+
+        :returns: the agent's own torch generator for a side-by-side update, else ``None``.
         """
         with self._cond:
             self._load_stream(index, full=True)
+            if draw is None or not self.concurrent_updates or self.streams is None:
+                return None
+            draw()
+            self._store_stream(index)
+            generator = th.Generator()
+            generator.set_state(self.streams[index].torch)
+            self._update_generators[index] = generator
+            self._pass_baton(index)
+            self._cond.notify_all()
+            return generator
+
+    def _end_update(self, index: int) -> bool:
+        """If agent ``index`` updates side by side, keep its generator's state as its stream's."""
+        generator = self._update_generators[index]
+        if generator is None:
+            return False
+        assert self.streams is not None
+        self.streams[index] = replace(self.streams[index], torch=generator.get_state())
+        self._update_generators[index] = None
+        return True
 
     def _wait(self, index: int, ready: Callable[[], bool]) -> None:
         """Wait (holding ``_cond``) until ``ready()``; raise :class:`TeamAborted` on abort or timeout."""
@@ -288,7 +323,10 @@ class ParallelEnvMultiplexer:
             self._kinds[index] = kind
             if actions is not None:
                 self._actions[index] = actions
-            if self.strict_order:
+            if self._end_update(index):
+                if kind != "sync":
+                    raise MultiplexerError(f"{self.agents[index]} stepped during its update phase")
+            elif self.strict_order:
                 self._store_stream(index)
                 self._pass_baton(index)
             try:
@@ -339,6 +377,8 @@ class ParallelEnvMultiplexer:
     def _joint_sync(self) -> None:
         """Every agent is at the rollout barrier: run the ``on_sync`` hook, alone."""
         self._results = [() for _ in range(self.n_agents)]
+        if self.strict_order:  # the next rollout starts with the first agent, as after any round
+            self._pass_baton(self.n_agents - 1)
         reason = None if self.on_sync is None else self.on_sync()
         if reason is not None:
             self.stopped = reason

@@ -41,7 +41,7 @@ from sb3_pm.agents.checkpoints import (
     write_checkpoint,
 )
 from sb3_pm.agents.learned_team import LearnedTeam
-from sb3_pm.agents.learner_callbacks import EpisodeMetricsCallback, learner_callbacks
+from sb3_pm.agents.learner_callbacks import EpisodeMetricsCallback, close_loggers, learner_callbacks
 from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
 from sb3_pm.agents.learners import RESERVED_KEYS, agent_seed, check_same, learn_seed, resolve_hyperparams
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
@@ -92,6 +92,10 @@ class IndependentPPO(LearnedTeam):
     :param verbose: SB3 verbosity of every learner.
     :param device: torch device of every learner.
     :param strict_order: run learners in a fixed turn order (bit-for-bit reproducible).
+    :param concurrent_updates: let the learners' update phases (``train()`` and the estimator fit)
+        run side by side, each in its own thread, where every random draw of an update can be made
+        before it starts (DCBF-PPO learners without ``target_kl``). The parameters are the same, bit
+        for bit, as with ``False``; on 2 cores the update phases take about half the time.
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
         before training stops with :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
         ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (under a
@@ -117,6 +121,7 @@ class IndependentPPO(LearnedTeam):
         device: str = "cpu",
         strict_order: bool = True,
         wait_timeout: float | None = DEFAULT_WAIT_TIMEOUT,
+        concurrent_updates: bool = True,
         _init_models: bool = True,
     ) -> None:
         self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs)
@@ -129,6 +134,7 @@ class IndependentPPO(LearnedTeam):
         self.hub = ParallelEnvMultiplexer(
             [self._make_env] * self.n_envs, strict_order=strict_order, timeout=wait_timeout
         )
+        self.hub.concurrent_updates = bool(concurrent_updates and strict_order)
         self.agents: list[str] = list(self.hub.agents)
         unknown = sorted(set(self.per_agent) - set(self.agents))
         if unknown:
@@ -459,6 +465,9 @@ class IndependentPPO(LearnedTeam):
         return team
 
     def close(self) -> None:
+        """Close the env copies and every learner's logger (TensorBoard files are flushed and their
+        writer threads end here, not at interpreter exit)."""
+        close_loggers(self.models.values())
         self.hub.close()
 
     def __repr__(self) -> str:

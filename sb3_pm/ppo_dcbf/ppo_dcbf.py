@@ -9,6 +9,8 @@
   ratio compares the same distribution support that was sampled from, even after the estimator
   (which drives the filter) has changed. The env therefore needs no ``action_masks()`` method: the
   reachable set is read from the observation's ``action_mask`` entry.
+* its rollout buffer is an :class:`~sb3_pm.ppo_dcbf.buffers.OrderedRolloutBuffer`, which can draw
+  its minibatch orders before the update phase (so team learners can update side by side);
 * ``learn`` attaches :class:`~sb3_pm.callbacks.EstimatorCallback` when the policy has an
   estimator, and ``_get_torch_save_params`` adds the estimator's optimizer so that save/load
   round-trips it (the estimator's weights are part of the policy's state dict).
@@ -40,6 +42,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_pm.callbacks import UPDATE_AT, EstimatorCallback
 from sb3_pm.errors import InputError
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
+from sb3_pm.ppo_dcbf.buffers import OrderedRolloutBuffer
 from sb3_pm.ppo_dcbf.policies import DCBFPolicy
 
 SelfDCBFPPO = TypeVar("SelfDCBFPPO", bound="DCBFPPO")
@@ -77,6 +80,8 @@ class DCBFPPO(MaskablePPO):
         super().__init__(*args, **kwargs)
 
     def _setup_model(self) -> None:
+        if self.rollout_buffer_class in (None, MaskableDictRolloutBuffer):  # also a zip saved before
+            self.rollout_buffer_class = OrderedRolloutBuffer
         super()._setup_model()
         if not isinstance(self.policy, DCBFActorCriticPolicy):
             raise InputError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")

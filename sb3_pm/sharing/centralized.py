@@ -23,7 +23,7 @@ import numpy as np
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.learned_team import LearnedTeam
-from sb3_pm.agents.learner_callbacks import with_episode_metrics
+from sb3_pm.agents.learner_callbacks import close_loggers, with_episode_metrics
 from sb3_pm.agents.learners import learn_seed, resolve_hyperparams
 from sb3_pm.agents.saved_teams import load_model_file
 from sb3_pm.errors import InputError
@@ -170,4 +170,6 @@ class CentralizedPPO(LearnedTeam):
         return team
 
     def close(self) -> None:
+        """Close the env copies and the model's logger."""
+        close_loggers([self.model] if self.model is not None else [])
         self.venv.close()
