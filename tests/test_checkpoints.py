@@ -130,7 +130,15 @@ def test_an_interrupted_train_resumes_to_the_uninterrupted_team(tiny_train, sig)
     timesteps = 16 * 150  # 150 rollouts: interrupted well before the end
     out = tmp / "interrupted"
     command = [sys.executable, "-m", "sb3_pm.cli", *_train_argv(tiny_train, out, timesteps)]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # As from a terminal: a job started in the background (`cmd &`, nohup) inherits an ignored
+        # SIGINT, and Python then leaves it ignored, so Ctrl-C could not reach the run at all.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     try:
         deadline = time.monotonic() + 120
         while not list(out.glob("checkpoints/rollout_*/checkpoint.json")) and time.monotonic() < deadline:
