@@ -20,8 +20,9 @@ runs (the CPU may be shared; the load average is printed).
 
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
-fit, and the rest (buffers, callbacks, the multiplexer's hand-offs). Only the learner holding the
-baton runs, so these phases add up to the wall time; the figures are sums over the learners.
+fit, and the rest (buffers, callbacks, the multiplexer's hand-offs). With serial updates only the
+learner holding the baton runs, so these phases add up to the wall time; with side-by-side
+updates the learners' update phases overlap, so their sums exceed it and no rest is printed.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable
@@ -36,16 +38,19 @@ from typing import Any
 
 import torch as th
 
+_PHASES_LOCK = threading.Lock()
+
 
 def _timed(phases: dict[str, float], name: str, method: Callable[..., Any]) -> Callable[..., Any]:
-    """``method``, adding its wall time to ``phases[name]``."""
+    """``method``, adding its wall time to ``phases[name]`` (learners may run it at the same time)."""
 
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         start = time.perf_counter()
         try:
             return method(*args, **kwargs)
         finally:
-            phases[name] += time.perf_counter() - start
+            with _PHASES_LOCK:
+                phases[name] += time.perf_counter() - start
 
     return wrapper
 
@@ -107,7 +112,8 @@ def team_speed(
             EstimatorCallback.fit = original_fit  # type: ignore[method-assign]
     elapsed = time.perf_counter() - start
     if profile:
-        phases["rest (buffers, callbacks, hand-offs)"] = elapsed - sum(phases.values())
+        if not concurrent:
+            phases["rest (buffers, callbacks, hand-offs)"] = elapsed - sum(phases.values())
         for name, seconds in phases.items():
             print(f"    {name:<44} {seconds:7.2f} s  {100 * seconds / elapsed:5.1f}%")
     return team.n_agents * (team.num_timesteps - rollout) / elapsed

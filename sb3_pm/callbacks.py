@@ -98,7 +98,10 @@ class EstimatorCallback(BaseCallback):
         losses: list[float] = []
         for _ in range(int(policy.estimator_epochs)):
             losses = []
-            order = th.randperm(len(prev_t), device=device, generator=self.generator)
+            if self.generator is None:
+                order = th.randperm(len(prev_t), device=device)
+            else:  # a learner's own (CPU) generator, in an update next to others
+                order = th.randperm(len(prev_t), generator=self.generator).to(device)
             for start in range(0, len(order), batch_size):
                 idx = order[start : start + batch_size]
                 loss = estimator.loss(prev_t[idx], curr_t[idx], policy.estimator_target)

@@ -21,6 +21,18 @@ def sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
+def checksum_problem(folder: Path, sha256: dict[str, str]) -> tuple[Path, str] | None:
+    """The first file of ``folder`` that is missing or no longer matches its recorded SHA-256
+    (``{relative name: hex digest}``), with the reason; None when all match."""
+    for name, expected in sha256.items():
+        path = Path(folder) / name
+        if not path.is_file():
+            return path, "missing"
+        if sha256_file(path) != expected:
+            return path, "changed since it was written"
+    return None
+
+
 def write_atomic(path: Path, text: str) -> None:
     """Write ``text`` to a temporary file beside ``path``, then rename it over ``path``: a reader
     (or a crash) sees the old file or the new one, never half of one."""

@@ -174,6 +174,8 @@ def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys) -> None:
     assert "has finished" in capsys.readouterr().err
     assert main(["train", "--resume", str(out), "--seed", "3"]) == 2
     assert "drop --seed" in capsys.readouterr().err
+    assert main(["train", "--resume", str(out), "--threads", "2", "--checkpoint-every", "3"]) == 2
+    assert "drop --checkpoint-every, --threads" in capsys.readouterr().err
     assert main(["train", "--resume", str(tmp)]) == 2
     assert "not a run folder" in capsys.readouterr().err
 
@@ -221,3 +223,21 @@ def test_side_by_side_updates_give_the_serial_parameters(monkeypatch) -> None:
     concurrent = trained(True)
     assert side_by_side and all(side_by_side)
     _assert_same(serial, concurrent)
+
+
+def test_drawn_minibatch_orders_leave_numpys_generator_alone() -> None:
+    """An update running next to others must not draw from NumPy's global generator: with drawn
+    orders the buffer's get() draws nothing, and yields the minibatches of those orders."""
+    team = _team("dcbf_ppo").learn(32)
+    buffer = team.models["agent_0"].rollout_buffer
+    buffer.full = True  # the last rollout's data, as train() would see it
+    np.random.seed(7)  # noqa: NPY002 - the legacy global generator SB3 draws from
+    buffer.draw_orders(2)
+    expected = [order.copy() for order in buffer.orders]
+    state = np.random.get_state()  # noqa: NPY002
+    first = [batch.actions.clone() for batch in buffer.get(8)]
+    second = [batch.actions.clone() for batch in buffer.get(8)]
+    after = np.random.get_state()  # noqa: NPY002
+    assert after[1].tolist() == state[1].tolist() and after[2] == state[2]
+    actions = th.as_tensor(buffer.actions)
+    assert th.equal(th.cat(first), actions[expected[0]]) and th.equal(th.cat(second), actions[expected[1]])

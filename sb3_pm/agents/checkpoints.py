@@ -1,6 +1,6 @@
 """Team checkpoints: everything needed to continue a training run bit for bit.
 
-A checkpoint is taken at a rollout barrier (:class:`~sb3_pm.agents.multiplexer.RolloutBarrier`),
+A checkpoint is taken at a rollout barrier (:class:`~sb3_pm.agents.agent_vec_env.RolloutBarrier`),
 where every learner has finished ``train()`` and its estimator fit and none has started the next
 rollout. What the run still depends on at that point is saved:
 
@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sb3_pm.errors import InputError
-from sb3_pm.files import sha256_file, write_atomic
+from sb3_pm.files import checksum_problem, move_aside, sha256_file, write_atomic
 from sb3_pm.version import __version__
 
 if TYPE_CHECKING:
@@ -105,8 +105,13 @@ def write_checkpoint(team: IndependentPPO, schedule: CheckpointSchedule, rollout
     """
     final = schedule.folder / checkpoint_name(rollouts)
     if final.is_dir() and (final / RECORD).is_file():
-        schedule.last = final
-        return final
+        try:
+            read_record(final)
+        except CheckpointError as error:  # damaged: kept aside, written again
+            logger.warning("checkpoint %s kept as %s and written again: %s", final, move_aside(final), error)
+        else:
+            schedule.last = final
+            return final
     schedule.folder.mkdir(parents=True, exist_ok=True)
     temporary = schedule.folder / f".{final.name}.tmp"
     if temporary.exists():
@@ -167,12 +172,10 @@ def read_record(folder: Path) -> dict[str, Any]:
             f"{folder} was written by sb3_pm {record.get('sb3_pm')}, this is {__version__}; "
             "resume it with that version"
         )
-    for name, expected in record["sha256"].items():
-        file = folder / name
-        if not file.is_file():
-            raise CheckpointError(f"{file} is missing")
-        if sha256_file(file) != expected:
-            raise CheckpointError(f"{file} is damaged (its checksum changed since it was written)")
+    problem = checksum_problem(folder, record["sha256"])
+    if problem is not None:
+        file, reason = problem
+        raise CheckpointError(f"{file} is damaged ({reason})")
     return dict(record)
 
 
@@ -198,8 +201,14 @@ def latest_checkpoint(folder: Path) -> tuple[Path, dict[str, Any]]:
 
 def restore_state(team: IndependentPPO, checkpoint: Path) -> None:
     """Put a checkpoint's env copies, counters and random streams into a team loaded from it."""
-    with (checkpoint / STATE).open("rb") as handle:
-        state = pickle.load(handle)  # noqa: S301 - our own file, checked against its checksum
+    try:
+        with (checkpoint / STATE).open("rb") as handle:
+            state = pickle.load(handle)  # noqa: S301 - our own file, checked against its checksum
+    except (pickle.UnpicklingError, AttributeError, ImportError, EOFError, TypeError) as error:
+        raise CheckpointError(
+            f"{checkpoint / STATE} cannot be read with the installed packages "
+            f"({type(error).__name__}: {error})"
+        ) from None
     hub = team.hub
     if len(state["envs"]) != hub.n_envs or len(state["last_obs"]) != hub.n_agents:
         raise CheckpointError(f"{checkpoint / STATE} does not match the team saved beside it")

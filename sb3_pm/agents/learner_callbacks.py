@@ -46,21 +46,14 @@ def learner_callbacks(model: BaseAlgorithm, callback: BaseCallback | None) -> Ca
     estimator = None
     if getattr(model, "estimator_update_at", None) and getattr(model.policy, "estimator", None) is not None:
         from sb3_pm.callbacks import EstimatorCallback
+        from sb3_pm.ppo_dcbf.ppo_dcbf import find_estimator_callback
 
-        estimator = next((c for c in _flat(callbacks) if isinstance(c, EstimatorCallback)), None)
+        estimator = find_estimator_callback(callbacks)
         if estimator is None:
             estimator = EstimatorCallback(update_at=model.estimator_update_at)  # type: ignore[attr-defined]
             callbacks.append(estimator)
     callbacks.append(RolloutBarrier(estimator))
     return CallbackList(callbacks)
-
-
-def _flat(callbacks: list[BaseCallback]) -> list[BaseCallback]:
-    """Every callback in ``callbacks``, with ``CallbackList``s opened."""
-    flat: list[BaseCallback] = []
-    for callback in callbacks:
-        flat += _flat(callback.callbacks) if isinstance(callback, CallbackList) else [callback]
-    return flat
 
 
 def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> CallbackList:

@@ -53,6 +53,7 @@ def learn_concurrently(
         threading.Thread(target=run, args=(i,), name=f"sb3_pm-learner-{hub.agents[i]}", daemon=True)
         for i in range(hub.n_agents)
     ]
+    hub.threads = threads
     for thread in threads:
         thread.start()
     deadline = None if join_timeout is None else time.monotonic() + join_timeout

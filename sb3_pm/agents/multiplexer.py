@@ -15,8 +15,14 @@ step. :class:`ParallelEnvMultiplexer` bridges the two:
 learners running at the same time would draw from them in an order decided by the OS scheduler,
 and no two runs would be alike. A baton, passed ``agent_0 -> agent_1 -> ... -> agent_{n-1} ->
 agent_0``, makes every stretch of learner code between two env interactions (policy forward,
-``train()``, callbacks) run alone, in a fixed order, so a run is bit-for-bit reproducible from its
-seed. ``strict_order=False`` drops the baton (agents submit in any order), for experiments only.
+callbacks, and ``train()`` unless updates run side by side) run alone, in a fixed order, so a run
+is bit-for-bit reproducible from its seed. ``strict_order=False`` drops the baton (agents submit in
+any order), for experiments only.
+
+**Side-by-side updates.** With :attr:`ParallelEnvMultiplexer.concurrent_updates`, a learner that
+can make every random draw of its update phase up front (:meth:`~ParallelEnvMultiplexer.enter_update`)
+hands the baton on at its rollout's end and runs ``train()``, its estimator fit and its callbacks'
+``on_rollout_start`` next to the others, without the baton, until the rollout barrier.
 
 Each learner also draws from its own random stream (:mod:`sb3_pm.agents.streams`): its state is
 loaded into the process-wide generators when the learner takes the baton and stored back when it
@@ -127,7 +133,11 @@ class ParallelEnvMultiplexer:
         self.on_sync: Callable[[], str | None] | None = None
         #: one random stream per agent (see :mod:`sb3_pm.agents.streams`); None: the shared one
         self.streams: list[StreamState] | None = None
+        #: per agent: its stream is loaded in the process-wide generators (all of it: "full")
+        self._holds_stream = [False] * self.n_agents
         self._holds_full_stream = [False] * self.n_agents
+        #: the learner threads of the last ``learn()`` (a new one waits for none of them)
+        self.threads: list[threading.Thread] = []
         #: let learners run their update phases side by side (see :meth:`enter_update`)
         self.concurrent_updates = False
         #: per agent in a side-by-side update phase: the torch generator holding its stream
@@ -177,6 +187,7 @@ class ParallelEnvMultiplexer:
             if not self.strict_order:
                 raise ValueError("per-agent random streams need strict_order=True (the baton)")
         self.streams = None if streams is None else list(streams)
+        self._holds_stream = [False] * self.n_agents
         self._holds_full_stream = [False] * self.n_agents
 
     def request_stop(self) -> None:
@@ -194,10 +205,17 @@ class ParallelEnvMultiplexer:
 
         The env copies keep their state, so a continued run picks up mid-episode.
         """
+        alive = [thread.name for thread in self.threads if thread.is_alive()]
+        if alive:
+            raise MultiplexerError(
+                f"learner threads of the previous learn() are still running ({', '.join(alive)}); "
+                "it was stopped at once and they have not unwound yet"
+            )
         with self._cond:
             self.stop_requested = False
             self.stopped = None
             self.timed_out = None
+            self._update_generators = [None] * self.n_agents
             self._kinds = [None] * self.n_agents
             self._results = [None] * self.n_agents
             self._round = 0
@@ -233,15 +251,16 @@ class ParallelEnvMultiplexer:
         generator only, unless ``full``: see :meth:`enter_update`)."""
         if self.streams is not None:
             load_stream(self.streams[index], torch_only=not full)
+            self._holds_stream[index] = True
             self._holds_full_stream[index] = self._holds_full_stream[index] or full
 
     def _store_stream(self, index: int) -> None:
         """Agent ``index`` hands the baton on: keep where its random stream stands (all of it if
         its full stream was loaded since it took the baton, else torch's generator only)."""
-        if self.streams is not None:
+        if self.streams is not None and self._holds_stream[index]:  # never another agent's state
             full = self._holds_full_stream[index]
             self.streams[index] = capture_stream(None if full else self.streams[index])
-            self._holds_full_stream[index] = False
+            self._holds_stream[index] = self._holds_full_stream[index] = False
 
     def enter_update(self, index: int, draw: Callable[[], None] | None = None) -> th.Generator | None:
         """Agent ``index`` (holding the baton) starts its update phase (rollout end to barrier).
@@ -254,8 +273,8 @@ class ParallelEnvMultiplexer:
         update phase (:meth:`~sb3_pm.ppo_dcbf.buffers.OrderedRolloutBuffer.draw_orders`), the agent
         hands the baton on at once and updates side by side with the others. Its remaining draws
         come from the returned torch generator, which holds its stream (the estimator's minibatch
-        orders); nothing else in an update draws. The arithmetic is the same either way, so the
-        parameters are too, bit for bit.
+        orders); the policy has no dropout, so nothing else in an update draws. The arithmetic is
+        the same either way, so the parameters are too, bit for bit.
 
         :returns: the agent's own torch generator for a side-by-side update, else ``None``.
         """

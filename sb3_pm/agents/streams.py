@@ -11,8 +11,12 @@ baton on. A learner's draws then depend only on its own seed and its own code pa
 interleaving of the team. That is what lets a checkpoint be taken at any rollout boundary, and a
 resumed run continue bit for bit: the state of every stream is part of the checkpoint.
 
-Only one learner runs learner code at a time (the baton), so swapping the process-wide state is
-safe. Without the baton (``strict_order=False``) streams are not used.
+Only the learner holding the baton runs code that draws from the process-wide generators, so
+swapping their state is safe. A learner updating side by side with others draws nothing from them:
+its update's draws are made up front, or from a torch generator of its own
+(:meth:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer.enter_update`). Without the baton
+(``strict_order=False``) streams are not used. Only the CPU generators are carried: on a GPU,
+action sampling draws from the CUDA generator, which is shared.
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import set_random_seed
@@ -92,10 +93,12 @@ class IndependentPPO(LearnedTeam):
     :param verbose: SB3 verbosity of every learner.
     :param device: torch device of every learner.
     :param strict_order: run learners in a fixed turn order (bit-for-bit reproducible).
-    :param concurrent_updates: let the learners' update phases (``train()`` and the estimator fit)
-        run side by side, each in its own thread, where every random draw of an update can be made
-        before it starts (DCBF-PPO learners without ``target_kl``). The parameters are the same, bit
-        for bit, as with ``False``; on 2 cores the update phases take about half the time.
+    :param concurrent_updates: let the learners' update phases (``train()``, the estimator fit and
+        the callbacks' ``on_rollout_start``/``on_training_end``) run side by side, each in its own
+        thread, where every random draw of an update can be made before it starts (DCBF-PPO learners
+        on CPU without ``target_kl``). The parameters are the same, bit for bit, as with ``False``;
+        on 2 cores the update phases take about half the time. Callbacks that share state between
+        learners must then be thread-safe.
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
         before training stops with :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
         ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (under a
@@ -134,7 +137,10 @@ class IndependentPPO(LearnedTeam):
         self.hub = ParallelEnvMultiplexer(
             [self._make_env] * self.n_envs, strict_order=strict_order, timeout=wait_timeout
         )
-        self.hub.concurrent_updates = bool(concurrent_updates and strict_order)
+        # Per-learner streams swap the CPU generators only: side by side is for CPU learners.
+        self.hub.concurrent_updates = bool(
+            concurrent_updates and strict_order and th.device(device).type == "cpu"
+        )
         self.agents: list[str] = list(self.hub.agents)
         unknown = sorted(set(self.per_agent) - set(self.agents))
         if unknown:
@@ -463,6 +469,20 @@ class IndependentPPO(LearnedTeam):
         restore_state(team, checkpoint)
         team.checkpoint = checkpoint
         return team
+
+    def learn_remaining(
+        self, checkpoints: CheckpointSchedule | None = None, **learn_kwargs: Any
+    ) -> IndependentPPO:
+        """Continue a team restored by :meth:`from_checkpoint` to the end of its interrupted run:
+        ``learn(remaining_timesteps, reset_num_timesteps=False)``, writing further checkpoints to
+        ``checkpoints`` (which starts from the restored one)."""
+        if checkpoints is not None:
+            checkpoints.last = self.checkpoint
+        if self.remaining_timesteps > 0:
+            self.learn(
+                self.remaining_timesteps, reset_num_timesteps=False, checkpoints=checkpoints, **learn_kwargs
+            )
+        return self
 
     def close(self) -> None:
         """Close the env copies and every learner's logger (TensorBoard files are flushed and their

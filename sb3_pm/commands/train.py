@@ -92,7 +92,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--checkpoint-every",
         type=int,
-        default=DEFAULT_CHECKPOINT_EVERY,
+        default=None,
         metavar="N",
         help=f"write a checkpoint every N rollouts into DIR/checkpoints (default {DEFAULT_CHECKPOINT_EVERY}; "
         "0: none, then Ctrl-C keeps nothing)",
@@ -102,7 +102,7 @@ def register(subparsers: Any) -> None:
         type=Path,
         metavar="DIR",
         help="continue the interrupted run in DIR from its newest checkpoint, with the settings recorded "
-        "in DIR/args.yml (give no other training option)",
+        "in DIR/args.yml, device, threads and checkpoint interval included (give no other training option)",
     )
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity of every learner (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -154,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
     args.config = args.config or "ippo"
     args.env = args.env or "paper-50"
     args.seed = 0 if args.seed is None else args.seed
+    if args.checkpoint_every is None:
+        args.checkpoint_every = DEFAULT_CHECKPOINT_EVERY
     for flag in ("timesteps", "n_envs", "threads"):
         value = getattr(args, flag)
         if value is not None and value < 1:
@@ -218,6 +220,14 @@ def resume(args: argparse.Namespace) -> int:
     given = [f"--{name.replace('_', '-')}" for name in RUN_OPTIONS if getattr(args, name) not in (None, [])]
     if args.overwrite:
         given.append("--overwrite")
+    if args.checkpoint_every is not None:
+        given.append("--checkpoint-every")
+    if args.device != "cpu" or args.threads != 1:  # the run's own are used: the same arithmetic
+        given += [
+            flag
+            for flag, changed in (("--device", args.device != "cpu"), ("--threads", args.threads != 1))
+            if changed
+        ]
     if given:
         raise UsageError(
             f"--resume continues the run recorded in {args.resume}/args.yml; drop {', '.join(given)}"
@@ -285,8 +295,6 @@ def _learn_and_save(
     from sb3_pm.agents.checkpoints import CHECKPOINTS, CheckpointSchedule, TrainingInterrupted
 
     schedule = CheckpointSchedule(out / CHECKPOINTS, every=every) if every > 0 else None
-    if schedule is not None:
-        schedule.last = team.checkpoint
 
     def tell() -> None:
         print(
@@ -296,14 +304,10 @@ def _learn_and_save(
 
     try:
         with _sigterm_as_interrupt():
-            if steps > 0:
-                team.learn(
-                    steps,
-                    progress_bar=not args.no_progress,
-                    reset_num_timesteps=reset,
-                    checkpoints=schedule,
-                    on_interrupt=tell,
-                )
+            if not reset:
+                team.learn_remaining(schedule, progress_bar=not args.no_progress, on_interrupt=tell)
+            else:
+                team.learn(steps, progress_bar=not args.no_progress, checkpoints=schedule, on_interrupt=tell)
     except TrainingInterrupted as stop:
         print(f"interrupted at step {team.num_timesteps} per learner; checkpoint saved to {stop.checkpoint}")
         print(f"continue with: sb3-pm train --resume {out}")

@@ -13,7 +13,7 @@ import json
 import time
 from pathlib import Path
 
-from sb3_pm.files import move_aside, sha256_file, write_atomic
+from sb3_pm.files import checksum_problem, move_aside, sha256_file, write_atomic
 
 #: The file a cell writes last.
 DONE = "DONE"
@@ -54,13 +54,10 @@ def check_done(folder: Path) -> tuple[Path, str] | None:
         return None  # the older plain-text DONE
     if not isinstance(record, dict) or not isinstance(record.get("sha256", {}), dict):
         return folder / DONE, "not a DONE record"
-    for name, expected in record.get("sha256", {}).items():
-        path = folder / name
-        if not path.is_file():
-            return path, "missing"
-        if sha256_file(path) != expected:
-            return path, "changed since the cell finished"
-    return None
+    problem = checksum_problem(folder, record.get("sha256", {}))
+    if problem is not None and problem[1] != "missing":
+        return problem[0], "changed since the cell finished"
+    return problem
 
 
 def reopen_damaged_cell(folder: Path) -> str | None:

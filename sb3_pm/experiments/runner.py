@@ -164,9 +164,7 @@ def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Pat
             print(f"warning: {error}; kept as {aside}, training the cell from the start", file=sys.stderr)
         else:
             if team.seed == cell.seed and team.num_timesteps + team.remaining_timesteps == timesteps:
-                schedule.last = team.checkpoint
-                team.learn(team.remaining_timesteps, reset_num_timesteps=False, checkpoints=schedule)
-                return team
+                return team.learn_remaining(schedule)
             team.close()
             aside = move_aside(folder / CHECKPOINTS)
             print(f"warning: the checkpoints of {folder} are another run's; kept as {aside}", file=sys.stderr)

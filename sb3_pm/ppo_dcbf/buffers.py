@@ -23,15 +23,14 @@ class OrderedRolloutBuffer(MaskableDictRolloutBuffer):
     """sb3-contrib's ``MaskableDictRolloutBuffer`` that can take its minibatch orders in advance.
 
     Without drawn orders it is exactly the parent class. With them, each ``get()`` uses the next
-    drawn order instead of the permutation the parent draws (which is then left unused).
+    drawn order and draws nothing.
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        #: permutations of ``buffer_size * n_envs`` indices, one per coming ``get()``
+        #: permutations of ``buffer_size * n_envs`` indices, one per coming ``get()`` (set first:
+        #: the parent's constructor calls :meth:`reset`)
         self.orders: deque[np.ndarray] = deque()
-        self._order: np.ndarray | None = None
-        self._cursor = 0
+        super().__init__(*args, **kwargs)
 
     def draw_orders(self, epochs: int) -> None:
         """Draw the next ``epochs`` minibatch orders now, from NumPy's global generator, in the
@@ -43,17 +42,35 @@ class OrderedRolloutBuffer(MaskableDictRolloutBuffer):
     def get(  # type: ignore[override]
         self, batch_size: int | None = None
     ) -> Generator[MaskableDictRolloutBufferSamples, None, None]:
-        self._order = self.orders.popleft() if self.orders else None
-        self._cursor = 0
-        yield from super().get(batch_size)
+        """Minibatches in the next drawn order; without one, exactly the parent's ``get()``.
 
-    def _get_samples(  # type: ignore[override]
-        self, batch_inds: np.ndarray, env: Any = None
-    ) -> MaskableDictRolloutBufferSamples:
-        if self._order is not None:  # the drawn order's next slice, of the size the parent asks for
-            batch_inds = self._order[self._cursor : self._cursor + len(batch_inds)]
-            self._cursor += len(batch_inds)
-        return super()._get_samples(batch_inds, env)
+        With a drawn order nothing is drawn here, so updates running side by side never touch
+        NumPy's global generator.
+        """
+        if not self.orders:
+            yield from super().get(batch_size)
+            return
+        order = self.orders.popleft()
+        self._flatten_once()
+        total = self.buffer_size * self.n_envs
+        step = total if batch_size is None else batch_size
+        for start in range(0, total, step):
+            yield self._get_samples(order[start : start + step])
+
+    def reset(self) -> None:
+        super().reset()
+        self.orders.clear()
+
+    def _flatten_once(self) -> None:
+        """Turn the ``(n_steps, n_envs, ...)`` storage into ``(n_steps * n_envs, ...)`` once per
+        rollout, as the parent's ``get()`` does before its first minibatch."""
+        if self.generator_ready:
+            return
+        for key, observations in self.observations.items():
+            self.observations[key] = self.swap_and_flatten(observations)
+        for name in ("actions", "values", "log_probs", "advantages", "returns", "action_masks"):
+            setattr(self, name, self.swap_and_flatten(getattr(self, name)))
+        self.generator_ready = True
 
 
 __all__ = ["OrderedRolloutBuffer"]

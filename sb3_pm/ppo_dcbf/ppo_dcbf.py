@@ -48,14 +48,15 @@ from sb3_pm.ppo_dcbf.policies import DCBFPolicy
 SelfDCBFPPO = TypeVar("SelfDCBFPPO", bound="DCBFPPO")
 
 
-def _contains_estimator_callback(callback: MaybeCallback) -> bool:
+def find_estimator_callback(callback: MaybeCallback) -> EstimatorCallback | None:
+    """The :class:`~sb3_pm.callbacks.EstimatorCallback` in ``callback`` (a callback, a list or a
+    ``CallbackList``, nested), or None."""
     if isinstance(callback, EstimatorCallback):
-        return True
-    if isinstance(callback, CallbackList):
-        return any(_contains_estimator_callback(c) for c in callback.callbacks)
-    if isinstance(callback, list):
-        return any(_contains_estimator_callback(c) for c in callback)
-    return False
+        return callback
+    children = callback.callbacks if isinstance(callback, CallbackList) else callback
+    if isinstance(children, list):
+        return next((found for c in children if (found := find_estimator_callback(c)) is not None), None)
+    return None
 
 
 class DCBFPPO(MaskablePPO):
@@ -169,7 +170,7 @@ class DCBFPPO(MaskablePPO):
         progress_bar: bool = False,
     ) -> SelfDCBFPPO:
         """MaskablePPO's ``learn``, with the estimator callback attached when the policy has an estimator."""
-        if self.policy.estimator is not None and not _contains_estimator_callback(callback):
+        if self.policy.estimator is not None and find_estimator_callback(callback) is None:
             estimator_callback = EstimatorCallback(update_at=self.estimator_update_at)
             if callback is None:
                 callback = estimator_callback
