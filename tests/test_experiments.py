@@ -207,7 +207,7 @@ def test_a_cell_stopped_mid_training_resumes_from_its_checkpoint(
 ) -> None:
     import torch as th
 
-    from sb3_pm.agents import team as team_module
+    from sb3_pm.agents import checkpoints as checkpoints_module
     from sb3_pm.agents.team import IndependentPPO
 
     experiment = load_tiny(tmp_path)
@@ -216,21 +216,21 @@ def test_a_cell_stopped_mid_training_resumes_from_its_checkpoint(
     class Killed(Exception):
         pass
 
-    write_checkpoint = team_module.write_checkpoint
+    write_checkpoint = checkpoints_module.write_checkpoint
 
     def write_then_die(*args):
         write_checkpoint(*args)
         raise Killed  # the sweep dies right after the cell's first checkpoint
 
     monkeypatch.setattr(runner_module, "CELL_CHECKPOINT_EVERY", 1)
-    monkeypatch.setattr(team_module, "write_checkpoint", write_then_die)
+    monkeypatch.setattr(checkpoints_module, "write_checkpoint", write_then_die)
     with pytest.raises(Killed):
         reproduce(experiment, tmp_path / "cut", n_jobs=1, progress=False)
     cut = [Path(c.folder) for c in plan_cells(experiment, tmp_path / "cut") if c.variant["key"] == "learned"]
     assert list((cut[0] / "checkpoints").glob("rollout_*/checkpoint.json"))
     assert not (cut[0] / "team").exists()
 
-    monkeypatch.setattr(team_module, "write_checkpoint", write_checkpoint)
+    monkeypatch.setattr(checkpoints_module, "write_checkpoint", write_checkpoint)
     calls = []
     learn = IndependentPPO.learn
 

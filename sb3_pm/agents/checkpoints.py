@@ -145,6 +145,19 @@ def write_checkpoint(team: IndependentPPO, schedule: CheckpointSchedule, rollout
     return final
 
 
+def checkpoint_at_barrier(team: IndependentPPO, schedule: CheckpointSchedule | None) -> str | None:
+    """A team's rollout-barrier hook (the multiplexer's ``on_sync``): write a checkpoint when one
+    is due; after an interrupt, write one and return the reason to stop the team."""
+    if schedule is None:
+        return None
+    rollouts = team.num_timesteps // team.rollout_size
+    if not schedule.due(rollouts, team.hub.stop_requested):
+        return None
+    folder = write_checkpoint(team, schedule, rollouts)
+    logger.info("checkpoint %s written", folder)
+    return f"interrupted; checkpoint {folder} saved" if team.hub.stop_requested else None
+
+
 def _prune(schedule: CheckpointSchedule) -> None:
     """Remove all but the ``keep`` newest finished checkpoints."""
     finished = sorted(p for p in schedule.folder.glob("rollout_*") if (p / RECORD).is_file())
@@ -229,6 +242,7 @@ __all__ = [
     "CheckpointError",
     "CheckpointSchedule",
     "TrainingInterrupted",
+    "checkpoint_at_barrier",
     "latest_checkpoint",
     "read_record",
     "restore_state",

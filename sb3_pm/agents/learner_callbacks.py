@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from sb3_pm.agents.agent_vec_env import RolloutBarrier
+from sb3_pm.errors import InputError
 
 
 class EpisodeMetricsCallback(BaseCallback):
@@ -67,6 +68,42 @@ def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> 
     return CallbackList(callbacks)
 
 
+#: What ``IndependentPPO.learn(callback=...)`` takes: one callback per agent, in any of these forms.
+CallbackArg = (
+    BaseCallback
+    | Sequence[BaseCallback | None]
+    | Mapping[str, BaseCallback]
+    | Callable[[str], BaseCallback]
+    | None
+)
+
+
+def per_agent_callbacks(callback: CallbackArg, agents: Sequence[str]) -> list[BaseCallback | None]:
+    """One callback (or None) per agent, in ``agents`` order, from a list, an ``{agent: callback}``
+    dict, a factory ``agent_name -> callback``, or a single callback for a one-agent team.
+
+    :raises TypeError: for one callback object and several agents (it cannot serve them all).
+    :raises InputError: for a list of the wrong length.
+    """
+    if callback is None:
+        return [None] * len(agents)
+    if isinstance(callback, BaseCallback):
+        if len(agents) == 1:
+            return [callback]
+        raise TypeError(
+            "one callback object cannot serve several learners; pass a list (one per agent), a "
+            "{agent: callback} dict or a factory agent_name -> callback"
+        )
+    if isinstance(callback, Mapping):
+        return [callback.get(agent) for agent in agents]
+    if callable(callback):
+        return [callback(agent) for agent in agents]
+    callbacks = list(callback)
+    if len(callbacks) != len(agents):
+        raise InputError(f"got {len(callbacks)} callbacks for {len(agents)} agents")
+    return callbacks
+
+
 def close_loggers(models: Iterable[BaseAlgorithm]) -> None:
     """Close each model's SB3 logger, if it was configured (``learn()`` configures it)."""
     for model in models:
@@ -75,4 +112,11 @@ def close_loggers(models: Iterable[BaseAlgorithm]) -> None:
             logger.close()
 
 
-__all__ = ["EpisodeMetricsCallback", "close_loggers", "learner_callbacks", "with_episode_metrics"]
+__all__ = [
+    "CallbackArg",
+    "EpisodeMetricsCallback",
+    "close_loggers",
+    "learner_callbacks",
+    "per_agent_callbacks",
+    "with_episode_metrics",
+]

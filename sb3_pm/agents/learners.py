@@ -79,11 +79,34 @@ def resolve_hyperparams(hyperparams: Mapping[str, Any]) -> dict[str, Any]:
     return resolved
 
 
+def learner_kwargs(
+    hyperparams: Mapping[str, Any], overrides: Mapping[str, Any], agent: str, n_envs: int
+) -> dict[str, Any]:
+    """The algorithm's keyword arguments for one learner: the team's shared hyperparameters, then
+    the agent's overrides, with ``lin_`` schedules and ``policy_kwargs`` class names resolved.
+
+    :raises InputError: for a key the team sets itself, or an ``n_envs`` other than the team's.
+    """
+    merged = {**hyperparams, **overrides}
+    for key in RESERVED_KEYS:
+        if key in merged and key != "policy":
+            raise InputError(
+                f"hyperparameter {key!r} ({agent}) is set by the team; pass it to IndependentPPO"
+            )
+    if "n_envs" in merged and int(merged.pop("n_envs")) != n_envs:
+        raise InputError(
+            f"every learner of a team must use the same n_envs; {agent} asks for a different one "
+            f"than the team's {n_envs}"
+        )
+    return resolve_hyperparams(merged)
+
+
 __all__ = [
     "RESERVED_KEYS",
     "agent_seed",
     "check_same",
     "learn_seed",
+    "learner_kwargs",
     "resolve_hyperparams",
     "resolve_learner",
 ]

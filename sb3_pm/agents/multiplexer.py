@@ -55,16 +55,14 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
-import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
 
 from sb3_pm.agents.agent_vec_env import AgentVecEnv
-from sb3_pm.agents.streams import StreamState, capture_stream, load_stream
+from sb3_pm.agents.stream_turns import LearnerStreams
 
 #: How often (seconds) a blocked agent re-checks the abort flag even without a notification.
 POLL_INTERVAL = 0.5
@@ -82,7 +80,7 @@ class MultiplexerError(RuntimeError):
     """The agents disagreed about what to do next (e.g. some reset while others stepped)."""
 
 
-class ParallelEnvMultiplexer:
+class ParallelEnvMultiplexer(LearnerStreams):
     """Steps ``n_envs`` copies of a PettingZoo ``ParallelEnv`` for agents that act in separate threads.
 
     :param env_fns: one factory per env copy, each returning a fresh ``ParallelEnv`` whose
@@ -131,17 +129,9 @@ class ParallelEnvMultiplexer:
         #: called at every rollout barrier, every learner waiting; a returned string stops the team
         #: with that reason (see :class:`RolloutBarrier`)
         self.on_sync: Callable[[], str | None] | None = None
-        #: one random stream per agent (see :mod:`sb3_pm.agents.streams`); None: the shared one
-        self.streams: list[StreamState] | None = None
-        #: per agent: its stream is loaded in the process-wide generators (all of it: "full")
-        self._holds_stream = [False] * self.n_agents
-        self._holds_full_stream = [False] * self.n_agents
+        self._init_streams()
         #: the learner threads of the last ``learn()`` (a new one waits for none of them)
         self.threads: list[threading.Thread] = []
-        #: let learners run their update phases side by side (see :meth:`enter_update`)
-        self.concurrent_updates = False
-        #: per agent in a side-by-side update phase: the torch generator holding its stream
-        self._update_generators: list[th.Generator | None] = [None] * self.n_agents
         #: set by :meth:`request_stop`: the ``on_sync`` hook should stop the team at the next barrier
         self.stop_requested = False
         #: the reason the last ``on_sync`` stopped the team, if it did
@@ -175,20 +165,6 @@ class ParallelEnvMultiplexer:
     def aborted(self) -> str | None:
         """The reason the team was aborted, or ``None``."""
         return self._aborted
-
-    def set_streams(self, streams: Sequence[StreamState] | None) -> None:
-        """Give each agent its own random stream (one per agent, in agent order), or ``None``.
-
-        :raises ValueError: if there is not one stream per agent, or the baton is off.
-        """
-        if streams is not None:
-            if len(streams) != self.n_agents:
-                raise ValueError(f"need one random stream per agent ({self.n_agents}), got {len(streams)}")
-            if not self.strict_order:
-                raise ValueError("per-agent random streams need strict_order=True (the baton)")
-        self.streams = None if streams is None else list(streams)
-        self._holds_stream = [False] * self.n_agents
-        self._holds_full_stream = [False] * self.n_agents
 
     def request_stop(self) -> None:
         """Ask the ``on_sync`` hook to stop the team at the next rollout barrier (Ctrl-C)."""
@@ -246,61 +222,6 @@ class ParallelEnvMultiplexer:
             env.close()
 
     # ---------------------------------------------------------------- internal
-    def _load_stream(self, index: int, full: bool = False) -> None:
-        """Agent ``index`` took the baton: its random stream becomes the process-wide one (torch's
-        generator only, unless ``full``: see :meth:`enter_update`)."""
-        if self.streams is not None:
-            load_stream(self.streams[index], torch_only=not full)
-            self._holds_stream[index] = True
-            self._holds_full_stream[index] = self._holds_full_stream[index] or full
-
-    def _store_stream(self, index: int) -> None:
-        """Agent ``index`` hands the baton on: keep where its random stream stands (all of it if
-        its full stream was loaded since it took the baton, else torch's generator only)."""
-        if self.streams is not None and self._holds_stream[index]:  # never another agent's state
-            full = self._holds_full_stream[index]
-            self.streams[index] = capture_stream(None if full else self.streams[index])
-            self._holds_stream[index] = self._holds_full_stream[index] = False
-
-    def enter_update(self, index: int, draw: Callable[[], None] | None = None) -> th.Generator | None:
-        """Agent ``index`` (holding the baton) starts its update phase (rollout end to barrier).
-
-        During a rollout only torch's generator is swapped per turn; SB3's learners draw from
-        NumPy's and Python's generators only in the update phase (PPO's minibatch permutation), so
-        all of the agent's stream is loaded here, and stored at the barrier.
-
-        With :attr:`concurrent_updates` and a ``draw`` that makes, now, every NumPy draw of the
-        update phase (:meth:`~sb3_pm.ppo_dcbf.buffers.OrderedRolloutBuffer.draw_orders`), the agent
-        hands the baton on at once and updates side by side with the others. Its remaining draws
-        come from the returned torch generator, which holds its stream (the estimator's minibatch
-        orders); the policy has no dropout, so nothing else in an update draws. The arithmetic is
-        the same either way, so the parameters are too, bit for bit.
-
-        :returns: the agent's own torch generator for a side-by-side update, else ``None``.
-        """
-        with self._cond:
-            self._load_stream(index, full=True)
-            if draw is None or not self.concurrent_updates or self.streams is None:
-                return None
-            draw()
-            self._store_stream(index)
-            generator = th.Generator()
-            generator.set_state(self.streams[index].torch)
-            self._update_generators[index] = generator
-            self._pass_baton(index)
-            self._cond.notify_all()
-            return generator
-
-    def _end_update(self, index: int) -> bool:
-        """If agent ``index`` updates side by side, keep its generator's state as its stream's."""
-        generator = self._update_generators[index]
-        if generator is None:
-            return False
-        assert self.streams is not None
-        self.streams[index] = replace(self.streams[index], torch=generator.get_state())
-        self._update_generators[index] = None
-        return True
-
     def _wait(self, index: int, ready: Callable[[], bool]) -> None:
         """Wait (holding ``_cond``) until ``ready()``; raise :class:`TeamAborted` on abort or timeout."""
         deadline = None if self.timeout is None else time.monotonic() + self.timeout

@@ -84,4 +84,16 @@ def learner_stream_seed(seed: int, num_timesteps: int, index: int) -> int:
     return int(np.random.SeedSequence(entropy).generate_state(1)[0])
 
 
-__all__ = ["StreamState", "capture_stream", "learner_stream_seed", "load_stream", "seeded_stream"]
+def learner_streams(seed: int, num_timesteps: int, n_agents: int) -> list[StreamState]:
+    """Fresh streams for a team's learners at a ``learn()`` call starting at ``num_timesteps``."""
+    return [seeded_stream(learner_stream_seed(seed, num_timesteps, i)) for i in range(n_agents)]
+
+
+__all__ = [
+    "StreamState",
+    "capture_stream",
+    "learner_stream_seed",
+    "learner_streams",
+    "load_stream",
+    "seeded_stream",
+]

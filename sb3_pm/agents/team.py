@@ -21,14 +21,13 @@ A saved team is a folder::
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.checkpoints import (
@@ -36,24 +35,24 @@ from sb3_pm.agents.checkpoints import (
     RECORD,
     CheckpointSchedule,
     TrainingInterrupted,
+    checkpoint_at_barrier,
     latest_checkpoint,
     read_record,
     restore_state,
-    write_checkpoint,
 )
 from sb3_pm.agents.learned_team import LearnedTeam
-from sb3_pm.agents.learner_callbacks import EpisodeMetricsCallback, close_loggers, learner_callbacks
+from sb3_pm.agents.learner_callbacks import (
+    CallbackArg,
+    EpisodeMetricsCallback,
+    close_loggers,
+    learner_callbacks,
+    per_agent_callbacks,
+)
 from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
-from sb3_pm.agents.learners import RESERVED_KEYS, agent_seed, check_same, learn_seed, resolve_hyperparams
+from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_kwargs
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
-from sb3_pm.agents.streams import (
-    StreamState,
-    capture_stream,
-    learner_stream_seed,
-    load_stream,
-    seeded_stream,
-)
+from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike
 from sb3_pm.team_interface import Observation
@@ -63,14 +62,6 @@ logger = logging.getLogger(__name__)
 
 #: Default ``wait_timeout`` (seconds) of a team's learners.
 DEFAULT_WAIT_TIMEOUT = 1800.0
-
-CallbackArg = (
-    BaseCallback
-    | Sequence[BaseCallback | None]
-    | Mapping[str, BaseCallback]
-    | Callable[[str], BaseCallback]
-    | None
-)
 
 
 class IndependentPPO(LearnedTeam):
@@ -177,21 +168,8 @@ class IndependentPPO(LearnedTeam):
         )
 
     def agent_kwargs(self, agent: str) -> dict[str, Any]:
-        """The algorithm's keyword arguments for ``agent``: shared hyperparameters, then its overrides,
-        with ``lin_`` schedules and ``policy_kwargs`` class names resolved."""
-        merged = {**self.hyperparams, **self.per_agent.get(agent, {})}
-        for key in RESERVED_KEYS:
-            if key in merged and key != "policy":
-                raise InputError(
-                    f"hyperparameter {key!r} ({agent}) is set by the team; pass it to IndependentPPO"
-                )
-        if "n_envs" in merged:
-            if int(merged.pop("n_envs")) != self.n_envs:
-                raise InputError(
-                    f"every learner of a team must use the same n_envs; {agent} asks for a different one "
-                    f"than the team's {self.n_envs}"
-                )
-        return resolve_hyperparams(merged)
+        """The algorithm's keyword arguments for ``agent`` (see :func:`.learners.learner_kwargs`)."""
+        return learner_kwargs(self.hyperparams, self.per_agent.get(agent, {}), agent, self.n_envs)
 
     # ------------------------------------------------------------- training
     @property
@@ -210,57 +188,11 @@ class IndependentPPO(LearnedTeam):
         model = self.models[self.agents[0]]
         return max(0, int(getattr(model, "_total_timesteps", 0)) - int(model.num_timesteps))
 
-    def _learner_streams(self, reset_num_timesteps: bool) -> list[StreamState]:
-        """Each learner's random stream for a ``learn()`` call: the checkpoint's when resuming one,
-        else fresh ones seeded from (seed, step count, learner)."""
-        if not reset_num_timesteps and self._resume_streams is not None:
-            streams = self._resume_streams
-        else:
-            streams = [
-                seeded_stream(learner_stream_seed(self.seed, self.num_timesteps, i))
-                for i in range(self.n_agents)
-            ]
-        self._resume_streams = None
-        return streams
-
-    def _at_barrier(self, checkpoints: CheckpointSchedule | None) -> str | None:
-        """The multiplexer's ``on_sync`` hook: write a checkpoint when one is due; after an
-        interrupt, write one and stop the team."""
-        if checkpoints is None:
-            return None
-        rollouts = self.num_timesteps // self.rollout_size
-        if not checkpoints.due(rollouts, self.hub.stop_requested):
-            return None
-        folder = write_checkpoint(self, checkpoints, rollouts)
-        logger.info("checkpoint %s written", folder)
-        if self.hub.stop_requested:
-            return f"interrupted; checkpoint {folder} saved"
-        return None
-
     def _validate_learners(self, reset_num_timesteps: bool) -> None:
         check_same({a: int(m.n_steps) for a, m in self.models.items()}, "n_steps")
         check_same({a: int(m.n_envs) for a, m in self.models.items()}, "n_envs")
         if not reset_num_timesteps:
             check_same({a: int(m.num_timesteps) for a, m in self.models.items()}, "num_timesteps (to resume)")
-
-    def _callbacks(self, callback: CallbackArg) -> list[BaseCallback | None]:
-        if callback is None:
-            return [None] * self.n_agents
-        if isinstance(callback, BaseCallback):
-            if self.n_agents == 1:
-                return [callback]
-            raise TypeError(
-                "one callback object cannot serve several learners; pass a list (one per agent), a "
-                "{agent: callback} dict or a factory agent_name -> callback"
-            )
-        if isinstance(callback, Mapping):
-            return [callback.get(agent) for agent in self.agents]
-        if callable(callback):
-            return [callback(agent) for agent in self.agents]
-        callbacks = list(callback)
-        if len(callbacks) != self.n_agents:
-            raise InputError(f"got {len(callbacks)} callbacks for {self.n_agents} agents")
-        return callbacks
 
     def learn(
         self,
@@ -309,11 +241,13 @@ class IndependentPPO(LearnedTeam):
         # function of (seed, num_timesteps, parameters) alone. Without it, a shared reseed.
         caller_stream = capture_stream()
         if self.hub.strict_order:
-            self.hub.set_streams(self._learner_streams(reset_num_timesteps))
+            resume = None if reset_num_timesteps else self._resume_streams
+            self.hub.set_streams(resume or learner_streams(self.seed, self.num_timesteps, self.n_agents))
+            self._resume_streams = None
         else:
             self.hub.set_streams(None)
             set_random_seed(learn_seed(self.seed, self.num_timesteps))
-        user_callbacks = self._callbacks(callback)
+        user_callbacks = per_agent_callbacks(callback, self.agents)
         learn_kwargs = []
         for agent, user in zip(self.agents, user_callbacks):
             learn_kwargs.append(
@@ -336,7 +270,7 @@ class IndependentPPO(LearnedTeam):
                 rollouts * rollout * self.n_agents, f"{self.algo} x{self.n_agents}", unit="agent-step"
             )
             self.hub.on_round = bar.update
-        self.hub.on_sync = lambda: self._at_barrier(checkpoints)
+        self.hub.on_sync = lambda: checkpoint_at_barrier(self, checkpoints)
         try:
             errors = learn_concurrently(
                 [self.models[a] for a in self.agents],
