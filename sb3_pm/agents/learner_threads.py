@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
@@ -14,7 +13,6 @@ def learn_concurrently(
     models: Sequence[Any],
     hub: ParallelEnvMultiplexer,
     learn_kwargs: Sequence[dict[str, Any]],
-    join_timeout: float | None = None,
     graceful_interrupt: bool = False,
     on_interrupt: Callable[[], None] | None = None,
 ) -> list[BaseException | None]:
@@ -26,7 +24,6 @@ def learn_concurrently(
     :param models: one SB3 algorithm per agent, in ``hub.agents`` order, each built on
         ``hub.vec_envs[i]``.
     :param learn_kwargs: keyword arguments of each ``learn()`` call.
-    :param join_timeout: seconds to wait for all threads (``None``: no limit).
     :param graceful_interrupt: on a first ``KeyboardInterrupt``, :meth:`~ParallelEnvMultiplexer.request_stop`
         and let the learners run to the next rollout barrier (where the ``on_sync`` hook stops them);
         a second one stops them at once. Either way the interrupt is re-raised once they stopped.
@@ -56,15 +53,11 @@ def learn_concurrently(
     hub.threads = threads
     for thread in threads:
         thread.start()
-    deadline = None if join_timeout is None else time.monotonic() + join_timeout
     interrupted = False
     while True:
         try:
             for thread in threads:
                 while thread.is_alive():
-                    if deadline is not None and time.monotonic() > deadline:
-                        hub.abort(f"training did not finish within {join_timeout} s")
-                        raise TimeoutError(f"training did not finish within {join_timeout} s")
                     if hub.timed_out is not None:
                         break  # a learner is stuck outside the env: the others have stopped; leave it
                     thread.join(POLL_INTERVAL)

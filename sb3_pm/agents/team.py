@@ -330,6 +330,8 @@ class IndependentPPO(LearnedTeam):
         strict_order: bool = True,
         custom_objects: dict[str, Any] | None = None,
         force_reset: bool = True,
+        concurrent_updates: bool = True,
+        wait_timeout: float | None = DEFAULT_WAIT_TIMEOUT,
     ) -> IndependentPPO:
         """Load a team saved with :meth:`save` (or the run folder of ``sb3-pm train`` holding it in
         ``team/``), ready to act or to resume training.
@@ -339,6 +341,8 @@ class IndependentPPO(LearnedTeam):
         :param n_envs: env copies for further training (default: the saved number).
         :param force_reset: start further training with an env reset (SB3's default); False keeps the
             saved last observations, for :meth:`from_checkpoint`, which restores the env copies too.
+        :param concurrent_updates: see the constructor (not saved with a team).
+        :param wait_timeout: see the constructor (not saved with a team).
         :raises FileNotFoundError: if the folder, its manifest or an agent's zip is missing.
         :raises ValueError: if ``graph`` is not the graph the team was trained on.
         """
@@ -357,6 +361,8 @@ class IndependentPPO(LearnedTeam):
             verbose=0 if verbose is None else verbose,
             device=device,
             strict_order=strict_order,
+            concurrent_updates=concurrent_updates,
+            wait_timeout=wait_timeout,
             _init_models=False,
         )
         for i, agent in enumerate(team.agents):
@@ -382,12 +388,13 @@ class IndependentPPO(LearnedTeam):
         device: str = "cpu",
         tensorboard_log: str | Path | None = None,
         verbose: int | None = None,
+        **options: Any,
     ) -> IndependentPPO:
-        """A team restored from a checkpoint, ready to continue with
-        ``learn(team.remaining_timesteps, reset_num_timesteps=False)``.
+        """A team restored from a checkpoint, ready to continue with :meth:`learn_remaining`.
 
         :param path: a checkpoint folder, a ``checkpoints/`` folder or a run folder holding one (the
             newest intact checkpoint is used).
+        :param options: further :meth:`load` arguments (``concurrent_updates``, ``wait_timeout``).
         :raises CheckpointError: if there is no intact checkpoint there.
         """
         folder = Path(path)
@@ -398,7 +405,12 @@ class IndependentPPO(LearnedTeam):
             parent = folder / CHECKPOINTS if (folder / CHECKPOINTS).is_dir() else folder
             checkpoint, _ = latest_checkpoint(parent)
         team = cls.load(
-            checkpoint, device=device, tensorboard_log=tensorboard_log, verbose=verbose, force_reset=False
+            checkpoint,
+            device=device,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            force_reset=False,
+            **options,
         )
         restore_state(team, checkpoint)
         team.checkpoint = checkpoint

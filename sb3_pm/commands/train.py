@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
                 f"({graph.n_nodes} nodes, {graph.n_targets} targets), "
                 f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
             )
-            return _learn_and_save(team, config.n_timesteps, True, args, out, args.checkpoint_every, args.env)
+            return _learn_and_save(team, config.n_timesteps, args, out, args.checkpoint_every, args.env)
     except RunFolderError as error:
         raise UsageError(str(error)) from None
     finally:
@@ -270,15 +270,7 @@ def resume(args: argparse.Namespace) -> int:
                 f"resuming {out} from {team.checkpoint}: {team.num_timesteps} steps per learner done, "
                 f"{team.remaining_timesteps} to go"
             )
-            return _learn_and_save(
-                team,
-                team.remaining_timesteps,
-                False,
-                args,
-                out,
-                every,
-                str(recorded.get("env", team.graph.name)),
-            )
+            return _learn_and_save(team, None, args, out, every, str(recorded.get("env", team.graph.name)))
     except RunFolderError as error:
         raise UsageError(str(error)) from None
     finally:
@@ -286,9 +278,10 @@ def resume(args: argparse.Namespace) -> int:
 
 
 def _learn_and_save(
-    team: Any, steps: int, reset: bool, args: argparse.Namespace, out: Path, every: int, graph: str
+    team: Any, steps: int | None, args: argparse.Namespace, out: Path, every: int, graph: str
 ) -> int:
-    """Train ``team`` for ``steps`` more steps with checkpoints, then save it to ``out/team``.
+    """Train ``team`` for ``steps`` steps (``None``: to the end of the run it was restored from)
+    with checkpoints, then save it to ``out/team``.
 
     :returns: the exit status: 0, or 130 when interrupted (after saying how to resume).
     """
@@ -304,7 +297,7 @@ def _learn_and_save(
 
     try:
         with _sigterm_as_interrupt():
-            if not reset:
+            if steps is None:
                 team.learn_remaining(schedule, progress_bar=not args.no_progress, on_interrupt=tell)
             else:
                 team.learn(steps, progress_bar=not args.no_progress, checkpoints=schedule, on_interrupt=tell)
