@@ -94,7 +94,8 @@ class TestEvaluate:
         config = json.loads((tmp_path / "r.json").read_text())["config"]
         assert config["env_kwargs"] == {"obs_radius": 2} and config["max_cycles"] == 5
         code, _, err = run_cli(capsys, *argv, "--agents", "3")
-        assert code == 2 and "has 4 agents; pass --agents 4" in err
+        # This fake team has no learner_for, so it cannot be deployed with another size.
+        assert code == 2 and "has 4 agents and cannot be deployed with another number; pass --agents 4" in err
         code, _, _ = run_cli(capsys, *argv, "--device", "cuda")
         assert code == 0 and loaded[-1] == (team_dir, "cuda")
 

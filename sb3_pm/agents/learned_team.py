@@ -73,6 +73,12 @@ class LearnedTeam(Team):
         for key in ("graph", "n_agents"):
             if key in self.env_kwargs:
                 raise InputError(f"env_kwargs must not hold {key!r}: pass it to {type(self).__name__} itself")
+        for key in ("failures", "failure_rate"):
+            if self.env_kwargs.get(key):
+                raise InputError(
+                    f"env_kwargs {key!r}: agent failures are a deployment condition (evaluate's env_kwargs, "
+                    "sb3-pm evaluate --fail); training runs every agent to the end of each episode"
+                )
 
     @classmethod
     def from_config(cls, config: Any, graph: GraphLike, seed: int = 0, **kwargs: Any) -> Any:
@@ -102,6 +108,40 @@ class LearnedTeam(Team):
             check_same_graph(self.graph, other)
         if seed is not None:
             th.manual_seed(seed)
+
+    # ------------------------------------------------------ the DCBF filter
+    def set_filter(self, **changes: Any) -> None:
+        """Change the DCBF filter's settings of every learner (fields of
+        :class:`~sb3_pm.policies.dcbf.DCBFConfig`, e.g. ``neglect_bound=40``), for deployment.
+
+        The filter has no parameters, so a trained team can be deployed with another filter (the
+        actor then meets masks it was not trained under). A saved team keeps the new settings.
+
+        :raises InputError: a learner without the DCBF filter, or an unknown or invalid setting.
+        """
+        from dataclasses import fields, replace
+
+        from sb3_pm.policies.dcbf import DCBFConfig
+
+        names = {f.name for f in fields(DCBFConfig)}
+        unknown = sorted(set(changes) - names)
+        if unknown:
+            raise InputError(f"unknown DCBF filter setting(s) {unknown}; known: {sorted(names)}")
+        for name, model in self.model_files().items():
+            policy = model.policy
+            if not getattr(policy, "use_dcbf", False):
+                raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
+            policy.dcbf_config = replace(policy.dcbf_config, **changes)  # type: ignore[union-attr,type-var]
+
+    def filter_activity(self) -> dict[str, int]:
+        """Summed over learners since they were built: masks computed with the neglect bound on
+        (``masks``) and masks it forced (``forced``); see
+        :class:`~sb3_pm.policies.policy.DCBFActorCriticPolicy`."""
+        total = {"masks": 0, "forced": 0}
+        for model in self.model_files().values():
+            for key, value in getattr(model.policy, "filter_counts", {}).items():
+                total[key] = total.get(key, 0) + int(value)
+        return total
 
     # ---------------------------------------------------------- save / load
     def model_files(self) -> dict[str, BaseAlgorithm]:

@@ -295,11 +295,27 @@ class IndependentPPO(LearnedTeam):
         return self
 
     # ------------------------------------------------------------ acting
+    def learner_for(self, agent: str) -> str:
+        """The learner that acts for ``agent``: deploying with another team size ``K'``.
+
+        ``agent_i`` of a ``K'``-agent team uses learner ``agent_(i mod K)`` of this ``K``-agent team:
+        with ``K' < K`` the first ``K'`` learners, with ``K' > K`` the learners again in order, so
+        ``agent_K`` acts like ``agent_0`` (a copy of a trained agent, which decides from its own map
+        as the original does). Names outside ``agent_<i>`` are refused.
+        """
+        if agent in self.models:
+            return agent
+        prefix, _, index = agent.rpartition("_")
+        if prefix != "agent" or not index.isdigit():
+            raise InputError(f"no learner for {agent!r}: this team's agents are {self.agents}")
+        return self.agents[int(index) % len(self.agents)]
+
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
-        """One destination node per agent in ``observations``, each from its own learner."""
+        """One destination node per agent in ``observations``, each from its own learner
+        (:meth:`learner_for` maps agents of a team of another size)."""
         actions: dict[str, int] = {}
         for agent, obs in observations.items():
-            model = self.models[agent]
+            model = self.models[self.learner_for(agent)]
             if uses_masks(type(model)):
                 action, _ = model.predict(
                     obs, deterministic=deterministic, action_masks=np.asarray(obs["action_mask"], dtype=bool)

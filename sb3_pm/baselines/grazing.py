@@ -43,8 +43,12 @@ class GrazingTeam(Team):
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
         state = self.env.unwrapped
         u = state.uncertainty
-        all_positions = state.positions
+        # Agents that failed (the env's ``failures``) stand nowhere, and their goals are free again.
+        active = getattr(state, "active", None)
+        all_positions = state.positions if active is None else state.positions[active]
         agents, positions = agent_positions(observations)
+        if active is not None and not active.all():
+            self.goals = {a: g for a, g in self.goals.items() if a in observations}
         targets = self.graph.target_indices
         is_target = self.graph.targets
         if not self.commit:

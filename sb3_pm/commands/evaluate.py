@@ -37,6 +37,27 @@ def register(subparsers: Any) -> None:
         action="store_true",
         help="sample a learned team's actions instead of taking the most likely (seeded, reproducible)",
     )
+    parser.add_argument(
+        "--neglect-bound",
+        type=float,
+        metavar="B",
+        help="deploy a trained DCBF team with the filter's neglect bound B (rule 8) instead of its own "
+        "setting; prints how often it forced the agents' moves",
+    )
+    parser.add_argument(
+        "--fail",
+        action="append",
+        default=[],
+        metavar="AGENT:STEP",
+        help="agent AGENT fails after step STEP (repeatable), e.g. --fail agent_1:250",
+    )
+    parser.add_argument(
+        "--failure-rate",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="each live agent fails after any step with probability P",
+    )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
     add_compute_options(parser)
     parser.set_defaults(func=run)
@@ -50,6 +71,37 @@ def check_counts(args: argparse.Namespace) -> None:
         value = getattr(args, flag)
         if value is not None and value < 1:
             raise UsageError(f"--{flag} must be at least 1, got {value}")
+
+
+def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The env's ``failures`` / ``failure_rate`` from ``--fail`` and ``--failure-rate``."""
+    from sb3_pm.errors import UsageError
+
+    failures: dict[str, int] = {}
+    for item in args.fail:
+        agent, _, step = item.rpartition(":")
+        if not agent or not step.lstrip("-").isdigit():
+            raise UsageError(f"--fail takes AGENT:STEP (e.g. agent_1:250), got {item!r}")
+        if agent in failures:
+            raise UsageError(f"--fail names {agent} twice")
+        failures[agent] = int(step)
+    kwargs: dict[str, Any] = {}
+    if failures:
+        kwargs["failures"] = failures
+    if args.failure_rate:
+        kwargs["failure_rate"] = args.failure_rate
+    return kwargs
+
+
+def apply_neglect_bound(team: Any, bound: float | None) -> None:
+    """``--neglect-bound``: set the filter's bound on a trained team; a baseline has no filter."""
+    from sb3_pm.errors import UsageError
+
+    if bound is None:
+        return
+    if not hasattr(team, "set_filter"):
+        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is a baseline")
+    team.set_filter(neglect_bound=bound)
 
 
 def print_summary(result: Any, stream: Any = None) -> None:
@@ -88,13 +140,21 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.json, "--json")  # before the evaluation, whose result it would lose
     check_writable(args.gif, "--gif")
     team = resolve_team(args.policy, graph=graph, device=args.device)
+    apply_neglect_bound(team, args.neglect_bound)
     label = policy_label(args.policy, team)
     trained_agents = getattr(team, "n_agents", None)
     if trained_agents is not None and trained_agents != args.agents:
-        raise UsageError(
-            f"the team in {args.policy} has {trained_agents} agents; pass --agents {trained_agents}"
+        if not hasattr(team, "learner_for"):
+            raise UsageError(
+                f"the team in {args.policy} has {trained_agents} agents and cannot be deployed with "
+                f"another number; pass --agents {trained_agents}"
+            )
+        print(
+            f"deploying the {trained_agents}-agent team with {args.agents} agents: agent_i acts with "
+            f"learner agent_(i mod {trained_agents})",
+            file=sys.stderr,
         )
-    env_kwargs = team_env_kwargs(team)
+    env_kwargs = {**team_env_kwargs(team), **failure_kwargs(args)}
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     result = evaluate(
         team,
@@ -110,13 +170,22 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
     )
     result.config["graph"] = str(args.graph)
+    if args.neglect_bound is not None:
+        activity = team.filter_activity()  # type: ignore[attr-defined]  # apply_neglect_bound checked
+        result.config["neglect_bound"] = args.neglect_bound
+        result.config["filter_activity"] = activity
     print_summary(result)
+    if args.neglect_bound is not None:
+        share = activity["forced"] / max(1, activity["masks"])
+        print(f"neglect bound {args.neglect_bound:g}: forced {share:.1%} of {activity['masks']} agent-steps")
     if args.json is not None:
         args.json.write_text(json.dumps(result.to_dict(), indent=2))
         print(f"wrote {args.json}", file=sys.stderr)
     if args.gif is not None:
+        gif_team = resolve_team(args.policy, graph=graph, device=args.device)
+        apply_neglect_bound(gif_team, args.neglect_bound)
         record_gif(
-            resolve_team(args.policy, graph=graph, device=args.device),
+            gif_team,
             graph,
             args.gif,
             n_agents=args.agents,

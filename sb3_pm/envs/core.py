@@ -89,7 +89,11 @@ class MonitoringCore:
         return np.flatnonzero(self._reachable[self.positions[agent]])
 
     def step(
-        self, destinations: np.ndarray, illegal: str = "raise", agent_names: list[str] | None = None
+        self,
+        destinations: np.ndarray,
+        illegal: str = "raise",
+        agent_names: list[str] | None = None,
+        active: np.ndarray | None = None,
     ) -> StepOutcome:
         """Move every agent at once, then update uncertainties (eq. 1 and the cap).
 
@@ -97,8 +101,12 @@ class MonitoringCore:
         :param illegal: ``"raise"`` raises :class:`IllegalActionError` for a move outside the reachable
             set; ``"stay"`` keeps such an agent in place and flags it in the outcome.
         :param agent_names: names used in error messages.
+        :param active: ``(n_agents,)`` bool, the agents still in the team (``None``: all). A failed
+            agent stays where it is and is on no node: it clears nothing and collides with nobody.
         """
         destinations = np.asarray(destinations, dtype=np.int64)
+        if active is not None:
+            destinations = np.where(active, destinations, self.positions)
         clipped = np.minimum(np.maximum(destinations, 0), self.graph.n_nodes - 1)  # ufuncs: cheaper than clip
         legal = self._reachable[self.positions, clipped] & (clipped == destinations)
         all_legal = bool(legal.all())
@@ -113,7 +121,8 @@ class MonitoringCore:
                 )
             destinations = np.where(legal, destinations, self.positions)
         self.positions = destinations
-        counts = np.bincount(destinations, minlength=self.graph.n_nodes)
+        present = destinations if active is None else destinations[active]
+        counts = np.bincount(present, minlength=self.graph.n_nodes)
         presence = counts > 0
         u_before = self.uncertainty[destinations]
         targets = self._target_idx
@@ -128,7 +137,7 @@ class MonitoringCore:
             presence=presence,
             u_before=u_before,
             u_after=self.uncertainty[destinations],
-            collided=counts[destinations] > 1,
+            collided=(counts[destinations] > 1) if active is None else (counts[destinations] > 1) & active,
             illegal=~legal,
             any_illegal=not all_legal,
         )

@@ -10,6 +10,15 @@ Step ``k`` (``k = 0..K-1``) is measured after its move and uncertainty update:
 ``saturated_fraction``  fraction of steps on which some target sat at the cap u_max
 ``idle_fraction``       fraction of agent-steps spent alone on a target that was already at u = 0
                         (guarding a cleared target instead of clearing another one)
+
+With agent failures configured (the env's ``failures`` / ``failure_rate``), four more:
+
+``failed_agents``                    agents that failed during the episode
+``first_failure_step``               the step after which the first one failed (K if none did)
+``avg_uncertainty_before_failure``   the mean of the summed target uncertainty over steps
+                                     ``0..f-1`` (``f`` = first_failure_step)
+``avg_uncertainty_after_failure``    the same over steps ``f..K-1``; NaN when no agent failed (there
+                                     is no "after"; a random failure rate may spare an episode)
 """
 
 from __future__ import annotations
@@ -43,9 +52,13 @@ class EpisodeMetrics:
         self.trace = np.zeros(max_steps, dtype=np.float64)
         self.reset()
 
+    #: Report the failure metrics (set by the env when failures are configured).
+    track_failures = False
+
     def reset(self) -> None:
         n_targets = len(self.target_indices)
         self.steps = 0
+        self.failure_steps: list[int] = []
         self.collisions = 0
         self.peak = 0
         self.saturated_steps = 0
@@ -69,10 +82,14 @@ class EpisodeMetrics:
         self.peak = max(self.peak, highest)
         self.saturated_steps += highest >= self.u_max
 
+    def record_failure(self, n_failed: int) -> None:
+        """``n_failed`` agents failed after the step just recorded."""
+        self.failure_steps.extend([self.steps] * int(n_failed))
+
     def summary(self) -> dict[str, float]:
         """The metrics so far (``{}``-like zeros before the first step)."""
         steps = max(self.steps, 1)
-        return {
+        metrics = {
             "avg_uncertainty": float(self.trace[: self.steps].sum() / steps),
             "max_neglect": float(self._longest.max()) if len(self._longest) else 0.0,
             "collisions": float(self.collisions),
@@ -81,6 +98,15 @@ class EpisodeMetrics:
             "idle_fraction": float(self.idle_agent_steps / (steps * self.n_agents)),
             "steps": float(self.steps),
         }
+        if self.track_failures:
+            first = self.failure_steps[0] if self.failure_steps else self.steps
+            trace = self.trace[: self.steps]
+            metrics["failed_agents"] = float(len(self.failure_steps))
+            metrics["first_failure_step"] = float(first)
+            metrics["avg_uncertainty_before_failure"] = float(trace[:first].mean()) if first else float("nan")
+            after = trace[first:]
+            metrics["avg_uncertainty_after_failure"] = float(after.mean()) if len(after) else float("nan")
+        return metrics
 
     def uncertainty_trace(self) -> np.ndarray:
         """``(steps,)`` summed target uncertainty after each step so far (a copy)."""

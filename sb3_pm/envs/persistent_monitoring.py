@@ -51,6 +51,17 @@ illegal_action (``"raise"``)
 shared_map (``False``)
     ``True`` feeds every agent's mental map with the union of all agents' observations: the
     *centralized* setting (docs/METHOD.md "Baselines": centralized). Never used by decentralized teams.
+failures (``None``)
+    Agent failures at given steps: ``{agent name: step}``, e.g. ``{"agent_1": 250}``: the agent
+    acts in steps ``1..step`` and fails after that step's move. It is then *terminated* the
+    PettingZoo way (``terminations[agent] = True`` and a final observation, then it leaves
+    ``env.agents``); it occupies no node, clears nothing and is seen by nobody. The survivors go on
+    with what their own maps hold. ``step`` lies in ``1..max_cycles - 1``.
+failure_rate (``0.0``)
+    After every step, each live agent fails with this probability, drawn from the reset seed's
+    generator; the last live agent never fails, so every episode runs its ``max_cycles`` steps.
+    With either option the episode metrics add ``failed_agents``, ``first_failure_step`` and the
+    average uncertainty before and after the first failure (:mod:`sb3_pm.envs.metrics`).
 render_mode (``None``)
     ``"rgb_array"`` (a matplotlib frame), ``"human"`` (a window) or ``"ansi"`` (text).
 
@@ -134,6 +145,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         graph_knowledge: str = "discovered",
         illegal_action: str = "raise",
         shared_map: bool = False,
+        failures: Mapping[str, int] | None = None,
+        failure_rate: float = 0.0,
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
@@ -178,6 +191,12 @@ class PersistentMonitoringEnv(ParallelEnv):
 
         self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
         self.agents: list[str] = []
+        self.failures, self.failure_rate = self._check_failures(failures, failure_rate)
+        #: ``(n_agents,)`` the step after which each agent fails (``max_cycles + 1``: never).
+        self._fail_at = np.full(n_agents, self.max_cycles + 1, dtype=np.int64)
+        for agent, step in self.failures.items():
+            self._fail_at[self.possible_agents.index(agent)] = step
+        self._active = np.ones(n_agents, dtype=bool)
         self.agent_name_mapping = {name: i for i, name in enumerate(self.possible_agents)}
 
         hops = self.graph.hop_distances
@@ -189,6 +208,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.maps.track_uncertainty_sum = "change" in self.reward_weights
         self.rewards_computer = RewardComputer(self.reward_weights, n_agents, self.u_max)
         self.metrics = EpisodeMetrics(self.graph.target_indices, self.u_max, self.max_cycles, n_agents)
+        self.metrics.track_failures = bool(self.failures) or self.failure_rate > 0
         self._rng = np.random.default_rng()
         self._step_count = 0
         self._dwell = np.zeros(n_agents, dtype=np.int64)
@@ -197,6 +217,26 @@ class PersistentMonitoringEnv(ParallelEnv):
 
         self._observation_space = self._build_observation_space()
         self._action_space = spaces.Discrete(n_nodes)
+
+    def _check_failures(
+        self, failures: Mapping[str, int] | None, rate: float
+    ) -> tuple[dict[str, int], float]:
+        """Validated ``failures`` and ``failure_rate`` (one-line errors naming the bad entry)."""
+        schedule: dict[str, int] = {}
+        for agent, step in dict(failures or {}).items():
+            if agent not in self.possible_agents:
+                raise InputError(f"failures names {agent!r}, not an agent of {self.possible_agents}")
+            if isinstance(step, bool) or not isinstance(step, (int, np.integer)):
+                raise InputError(f"failures[{agent!r}] must be an integer step, got {step!r}")
+            if not 1 <= int(step) < self.max_cycles:
+                raise InputError(f"failures[{agent!r}] = {step} is outside 1..{self.max_cycles - 1}")
+            schedule[agent] = int(step)
+        if len(schedule) >= len(self.possible_agents):
+            raise InputError("failures would remove every agent; at least one must stay")
+        rate = float(rate)
+        if not 0.0 <= rate < 1.0:
+            raise InputError(f"failure_rate must be in [0, 1), got {rate}")
+        return schedule, rate
 
     # --------------------------------------------------------------- spaces
     def _build_observation_space(self) -> spaces.Dict:
@@ -245,6 +285,11 @@ class PersistentMonitoringEnv(ParallelEnv):
         return self.core.positions.copy()
 
     @property
+    def active(self) -> np.ndarray:
+        """``(n_agents,)`` bool, the agents that have not failed (a copy), in ``possible_agents`` order."""
+        return self._active.copy()
+
+    @property
     def step_count(self) -> int:
         return self._step_count
 
@@ -267,6 +312,7 @@ class PersistentMonitoringEnv(ParallelEnv):
             initial_u = self._rng.integers(0, self.u_max, size=n_nodes, endpoint=True)
         self.core.reset(np.asarray(positions), initial_u)
         self.agents = list(self.possible_agents)
+        self._active[:] = True
         self._step_count = 0
         self._dwell[:] = 0
         self.maps.reset_features()
@@ -283,14 +329,26 @@ class PersistentMonitoringEnv(ParallelEnv):
         missing = [agent for agent in self.agents if agent not in actions]
         if missing:
             raise InputError(f"no action given for {missing}")
-        destinations = np.array([actions[agent] for agent in self.possible_agents], dtype=np.int64)
+        acting = list(self.agents)
+        failures_on = self.metrics.track_failures
+        if failures_on:  # a failed agent gives no action; the core keeps it where it is
+            destinations = np.array(
+                [actions[agent] if agent in actions else -1 for agent in self.possible_agents], dtype=np.int64
+            )
+            destinations[~self._active] = self.core.positions[~self._active]
+        else:
+            destinations = np.array([actions[agent] for agent in self.possible_agents], dtype=np.int64)
         previous = self.core.positions
-        outcome = self.core.step(destinations, self.illegal_action, self.possible_agents)
+        outcome = self.core.step(
+            destinations, self.illegal_action, self.possible_agents, self._active if failures_on else None
+        )
         self._step_count += 1
         self._dwell += 1
         self._dwell[self.core.positions != previous] = 0
         self._observe(outcome.counts, advance_age=True)
         alone_on_target = self._targets[self.core.positions] & ~outcome.collided
+        if failures_on:
+            alone_on_target &= self._active  # a failed agent is on no node
         idle = alone_on_target & (outcome.u_before == 0)  # guarding a target that is already clean
         self.metrics.update(
             self.core.uncertainty, outcome.presence, int(outcome.collided.sum()), int(idle.sum())
@@ -300,22 +358,50 @@ class PersistentMonitoringEnv(ParallelEnv):
             outcome, alone_on_target, last, self.maps.episode_uncertainty_sum
         )
 
+        failed = self._draw_failures(last) if failures_on else []
         observations = self._observations()
         rewards = {agent: float(reward_values[i]) for i, agent in enumerate(self.possible_agents)}
-        terminations = {agent: False for agent in self.possible_agents}
+        terminations = {agent: agent in failed for agent in self.possible_agents}
         truncations = {agent: last for agent in self.possible_agents}
         infos: dict[str, dict] = {agent: {} for agent in self.possible_agents}
         if outcome.any_illegal:
             for i in np.flatnonzero(outcome.illegal):
                 infos[self.possible_agents[i]]["illegal_action"] = int(destinations[i])
+        for agent in failed:
+            infos[agent]["failed"] = self._step_count
         if last:
             summary = self.metrics.summary()
             for agent in self.possible_agents:
                 infos[agent]["metrics"] = dict(summary)
             self.agents = []
+        elif failed:
+            self.agents = [agent for agent in self.agents if agent not in failed]
+        if len(acting) < len(self.possible_agents):  # only the agents that acted this step report
+            observations = {agent: observations[agent] for agent in acting}
+            rewards = {agent: rewards[agent] for agent in acting}
+            terminations = {agent: terminations[agent] for agent in acting}
+            truncations = {agent: truncations[agent] for agent in acting}
+            infos = {agent: infos[agent] for agent in acting}
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
+
+    def _draw_failures(self, last: bool) -> list[str]:
+        """The agents that fail after this step (scheduled, then drawn at ``failure_rate``)."""
+        if last:
+            return []
+        failing = self._active & (self._fail_at == self._step_count)
+        if self.failure_rate > 0:
+            draws = self._rng.random(self.n_agents)  # one draw per agent and step: a fixed stream
+            failing |= self._active & (draws < self.failure_rate)
+        if failing.sum() >= self._active.sum():  # the last live agent never fails
+            keep = np.flatnonzero(self._active)[0]
+            failing[keep] = False
+        if not failing.any():
+            return []
+        self._active &= ~failing
+        self.metrics.record_failure(int(failing.sum()))
+        return [self.possible_agents[i] for i in np.flatnonzero(failing)]
 
     def episode_metrics(self) -> dict[str, float]:
         """The metrics of the episode so far (complete once it has been truncated)."""

@@ -24,6 +24,7 @@ from sb3_pm.evaluation.reports import (
     markdown_table,
 )
 from sb3_pm.evaluation.statistics import (
+    EXTRA_TABLE_METRICS,
     TABLE_METRICS,
     AnovaResult,
     Effect,
@@ -82,7 +83,9 @@ class Comparison:
     @property
     def by_graph(self) -> dict[str, dict[str, dict[str, Summary]]]:
         """``{metric: {policy: {graph: Summary}}}``."""
-        return {metric: summarize_by_graph(self.results, metric) for metric in TABLE_METRICS}
+        results = [result for group in self.results.values() for result in group if result.episodes]
+        extra = [m for m in EXTRA_TABLE_METRICS if results and all(m in r.metric_names for r in results)]
+        return {metric: summarize_by_graph(self.results, metric) for metric in (*TABLE_METRICS, *extra)}
 
     @property
     def reference_policy(self) -> str | None:

@@ -24,6 +24,9 @@ from sb3_pm.evaluation.harness import EvaluationResult
 
 #: The paper's two Table I metrics.
 TABLE_METRICS = ("avg_uncertainty", "max_neglect")
+#: Also tabulated per graph when every result of a comparison has them: the worst uncertainty an
+#: episode reached (the neglect bound's benefit) and the uncertainty after an agent failure.
+EXTRA_TABLE_METRICS = ("peak_uncertainty", "avg_uncertainty_before_failure", "avg_uncertainty_after_failure")
 
 
 @contextmanager

@@ -30,7 +30,7 @@ import shlex
 import shutil
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +64,8 @@ class Cell:
     n_agents: int
     env_kwargs: dict[str, Any]
     hyperparams: dict[str, Any]
+    #: The experiment's ``eval_env_kwargs``: added to the evaluation's env only.
+    eval_env_kwargs: dict[str, Any] = field(default_factory=dict)
     #: torch device of a learned team; not part of the experiment record (results do not depend
     #: on where they ran, up to floating point).
     device: str = "cpu"
@@ -96,6 +98,7 @@ def plan_cells(experiment: Experiment, out: Path, device: str = "cpu") -> list[C
                         n_agents=experiment.n_agents,
                         env_kwargs=dict(experiment.env_kwargs),
                         hyperparams=dict(experiment.hyperparams),
+                        eval_env_kwargs=dict(experiment.eval_env_kwargs),
                         device=device,
                     )
                 )
@@ -226,6 +229,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         assert variant.policy is not None
         team = make_team(variant.policy)
         env_kwargs = dict(cell.env_kwargs)
+    env_kwargs.update(cell.eval_env_kwargs)
     result = evaluate(
         team,
         cell.graph,

@@ -12,6 +12,8 @@ evaluated for a number of episodes. One file describes it::
     config: ../ippo.yml                        # the rl-zoo style training config (relative to this file)
     timesteps: 50000                           # per learner; null = the config's n_timesteps
     hyperparams: {}                            # merged into every learned variant's config entry
+    eval_env_kwargs: {}                        # env arguments of every cell's evaluation, never of
+                                               # training (deployment conditions: failures: {agent_1: 250})
     quick: {seeds: [0], episodes: 2, max_cycles: 50, timesteps: 512}   # --quick overrides
     variants:
       proposed: {kind: independent}                     # IndependentPPO with the base config
@@ -53,6 +55,7 @@ _TOP_KEYS = {
     "variants",
     "description",
     "env_kwargs",
+    "eval_env_kwargs",
     "hyperparams",
 }
 _VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label", "train", "config"}
@@ -95,6 +98,9 @@ class Experiment:
     timesteps: int | None
     variants: tuple[Variant, ...]
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    #: Environment arguments of the evaluation only (never of training), for every cell:
+    #: deployment conditions such as agent failures (``failures: {agent_1: 250}``).
+    eval_env_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)
     quick_overrides: dict[str, Any] = field(default_factory=dict)
     source: Path | None = None
@@ -214,6 +220,7 @@ def load_experiment(path: str | Path) -> Experiment:
             timesteps=None if raw.get("timesteps") is None else int(raw["timesteps"]),
             variants=tuple(variants),
             env_kwargs=dict(raw.get("env_kwargs", {}) or {}),
+            eval_env_kwargs=dict(raw.get("eval_env_kwargs", {}) or {}),
             hyperparams=dict(raw.get("hyperparams", {}) or {}),
             quick_overrides=dict(quick),
             source=path,

@@ -19,7 +19,11 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
 6. ``avoid_collisions``: drop from ``S`` the nodes observed *this step* (``age == 0``) to hold
    another agent, unless that empties ``S``;
 7. activation threshold ``γ``: rules 2-6 apply only where ``max_m û_m ≥ γ``; elsewhere the mask is
-   ``R`` (default ``γ = 0``: always, as in the paper's experiments).
+   ``R`` (default ``γ = 0``: always, as in the paper's experiments);
+8. ``neglect_bound`` ``B`` (not in the paper; off by default in the paper-faithful config): where
+   a known target is *due* (its worst-case uncertainty on arrival could otherwise exceed ``B``),
+   the mask is the next hops towards it, whatever rules 2-7 said; rule 6 still applies within
+   those hops. See :mod:`sb3_pm.policies.neglect_bound` for the rule and its guarantee.
 
 ``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
 among all reachable nodes but still dwells on a target until it is cleared. This is not in the
@@ -39,6 +43,9 @@ import torch as th
 
 from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
 from sb3_pm.errors import InputError
+from sb3_pm.policies.neglect_bound import neglect_deadline
+
+NEGLECT_SCOPES = ("known", "unserved")
 
 
 @dataclass(frozen=True)
@@ -50,6 +57,10 @@ class DCBFConfig:
     :param avoid_collisions: apply rule 6.
     :param gamma_threshold: the activation threshold ``γ`` of rule 7, in units of ``u``.
     :param barrier: apply rules 2-4 (off: ``S = R`` before the freeze and rule 6).
+    :param neglect_bound: rule 8's bound ``B`` in units of ``u`` (``None``: rule 8 off).
+    :param neglect_scope: the targets rule 8 bounds: ``"known"`` (every target in the map) or
+        ``"unserved"`` (those last observed with no other agent on them: a target last seen held
+        by a teammate is left to that teammate).
     """
 
     eta: float = 0.1
@@ -57,12 +68,20 @@ class DCBFConfig:
     avoid_collisions: bool = False
     gamma_threshold: float = 0.0
     barrier: bool = True
+    neglect_bound: float | None = None
+    neglect_scope: str = "known"
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
             raise InputError(f"eta must be in [0, 1], got {self.eta}")
         if self.freeze_steps < 0:
             raise InputError(f"freeze_steps must be >= 0, got {self.freeze_steps}")
+        if self.neglect_bound is not None and not self.neglect_bound >= 1:
+            raise InputError(
+                f"neglect_bound must be at least 1 (or null to turn it off), got {self.neglect_bound}"
+            )
+        if self.neglect_scope not in NEGLECT_SCOPES:
+            raise InputError(f"neglect_scope must be one of {NEGLECT_SCOPES}, got {self.neglect_scope!r}")
 
 
 def _non_empty(mask: th.Tensor, fallback: th.Tensor) -> th.Tensor:
@@ -79,8 +98,9 @@ def dcbf_mask(
     dwell: th.Tensor,
     occupied_now: th.Tensor,
     config: DCBFConfig = DCBFConfig(),
+    deadline: tuple[th.Tensor, th.Tensor] | None = None,
 ) -> th.Tensor:
-    """Apply rules 1-7 to a batch.
+    """Apply rules 1-8 to a batch.
 
     :param u_hat: predicted (or last observed) uncertainty per node.
     :param reachable: the reachable set ``R`` (bool).
@@ -90,11 +110,14 @@ def dcbf_mask(
     :param dwell: steps the agent has stayed on its node (0 on arrival).
     :param occupied_now: nodes observed this step to hold another agent (bool).
     :param config: the filter's settings.
+    :param deadline: rule 8's ``(forced, next_hops)`` from
+        :func:`~sb3_pm.policies.neglect_bound.neglect_deadline` (``None``: rule 8 off).
     :return: the mask ``S`` (bool), never all-false.
 
     Shapes:
         - u_hat, reachable, occupied_now: ``(B, N)``
         - position, on_target, u_here, dwell: ``(B,)``
+        - deadline: ``(B,)`` bool, ``(B, N)`` bool
         - output: ``(B, N)`` bool
     """
     reachable = reachable.bool()
@@ -115,6 +138,12 @@ def dcbf_mask(
     # Rule 7: the filter is active only where max û >= γ.
     active = u_max_all >= config.gamma_threshold
     mask = th.where(active, safe, reachable)
+    if deadline is not None:  # rule 8 overrides rules 2-7; rule 6 may thin, never empty, the hops
+        forced, hops = deadline
+        hops = hops & reachable
+        if config.avoid_collisions:
+            hops = _non_empty(hops & ~occupied_now.bool(), hops)
+        mask = th.where((forced & hops.any(-1)).unsqueeze(-1), hops, mask)
     return _non_empty(_non_empty(mask, reachable), th.ones_like(mask))
 
 
@@ -122,16 +151,28 @@ def dcbf_mask_from_map(
     observations: dict[str, th.Tensor],
     u_hat: th.Tensor,
     config: DCBFConfig = DCBFConfig(),
+    u_max: float = float("inf"),
 ) -> th.Tensor:
-    """:func:`dcbf_mask` on SB3-preprocessed mental-map observations.
+    """:func:`dcbf_mask` on SB3-preprocessed mental-map observations (see :func:`dcbf_filter_from_map`)."""
+    return dcbf_filter_from_map(observations, u_hat, config, u_max)[0]
+
+
+def dcbf_filter_from_map(
+    observations: dict[str, th.Tensor],
+    u_hat: th.Tensor,
+    config: DCBFConfig = DCBFConfig(),
+    u_max: float = float("inf"),
+) -> tuple[th.Tensor, th.Tensor]:
+    """:func:`dcbf_mask` on SB3-preprocessed mental-map observations, and where rule 8 forced it.
 
     ``position`` arrives one-hot (SB3 preprocessing of ``Discrete``) and node features are raw
-    (unnormalized), as the env emits them.
+    (unnormalized), as the env emits them. ``u_max`` caps rule 8's worst-case projection.
 
     Shapes:
-        - observations: ``nodes`` ``(B, N, 5)``, ``position`` ``(B, N)``, ``dwell`` ``(B, 1)``,
-          ``action_mask`` ``(B, N)``; u_hat: ``(B, N)``
-        - output: ``(B, N)`` bool
+        - observations: ``nodes`` ``(B, N, 5)``, ``adjacency`` ``(B, N, N)``, ``position``
+          ``(B, N)``, ``dwell`` ``(B, 1)``, ``action_mask`` ``(B, N)``; u_hat: ``(B, N)``
+        - output: the mask ``(B, N)`` bool and ``forced`` ``(B,)`` bool (rule 8 chose the mask;
+          all false when rule 8 is off)
     """
     nodes = observations["nodes"]
     # The policy passes the index along; a caller with only the one-hot gets it by argmax.
@@ -140,13 +181,32 @@ def dcbf_mask_from_map(
         position = observations["position"].argmax(-1)
     rows = th.arange(nodes.shape[0], device=nodes.device)
     here = nodes[rows, position]  # (B, 5): the own node's features
-    return dcbf_mask(
+    reachable = observations["action_mask"] > 0.5
+    deadline = None
+    if config.neglect_bound is not None:
+        bounded = nodes[..., TARGET] > 0.5
+        if config.neglect_scope == "unserved":
+            bounded = bounded & ~(nodes[..., OCCUPIED] > 0.5)
+        deadline = neglect_deadline(
+            nodes[..., U],
+            nodes[..., AGE],
+            bounded,
+            observations["adjacency"],
+            position,
+            reachable,
+            config.neglect_bound,
+            u_max,
+        )
+    mask = dcbf_mask(
         u_hat,
-        observations["action_mask"] > 0.5,
+        reachable,
         position,
         here[:, TARGET] > 0.5,
         here[:, U],
         observations["dwell"].reshape(-1),
         (nodes[..., OCCUPIED] > 0.5) & (nodes[..., AGE] == 0),
         config,
+        deadline,
     )
+    forced = deadline[0] if deadline is not None else th.zeros_like(rows, dtype=th.bool)
+    return mask, forced

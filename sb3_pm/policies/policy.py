@@ -35,7 +35,7 @@ from torch import nn
 
 from sb3_pm.envs.mental_map import FEATURES, U
 from sb3_pm.errors import InputError
-from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask_from_map
+from sb3_pm.policies.dcbf import DCBFConfig, dcbf_filter_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 
@@ -92,6 +92,11 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param gamma_threshold: DCBF activation threshold ``γ``.
     :param dcbf_barrier: DCBF rules 2-4 (off: the filter keeps only feasibility, the freeze and
         rule 6; see :mod:`sb3_pm.policies.dcbf`).
+    :param neglect_bound: the DCBF's neglect bound ``B`` (rule 8, :mod:`sb3_pm.policies.neglect_bound`):
+        a known target whose worst-case uncertainty could pass ``B`` before the agent arrives
+        forces the next hop towards it. ``None`` (default) turns it off; it needs ``use_dcbf``.
+    :param neglect_scope: which targets the bound covers, ``"known"`` or ``"unserved"``
+        (:class:`~sb3_pm.policies.dcbf.DCBFConfig`).
     :param laplacian: ``"rows"``, ``"eigen"`` or ``"none"``.
     :param derived_features: feed the encoder each node's projected uncertainty and hop closeness
         (:mod:`sb3_pm.policies.features`; not in the paper).
@@ -128,6 +133,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         eta: float = 0.1,
         gamma_threshold: float = 0.0,
         dcbf_barrier: bool = True,
+        neglect_bound: float | None = None,
+        neglect_scope: str = "known",
         laplacian: str = "rows",
         derived_features: bool = False,
         gat_heads: int = 4,
@@ -156,9 +163,20 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self.use_dcbf, self.use_estimator = bool(use_dcbf), bool(use_estimator)
         self.avoid_collisions, self.extra_attention = bool(avoid_collisions), bool(extra_attention)
         self.estimator_target = estimator_target
+        if neglect_bound is not None and not use_dcbf:
+            raise InputError("neglect_bound is rule 8 of the DCBF filter: it needs use_dcbf=True")
         self.dcbf_config = DCBFConfig(
-            eta, int(freeze_steps), bool(avoid_collisions), float(gamma_threshold), bool(dcbf_barrier)
+            eta,
+            int(freeze_steps),
+            bool(avoid_collisions),
+            float(gamma_threshold),
+            bool(dcbf_barrier),
+            None if neglect_bound is None else float(neglect_bound),
+            str(neglect_scope),
         )
+        #: Masks the filter computed and how many of them rule 8 (the neglect bound) forced; a
+        #: diagnostic for reports (``sb3_pm.evaluation.filter_activity``), never saved.
+        self.filter_counts = {"masks": 0, "forced": 0}
         self.estimator_hidden = [int(w) for w in estimator_hidden]
         self.estimator_lr, self.estimator_epochs = float(estimator_lr), int(estimator_epochs)
         self.estimator_batch_size = int(estimator_batch_size)
@@ -260,6 +278,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             eta=self.dcbf_config.eta,
             gamma_threshold=self.dcbf_config.gamma_threshold,
             dcbf_barrier=self.dcbf_config.barrier,
+            neglect_bound=self.dcbf_config.neglect_bound,
+            neglect_scope=self.dcbf_config.neglect_scope,
             laplacian=self._encoder_kwargs["laplacian"],
             derived_features=self._encoder_kwargs["derived_features"],
             gat_heads=self._encoder_kwargs["gat_heads"],
@@ -308,7 +328,10 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     ) -> th.Tensor:
         """The DCBF mask (or the reachable set), intersected with a caller's mask if any."""
         if self.use_dcbf:
-            mask = dcbf_mask_from_map(pre, u_hat, self.dcbf_config)
+            mask, forced = dcbf_filter_from_map(pre, u_hat, self.dcbf_config, self.u_max)
+            if self.dcbf_config.neglect_bound is not None:
+                self.filter_counts["masks"] += int(forced.shape[0])
+                self.filter_counts["forced"] += int(forced.sum())
         else:
             mask = pre["action_mask"] > 0.5
         if given is not None:

@@ -1,0 +1,145 @@
+"""The neglect bound: a deadline filter that keeps every known target's uncertainty below a bound.
+
+The paper's barrier (rules 2-4 of :mod:`sb3_pm.policies.dcbf`) constrains the agent on every step,
+so little is left to learn. This filter constrains it only when it must. Each agent keeps, from its
+own mental map alone, a worst-case projection of every target it knows:
+
+    ``ū_m = min(u_max, u_m + age_m)``
+
+(``u_m`` last observed, ``age_m`` steps ago). It is a true upper bound on the target's uncertainty
+now, whatever the teammates did, because eq. (1) raises ``u`` by at most 1 per step. With ``d_m`` the
+hop distance from the agent to ``m`` over the agent's *known* edges, ``ū_m + d_m`` bounds the
+target's uncertainty when the agent could be there by going straight now. The target is *due*
+when
+
+    ``ū_m + d_m >= B - 1``
+
+(``B`` = ``neglect_bound``): one more free step (``ū`` and ``d`` each grow by at most 1) could put
+the arrival bound above ``B``. Then the allowed set becomes the next hops along shortest known
+paths to the nearest due target (ties: the least slack ``B - ū_m - d_m``, then the lower node
+index), or ``{φ}`` when the agent stands on it. It overrides the
+freeze and the paper's barrier; collision avoidance may still drop one of several next hops but
+never empties the set. Targets it does not know and targets it cannot reach over known edges are
+never due.
+
+**Guarantee** (``tests/test_neglect_bound.py``). Assumptions: a static graph, the agent's own map
+(no teammate knowledge), and a target ``m`` that the agent knows at some step with
+``ū_m + d_m <= B``. Then, as long as no other target of the agent is due while ``m`` is due,
+the true uncertainty of ``m`` never exceeds ``B``:
+
+* while ``m`` is not due, ``ū_m <= B - 2 - d_m <= B``;
+* while it is due, every step moves one hop closer (known edges are real edges), so
+  ``ū_m + d_m`` does not grow and the agent arrives with ``u_m <= ū_m <= B``, then stays while
+  ``u_m >= B - 1``.
+
+So an agent with one known target, or whose targets are never due at the same time, keeps each of
+them at or below ``B``; any teammate's visit only lowers ``u``. When two targets are due together,
+one of them can exceed ``B``: one agent cannot be in two places, and without communication no agent
+knows whether a teammate is already on the way. The filter uses the worst-case projection, not the
+estimator's ``û``: a learned prediction could make the filter late, which would void the guarantee.
+"""
+
+from __future__ import annotations
+
+import torch as th
+
+#: Distance of a node not reachable over the known edges.
+UNREACHABLE = 1 << 30
+
+
+def hop_distances(adjacency: th.Tensor, sources: th.Tensor) -> th.Tensor:
+    """Breadth-first hop distances from one source node per graph, over its nonzero entries.
+
+    Shapes:
+        - adjacency: ``(B, N, N)`` any dtype (``!= 0`` is an edge; symmetric for undirected graphs)
+        - sources: ``(B,)`` long
+        - output: ``(B, N)`` long, :data:`UNREACHABLE` where no path exists
+    """
+    batch, n = adjacency.shape[0], adjacency.shape[-1]
+    edges = (adjacency != 0).to(th.float32)
+    visited = th.nn.functional.one_hot(sources.long(), n).bool()
+    distance = th.full((batch, n), UNREACHABLE, dtype=th.long, device=adjacency.device)
+    distance[visited] = 0
+    frontier = visited.to(th.float32)
+    for hop in range(1, n):
+        # One hop from the frontier: a (B, 1, N) x (B, N, N) product, no Python loop over nodes.
+        reached = (th.bmm(frontier.unsqueeze(1), edges).squeeze(1) > 0) & ~visited
+        if not bool(reached.any()):
+            break
+        distance[reached] = hop
+        visited |= reached
+        frontier = reached.to(th.float32)
+    return distance
+
+
+def neglect_deadline(
+    u_last: th.Tensor,
+    age: th.Tensor,
+    known_target: th.Tensor,
+    adjacency: th.Tensor,
+    position: th.Tensor,
+    reachable: th.Tensor,
+    bound: float,
+    u_max: float,
+) -> tuple[th.Tensor, th.Tensor]:
+    """Which maps have a due target, and the next hops towards the most urgent one.
+
+    :param u_last: last observed uncertainty per node (the map's ``u``).
+    :param age: steps since each node was last observed.
+    :param known_target: the map's target flags (bool).
+    :param adjacency: the known adjacency.
+    :param position: the agent's node ``φ``.
+    :param reachable: the reachable set ``R`` (bool).
+    :param bound: ``B``, in units of ``u``.
+    :param u_max: the cap of ``u`` (the projection never exceeds it).
+    :return: ``forced`` ``(B,)`` bool (a target is due) and ``allowed`` ``(B, N)`` bool (the next
+        hops towards it, within ``R``; meaningful only where ``forced``).
+
+    Shapes:
+        - u_last, age, known_target, reachable: ``(B, N)``; adjacency: ``(B, N, N)``
+        - position: ``(B,)`` long
+    """
+    batch, n = u_last.shape
+    projected = th.clamp(u_last + age, max=u_max)  # ū: a true upper bound on u now
+    known = known_target.bool()
+    forced = th.zeros(batch, dtype=th.bool, device=u_last.device)
+    allowed = th.zeros((batch, n), dtype=th.bool, device=u_last.device)
+    # A target can be due only if ū_m + (N - 1) >= B - 1 (no known path is longer): most steps of
+    # an episode skip both searches.
+    candidates = (known & (projected + (n - 1) >= bound - 1)).any(-1)
+    if not bool(candidates.any()):
+        return forced, allowed
+    rows = candidates.nonzero().squeeze(-1)
+    distance = hop_distances(adjacency[rows], position[rows])  # (b, N) from the agent
+    reachable_target = known[rows] & (distance < UNREACHABLE)
+    arrival = projected[rows] + distance.to(projected.dtype)  # bound on u at arrival
+    due = reachable_target & (arrival >= bound - 1)
+    due_rows = due.any(-1)
+    if not bool(due_rows.any()):
+        return forced, allowed
+    # Nearest due target first (ties: the least slack B - arrival, then the lower node index, as
+    # argmax returns the first maximum). Not earliest-deadline-first: while the agent walks to one
+    # due target, every other one's arrival bound grows, so EDF would turn it round and round
+    # between two targets; with nearest-first, the distance to the nearest due target falls by
+    # one hop per step, so the agent reaches a due target within its distance.
+    scale = float(arrival.max()) + 1.0  # > any arrival bound: distance decides, then arrival
+    nearest = arrival - distance.to(arrival.dtype) * scale
+    key = th.where(due, nearest, th.full_like(arrival, -float("inf")))
+    chosen = key.argmax(-1)  # (b,)
+    rows, chosen = rows[due_rows], chosen[due_rows]
+    # Hop distances from the chosen target give, for each neighbour, whether it is one hop closer.
+    from_target = hop_distances(adjacency[rows], chosen)
+    here = position[rows]
+    picked = th.arange(len(rows), device=u_last.device)
+    own_distance = from_target[picked, here]  # (k,), the agent's distance to its target
+    closer = from_target == (own_distance - 1).unsqueeze(-1)
+    at_target = own_distance == 0
+    step = th.where(
+        at_target.unsqueeze(-1), th.nn.functional.one_hot(here, n).bool(), closer & reachable[rows].bool()
+    )
+    forced[rows] = step.any(-1)  # always true on a known, reachable target; kept as a guard
+    allowed[rows] = step
+    return forced, allowed
+
+
+__all__ = ["UNREACHABLE", "hop_distances", "neglect_deadline"]
