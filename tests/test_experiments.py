@@ -448,3 +448,16 @@ def test_damaged_finished_cells_are_run_again(tmp_path: Path, monkeypatch, capsy
     from sb3_pm.experiments.integrity import check_done
 
     assert check_done(learned[0]) is None and check_done(learned[1]) is None
+
+
+def test_eval_env_kwargs_reach_every_evaluation_and_no_training(tmp_path: Path) -> None:
+    # failures.yml fails agent_1 in every evaluated episode; training with failures is refused, so a
+    # leak into training would stop the learned cell.
+    out = tmp_path / "failures"
+    argv = ["reproduce", "failures", "--quick", "--out", str(out), "--jobs", "1", "--no-progress"]
+    assert main([*argv, "--variants", "default", "grazing"]) == 0
+    for variant in ("default", "grazing"):
+        payload = json.loads((out / "cells" / variant / "paper-50" / "seed0" / "evaluation.json").read_text())
+        assert all(episode["failed_agents"] == 1 for episode in payload["episodes"])
+        assert all(episode["first_failure_step"] == 25 for episode in payload["episodes"])
+    assert "avg_uncertainty_after_failure" in (out / "by_graph.md").read_text()

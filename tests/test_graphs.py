@@ -9,6 +9,7 @@ import pytest
 
 from sb3_pm.graphs import (
     ER_PRESETS,
+    FAMILY_PRESETS,
     PRESETS,
     PUBLISHED,
     GraphError,
@@ -71,7 +72,7 @@ class TestPresets:
         assert spec.same_problem(load_graphml(published_graphs / PUBLISHED[name]))
 
     def test_every_preset_is_described_and_resolves(self) -> None:
-        assert set(PRESETS) == set(PUBLISHED) | set(ER_PRESETS)
+        assert set(PRESETS) == set(PUBLISHED) | set(ER_PRESETS) | set(FAMILY_PRESETS)
         for name in PRESETS:
             assert resolve_graph(name).name == name
 

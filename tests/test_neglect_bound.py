@@ -239,3 +239,49 @@ class TestFilterIntegration:
         assert policy._get_constructor_parameters()["neglect_bound"] == 30.0
         with pytest.raises(InputError, match="use_dcbf"):
             DCBFActorCriticPolicy(space, action, lambda _: 1e-3, neglect_bound=30, use_dcbf=False)
+
+
+class TestDeployment:
+    def test_a_trained_team_takes_the_bound_and_counts_its_overrides(self, tmp_path) -> None:
+        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.evaluation import evaluate
+
+        graph = path_graph(12, targets=[0, 11])
+        team = IndependentPPO(
+            graph,
+            n_agents=1,
+            seed=0,
+            env_kwargs={"max_cycles": 60},
+            hyperparams={
+                "n_steps": 30,
+                "batch_size": 30,
+                "n_epochs": 1,
+                "policy_kwargs": {"dcbf_barrier": False, "freeze_steps": 0},
+            },
+        )
+        with pytest.raises(InputError, match="unknown DCBF filter setting"):
+            team.set_filter(neglect_bund=5)
+        team.set_filter(neglect_bound=15.0)
+        # Sampled actions: the untrained actor wanders, so the bound has something to override.
+        result = evaluate(
+            team,
+            graph,
+            n_agents=1,
+            episodes=1,
+            max_cycles=200,
+            env_kwargs={"initial_positions": [0]},
+            deterministic=False,
+        )
+        activity = team.filter_activity()
+        assert activity["masks"] == 200 and 0 < activity["forced"] < 200
+        # A saved team keeps the setting.
+        team.save(tmp_path / "t")
+        loaded = IndependentPPO.load(tmp_path / "t")
+        assert loaded.models["agent_0"].policy.dcbf_config.neglect_bound == 15.0
+        assert result.mean["steps"] == 200
+
+    def test_the_command_line_refuses_it_for_a_baseline(self, capsys) -> None:
+        from sb3_pm.cli import main
+
+        assert main(["evaluate", "--policy", "grazing", "--neglect-bound", "50", "--episodes", "1"]) == 2
+        assert "needs a trained DCBF team" in capsys.readouterr().err

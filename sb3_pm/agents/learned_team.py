@@ -31,6 +31,9 @@ from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.team_interface import Team
 
+#: DCBFConfig field -> the DCBF policy's keyword for it (where they differ).
+_POLICY_KWARG = {"barrier": "dcbf_barrier"}
+
 
 class LearnedTeam(Team):
     """Base of the trained teams: the problem they were built for, the graph check, save and load.
@@ -132,6 +135,11 @@ class LearnedTeam(Team):
             if not getattr(policy, "use_dcbf", False):
                 raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
             policy.dcbf_config = replace(policy.dcbf_config, **changes)  # type: ignore[union-attr,type-var]
+            if "avoid_collisions" in changes:
+                policy.avoid_collisions = bool(changes["avoid_collisions"])  # type: ignore[assignment]
+            # SB3 saves (and rebuilds the policy from) the model's policy_kwargs.
+            kwargs = {_POLICY_KWARG.get(key, key): value for key, value in changes.items()}
+            model.policy_kwargs = {**model.policy_kwargs, **kwargs}
 
     def filter_activity(self) -> dict[str, int]:
         """Summed over learners since they were built: masks computed with the neglect bound on

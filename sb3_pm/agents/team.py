@@ -53,9 +53,10 @@ from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_k
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
+from sb3_pm.agents.transfer import on_graph
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike
-from sb3_pm.team_interface import Observation
+from sb3_pm.team_interface import Observation, Team
 from sb3_pm.zoo.registry import uses_masks
 
 logger = logging.getLogger(__name__)
@@ -324,6 +325,14 @@ class IndependentPPO(LearnedTeam):
                 action, _ = model.predict(obs, deterministic=deterministic)
             actions[agent] = int(np.asarray(action).reshape(-1)[0])
         return actions
+
+    def on_graph(self, graph: GraphLike) -> Team:
+        """This team on ``graph``: itself on its own graph, else its policies rebuilt for ``graph``
+        (zero-shot transfer, :mod:`sb3_pm.agents.transfer`).
+
+        :raises InputError: if its policies are tied to the training graph's size, saying why.
+        """
+        return on_graph(self, graph)
 
     # ---------------------------------------------------------- save / load
     def manifest(self) -> dict[str, Any]:

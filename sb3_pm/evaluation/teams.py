@@ -8,6 +8,7 @@ from typing import Any
 
 from sb3_pm.baselines import BASELINES, make_team
 from sb3_pm.errors import InputError
+from sb3_pm.graphs import resolve_graph
 from sb3_pm.team_interface import Team
 
 
@@ -66,11 +67,34 @@ def load_trained_team(path: Path, graph: Any = None, device: str = "cpu") -> Tea
                 raise PolicyError(message) from error
             break
     team_class: Any = CentralizedPPO if manifest_format == CENTRALIZED else IndependentPPO
+    other_graph = graph is not None and _trained_fingerprint(path) not in (
+        None,
+        resolve_graph(graph).fingerprint,
+    )
     try:
-        team = team_class.load(path, graph=graph, device=device)
+        if not other_graph:
+            return team_class.load(path, graph=graph, device=device)  # type: ignore[no-any-return]
+        # Another graph: load the team on its own, then rebuild its policies for this one, or
+        # refuse with the reason (sb3_pm.agents.transfer).
+        team = team_class.load(path, device=device)
+        if not hasattr(team, "on_graph"):
+            raise InputError(
+                f"the team was trained on graph {team.graph.name!r}; "
+                "a centralized team cannot act on another graph"
+            )
+        return team.on_graph(graph)  # type: ignore[no-any-return]
     except (FileNotFoundError, ValueError) as error:
         raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
-    return team
+
+
+def _trained_fingerprint(path: Path) -> str | None:
+    """The fingerprint of the graph a saved team was trained on (``None`` if unreadable)."""
+    for folder in (path, path / "team"):
+        try:
+            return str(json.loads((folder / "manifest.json").read_text())["graph"]["fingerprint"])
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    return None
 
 
 def team_env_kwargs(team: Team) -> dict[str, Any]:

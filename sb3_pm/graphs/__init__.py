@@ -1,24 +1,30 @@
 """Graphs for persistent monitoring: one immutable :class:`GraphSpec`, its generators and GraphML I/O."""
 
+from sb3_pm.graphs.families import from_networkx, random_geometric, ring_of_cliques, rooms
 from sb3_pm.graphs.generators import erdos_renyi, hyperrectangle
 from sb3_pm.graphs.io import load_graphml, save_graphml
-from sb3_pm.graphs.presets import ER_PRESETS, PRESETS, PUBLISHED, preset, published_graph_path
+from sb3_pm.graphs.presets import ER_PRESETS, FAMILY_PRESETS, PRESETS, PUBLISHED, preset, published_graph_path
 from sb3_pm.graphs.resolve import GraphLike, graph_label, resolve_graph
 from sb3_pm.graphs.spec import GraphError, GraphSpec
 
 __all__ = [
     "ER_PRESETS",
+    "FAMILY_PRESETS",
     "PRESETS",
     "PUBLISHED",
     "GraphError",
     "GraphLike",
     "GraphSpec",
     "erdos_renyi",
+    "from_networkx",
     "graph_label",
     "hyperrectangle",
     "load_graphml",
     "preset",
     "published_graph_path",
+    "random_geometric",
     "resolve_graph",
+    "ring_of_cliques",
+    "rooms",
     "save_graphml",
 ]

@@ -4,13 +4,17 @@
 for their three experiment sizes, read from ``sb3_pm/graphs/data/``; nothing is downloaded. The
 ``er-*`` presets are our own seeded Erdős–Rényi G(N, 0.2) draws with the paper's sizes and target
 counts (the paper's text asks for 32 targets at 200 nodes; the published 200-node graph has 41).
+The family presets (``rgg-60``, ``rooms-4``, ``cliques-6x8``, ``karate``) are our suite of other
+structures (:mod:`sb3_pm.graphs.families`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 
+from sb3_pm.graphs.families import from_networkx, random_geometric, ring_of_cliques, rooms
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.graphs.io import load_graphml
 from sb3_pm.graphs.spec import GraphError, GraphSpec
@@ -32,6 +36,22 @@ ER_PRESETS: dict[str, tuple[int, int, int]] = {
     "er-200": (200, 32, 200),
 }
 
+#: Preset name -> builder of a graph from another family (:mod:`sb3_pm.graphs.families`): our suite
+#: of structures unlike the paper's dense, small-diameter graphs. The seeds are ours.
+FAMILY_PRESETS: dict[str, Callable[[str], GraphSpec]] = {
+    "rgg-60": lambda name: random_geometric(60, 0.2, n_targets=10, seed=60, name=name),
+    "rooms-4": lambda name: rooms(4, (4, 3), n_targets=8, seed=4, name=name),
+    "cliques-6x8": lambda name: ring_of_cliques(6, 8, n_targets=8, seed=6, name=name),
+    "karate": lambda name: _karate(name),
+}
+
+
+def _karate(name: str) -> GraphSpec:
+    import networkx as nx
+
+    return from_networkx(nx.karate_club_graph(), n_targets=6, seed=34, name=name)
+
+
 #: Every preset name -> a one-line description (for ``--help`` and error messages).
 PRESETS: dict[str, str] = {
     "paper-50": "the paper's published 50-node graph, 8 targets",
@@ -40,6 +60,10 @@ PRESETS: dict[str, str] = {
     "er-50": "a seeded Erdős–Rényi G(50, 0.2) draw, 8 targets",
     "er-100": "a seeded Erdős–Rényi G(100, 0.2) draw, 17 targets",
     "er-200": "a seeded Erdős–Rényi G(200, 0.2) draw, 32 targets",
+    "rgg-60": "a seeded random geometric graph, 60 nodes, radius 0.2 (diameter 15), 10 targets",
+    "rooms-4": "4 rooms of 4x3 cells (Algorithm 1) joined in a row by single doors, 48 nodes, 8 targets",
+    "cliques-6x8": "a ring of 6 cliques of 8 nodes joined by single edges, 8 targets",
+    "karate": "Zachary's karate club (a real social network, 34 nodes), 6 targets",
 }
 
 
@@ -67,4 +91,6 @@ def preset(name: str) -> GraphSpec:
     if name in ER_PRESETS:
         n_nodes, n_targets, seed = ER_PRESETS[name]
         return erdos_renyi(n_nodes, edge_prob=0.2, n_targets=n_targets, seed=seed, name=name)
+    if name in FAMILY_PRESETS:
+        return FAMILY_PRESETS[name](name)
     raise GraphError(f"unknown graph preset {name!r}; presets are {sorted(PRESETS)}")

@@ -1,0 +1,147 @@
+"""Deploying a trained team on a graph it was not trained on (zero-shot transfer).
+
+A DCBF policy is nearly independent of the graph's size ``N``: the GAT layers have per-node
+weights, the estimator and the actor are MLPs shared across nodes (one logit per node) and the
+critic mean-pools. Two things tie it to ``N``:
+
+* the paper's Laplacian-rows encoding (``laplacian: rows``), ``N`` numbers per node, which fixes
+  the first GAT layer's input width; ``laplacian: none`` or ``eigen`` (``k`` eigenvectors) do not;
+* the observation space (``N`` nodes) SB3 checks observations against.
+
+Choice (measured in docs/RESULTS.md, "Transfer"): the observation spaces are **rebuilt** for the new
+graph rather than padded to a maximum size with a node mask. Rebuilding keeps every tensor at its
+true size (no cost on small graphs, no cap on large ones), and each learner's policy is rebuilt
+with the same constructor arguments on the new spaces and given the trained parameters. The only
+size-dependent tensors a transferable policy holds are the input scalings ``inv_high`` ``(N, 5)``,
+whose rows are all equal (one scale per feature, from ``u_max`` and the training episode length);
+they are rebuilt row by row from the trained ones, so inputs are scaled exactly as in training.
+
+Mental maps start empty on the new graph (a new env), as on any first episode.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from sb3_pm.errors import InputError
+from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
+from sb3_pm.team_interface import Observation, Team
+
+#: Buffers whose first dimension is the node count and whose rows are identical.
+_PER_NODE_BUFFERS = ("inv_high",)
+
+
+def transfer_problem(team: Any) -> str | None:
+    """Why ``team`` cannot act on another graph, or ``None`` if it can."""
+    for agent in team.agents:
+        policy = team.models[agent].policy
+        encoder = getattr(policy, "_encoder_kwargs", None)
+        if encoder is None:
+            return (
+                f"{agent}'s policy ({type(policy).__name__}) reads fixed-size flattened observations; "
+                "only the DCBF policy (algo dcbf_ppo) transfers"
+            )
+        if encoder["laplacian"] == "rows":
+            return (
+                f"{agent}'s encoder uses the Laplacian-rows encoding (laplacian: rows), N numbers per "
+                f"node, which ties its first GAT layer to N = {team.graph.n_nodes}; train it with "
+                "policy_kwargs laplacian: none (or eigen) to deploy on other graphs"
+            )
+    return None
+
+
+def rebuild_policy(policy: Any, observation_space: Any, action_space: Any) -> Any:
+    """``policy``'s class and arguments on new spaces, holding ``policy``'s trained parameters.
+
+    :raises InputError: if a parameter's shape depends on the graph's size.
+    """
+    arguments = policy._get_constructor_parameters()
+    arguments.update(observation_space=observation_space, action_space=action_space)
+    rebuilt = type(policy)(**arguments)
+    n_nodes = int(observation_space["nodes"].shape[0])
+    state = {}
+    for key, value in policy.state_dict().items():
+        if key.rsplit(".", 1)[-1] in _PER_NODE_BUFFERS:
+            value = value[:1].expand(n_nodes, *value.shape[1:]).clone()  # one scale per feature
+        state[key] = value
+    target = rebuilt.state_dict()
+    mismatched = [key for key, value in state.items() if key in target and target[key].shape != value.shape]
+    if mismatched:
+        raise InputError(f"the policy's parameters {mismatched} depend on the graph's size")
+    rebuilt.load_state_dict(state)
+    rebuilt.set_training_mode(False)
+    return rebuilt.to(policy.device)
+
+
+class TransferredTeam(Team):
+    """A trained team's policies rebuilt for another graph; acts like the team it came from.
+
+    :ivar source: the trained team (its graph, agents and settings).
+    :ivar graph: the graph it now runs on.
+    """
+
+    omniscient = False
+
+    def __init__(self, source: Any, graph: GraphSpec) -> None:
+        from sb3_pm.envs import persistent_monitoring_v0
+
+        self.source, self.graph = source, graph
+        self.name = f"{getattr(source, 'name', 'team')} on {graph.name}"
+        self.n_agents = source.n_agents
+        self.env_kwargs = dict(source.env_kwargs)
+        self.agents = list(source.agents)
+        # The spaces of the new graph with the training env's settings (u_max, episode length),
+        # so observations are checked and scaled as the team was trained.
+        env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=self.n_agents, **self.env_kwargs)
+        space, action = env.observation_space(self.agents[0]), env.action_space(self.agents[0])
+        env.close()
+        self.policies = {
+            agent: rebuild_policy(source.models[agent].policy, space, action) for agent in self.agents
+        }
+
+    def learner_for(self, agent: str) -> str:
+        """The learner acting for ``agent`` (see :meth:`IndependentPPO.learner_for`)."""
+        return str(self.source.learner_for(agent))
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        super().reset(env, seed)
+        other = getattr(getattr(env, "unwrapped", env), "graph", None)
+        if isinstance(other, GraphSpec) and other.fingerprint != self.graph.fingerprint:
+            raise InputError(
+                f"this team was rebuilt for graph {self.graph.name!r}, not {other.name!r}; "
+                "rebuild it with on_graph()"
+            )
+        if seed is not None:
+            th.manual_seed(seed)
+
+    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+        actions: dict[str, int] = {}
+        for agent, obs in observations.items():
+            policy = self.policies[self.learner_for(agent)]
+            mask = np.asarray(obs["action_mask"], dtype=bool)
+            action, _ = policy.predict(obs, deterministic=deterministic, action_masks=mask)
+            actions[agent] = int(np.asarray(action).reshape(-1)[0])
+        return actions
+
+
+def on_graph(team: Any, graph: GraphLike) -> Team:
+    """``team`` itself on its own graph, else its policies rebuilt for ``graph``.
+
+    :raises InputError: a team that cannot transfer, with the reason (:func:`transfer_problem`).
+    """
+    spec = resolve_graph(graph)
+    if spec.fingerprint == team.graph.fingerprint:
+        return team  # type: ignore[no-any-return]
+    problem = transfer_problem(team)
+    if problem is not None:
+        raise InputError(
+            f"the team was trained on graph {team.graph.name!r} and cannot act on graph "
+            f"{spec.name!r}: {problem}"
+        )
+    return TransferredTeam(team, spec)
+
+
+__all__ = ["TransferredTeam", "on_graph", "rebuild_policy", "transfer_problem"]
