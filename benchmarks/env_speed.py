@@ -4,6 +4,11 @@ Run: ``python benchmarks/env_speed.py [--steps 20000] [--graphs paper-50 paper-1
 Actions are drawn up front from each step's action masks by a tiny vectorized random walk, so
 the figure measures the environment (dynamics, mental maps, observations, rewards, metrics),
 not the policy.
+
+Next to each graph's figure, the same random walk drives a *bare* eq. (1) loop in the same
+process: NumPy arrays of positions and uncertainties, one ``bincount`` for presence and one
+``where`` for the capped update, nothing else (no observations, maps, rewards or metrics). The
+ratio env / bare is what the environment's bookkeeping costs over the dynamics alone.
 """
 
 from __future__ import annotations
@@ -40,6 +45,28 @@ def measure(graph: str, n_agents: int, steps: int, observation: str, seed: int =
     return steps / (time.perf_counter() - start)
 
 
+def bare_loop(graph: str, n_agents: int, steps: int, seed: int = 0) -> float:
+    """Steps per second of eq. (1) alone, with the same random walk as :func:`measure`."""
+    from sb3_pm.graphs import resolve_graph
+
+    spec = resolve_graph(graph)
+    neighbour_lists = [np.flatnonzero(row).tolist() for row in spec.reachable]
+    rng = np.random.default_rng(seed)
+    draws = rng.random((steps, n_agents)).tolist()
+    targets = spec.target_indices
+    n_nodes, u_max = spec.n_nodes, 100
+    positions = rng.choice(n_nodes, size=n_agents, replace=False).tolist()
+    u = np.zeros(len(targets), dtype=np.int64)
+    start = time.perf_counter()
+    for k in range(steps):
+        positions = [
+            (options := neighbour_lists[p])[int(r * len(options))] for p, r in zip(positions, draws[k])
+        ]
+        present = np.bincount(positions, minlength=n_nodes)[targets] > 0
+        u = np.where(present, np.maximum(u - 1, 0), np.minimum(u + 1, u_max))
+    return steps / (time.perf_counter() - start)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=20000)
@@ -50,7 +77,11 @@ def main() -> None:
     print(f"env steps/s, {args.agents} agents, observation={args.observation}, {args.steps} steps per graph")
     for graph in args.graphs:
         rate = measure(graph, args.agents, args.steps, args.observation)
-        print(f"  {graph:>12s}: {rate:10,.0f} steps/s")
+        bare = bare_loop(graph, args.agents, args.steps)
+        print(
+            f"  {graph:>12s}: {rate:10,.0f} steps/s   bare eq. (1) loop {bare:10,.0f} steps/s"
+            f"   ratio {rate / bare:.3f}"
+        )
 
 
 if __name__ == "__main__":
