@@ -206,3 +206,18 @@ def test_training_with_failures_is_refused() -> None:
 
     with pytest.raises(InputError, match="deployment condition"):
         IndependentPPO(path_graph(6, [0, 5]), n_agents=2, env_kwargs={"failures": {"agent_1": 3}})
+
+
+def test_an_env_pickled_before_failures_existed_still_resumes() -> None:
+    # Checkpoints pickle the env copies; one written by an earlier version lacks the failure state.
+    import pickle
+
+    env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=4, max_cycles=10)
+    state = env.__getstate__() if hasattr(env, "__getstate__") else dict(env.__dict__)
+    state = {k: v for k, v in state.items() if k not in ("_active", "_fail_at", "failures", "failure_rate")}
+    old = object.__new__(type(env))
+    old.__setstate__(state)
+    restored = pickle.loads(pickle.dumps(old))
+    observations, _ = restored.reset(seed=0)
+    observations, *_ = restored.step(stay_actions(restored, observations))
+    assert restored.agents == restored.possible_agents and restored.failures == {}

@@ -218,6 +218,15 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._observation_space = self._build_observation_space()
         self._action_space = spaces.Discrete(n_nodes)
 
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickle, giving attributes added in later versions their defaults (a checkpoint's env
+        copies written before agent failures existed resume as envs without failures)."""
+        self.__dict__.update(state)
+        if "_active" not in state:
+            self.failures, self.failure_rate = {}, 0.0
+            self._fail_at = np.full(self.n_agents, self.max_cycles + 1, dtype=np.int64)
+            self._active = np.ones(self.n_agents, dtype=bool)
+
     def _check_failures(
         self, failures: Mapping[str, int] | None, rate: float
     ) -> tuple[dict[str, int], float]:
