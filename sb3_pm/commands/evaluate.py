@@ -58,6 +58,13 @@ def register(subparsers: Any) -> None:
         metavar="P",
         help="each live agent fails after any step with probability P",
     )
+    parser.add_argument(
+        "--neglect-scope",
+        choices=["known", "unserved"],
+        default=None,
+        help="with --neglect-bound: bound every known target (known, the default) or only those last "
+        "seen without a teammate on them (unserved)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
     add_compute_options(parser)
     parser.set_defaults(func=run)
@@ -93,15 +100,18 @@ def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     return kwargs
 
 
-def apply_neglect_bound(team: Any, bound: float | None) -> None:
-    """``--neglect-bound``: set the filter's bound on a trained team; a baseline has no filter."""
+def apply_neglect_bound(team: Any, bound: float | None, scope: str | None = None) -> None:
+    """``--neglect-bound`` (and ``--neglect-scope``): set the filter's bound on a trained team; a
+    baseline has no filter."""
     from sb3_pm.errors import UsageError
 
     if bound is None:
         return
     if not hasattr(team, "set_filter"):
-        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is a baseline")
-    team.set_filter(neglect_bound=bound)
+        raise UsageError(
+            f"--neglect-bound needs a trained DCBF team on its own graph; {team.name!r} is not one"
+        )
+    team.set_filter(neglect_bound=bound, **({} if scope is None else {"neglect_scope": scope}))
 
 
 def print_summary(result: Any, stream: Any = None) -> None:
@@ -139,8 +149,10 @@ def run(args: argparse.Namespace) -> int:
     graph = resolve_graph(args.graph)  # fail on a bad graph before loading a model
     check_writable(args.json, "--json")  # before the evaluation, whose result it would lose
     check_writable(args.gif, "--gif")
+    if args.neglect_scope is not None and args.neglect_bound is None:
+        raise UsageError("--neglect-scope needs --neglect-bound")
     team = resolve_team(args.policy, graph=graph, device=args.device)
-    apply_neglect_bound(team, args.neglect_bound)
+    apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     label = policy_label(args.policy, team)
     trained_agents = getattr(team, "n_agents", None)
     if trained_agents is not None and trained_agents != args.agents:
@@ -183,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.json}", file=sys.stderr)
     if args.gif is not None:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device)
-        apply_neglect_bound(gif_team, args.neglect_bound)
+        apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
         record_gif(
             gif_team,
             graph,
