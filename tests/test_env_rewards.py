@@ -96,3 +96,19 @@ def test_unknown_terms_are_rejected() -> None:
         resolve_reward({"distance": 1.0})
     with pytest.raises(ValueError, match="at least one term"):
         resolve_reward({})
+
+
+def test_neglect_penalizes_the_worst_known_target_projection() -> None:
+    # Path 0-1-2-3-4, targets 0 and 4. The agent starts beside target 0 (node 1) and walks away:
+    # its map knows target 0 (seen at u = 0) and projects u + age; target 4 is unknown until seen.
+    env = make({"neglect": 1.0}, [1], max_cycles=20, n_nodes=5, targets=(0, 4))
+    _, rewards, *_ = env.step({"agent_0": 2})  # target 0 no longer observed: age 1 -> projection 1
+    assert rewards["agent_0"] == pytest.approx(-1 / 100)
+    _, rewards, *_ = env.step({"agent_0": 3})  # now 2, and target 4 is seen at u = 2
+    assert rewards["agent_0"] == pytest.approx(-2 / 100)
+    _, rewards, *_ = env.step({"agent_0": 4})  # on target 4 (u falls to 1): target 0's 3 is the worst
+    assert rewards["agent_0"] == pytest.approx(-3 / 100)
+    # A map that knows no target pays nothing.
+    env = make({"neglect": 1.0}, [2], max_cycles=5, n_nodes=5, targets=(0,))
+    _, rewards, *_ = env.step({"agent_0": 2})
+    assert rewards["agent_0"] == 0.0

@@ -364,7 +364,11 @@ class PersistentMonitoringEnv(ParallelEnv):
         )
         last = self._step_count >= self.max_cycles
         reward_values, _ = self.rewards_computer.step(
-            outcome, alone_on_target, last, self.maps.episode_uncertainty_sum
+            outcome,
+            alone_on_target,
+            last,
+            self.maps.episode_uncertainty_sum,
+            self.maps.worst_known_projection(self.u_max) if "neglect" in self.reward_weights else None,
         )
 
         failed = self._draw_failures(last) if failures_on else []

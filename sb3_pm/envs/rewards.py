@@ -18,6 +18,9 @@ local: no agent's reward depends on another agent's observations or map. Terms:
                u > 0 where it is alone, else 0. Unlike ``reduction`` it pays nothing for guarding a
                target that is already at 0, which ``reduction`` pays at half the clearing rate
                with no travel cost, so it removes the incentive to idle on cleared targets.
+``neglect``    minus the worst projected uncertainty among the targets the agent's own map knows,
+               ``max_m min(u_max, u_m + age_m) / u_max`` (0 while it knows none): a dense penalty on
+               leaving a known target unvisited, whatever the teammates do (not in the paper).
 
 Presets: ``paper`` = 0.05 x (collision + change + momentum), as in the paper; ``reduction`` =
 1.0 x reduction + 0.05 x collision.
@@ -33,7 +36,7 @@ import numpy as np
 from sb3_pm.envs.core import StepOutcome
 from sb3_pm.errors import InputError
 
-TERMS = ("collision", "momentum", "change", "reduction", "clearing")
+TERMS = ("collision", "momentum", "change", "reduction", "clearing", "neglect")
 REWARD_PRESETS: dict[str, dict[str, float]] = {
     "paper": {"collision": 0.05, "change": 0.05, "momentum": 0.05},
     "reduction": {"reduction": 1.0, "collision": 0.05},
@@ -82,7 +85,12 @@ class RewardComputer:
         self.momentum[:] = 0.0
 
     def step(
-        self, outcome: StepOutcome, alone_on_target: np.ndarray, last_step: bool, map_sums: np.ndarray
+        self,
+        outcome: StepOutcome,
+        alone_on_target: np.ndarray,
+        last_step: bool,
+        map_sums: np.ndarray,
+        worst_known: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Rewards for one step.
 
@@ -91,6 +99,8 @@ class RewardComputer:
             agent is on it (the only case in which ``reduction`` and ``clearing`` pay).
         :param last_step: the episode ends with this step (``change`` is paid).
         :param map_sums: ``(n_agents,)`` this episode's U_i so far, including this step.
+        :param worst_known: ``(n_agents,)`` the worst projected uncertainty among the targets each
+            agent's map knows (needed by ``neglect`` only).
         :return: ``(n_agents,)`` float rewards and each weighted term's ``(n_agents,)`` values.
         """
         terms: dict[str, np.ndarray] = {}
@@ -107,6 +117,10 @@ class RewardComputer:
         if "clearing" in w:
             lowered = np.maximum(outcome.u_before - outcome.u_after, 0)
             terms["clearing"] = w["clearing"] * np.where(alone_on_target, lowered, 0.0)
+        if "neglect" in w:
+            if worst_known is None:
+                raise InputError("the neglect reward term needs each agent's worst known projection")
+            terms["neglect"] = -w["neglect"] * np.asarray(worst_known, dtype=np.float64) / self.u_max
         if "change" in w:
             change = np.zeros(self.n_agents)
             if last_step:
