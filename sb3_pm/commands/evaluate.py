@@ -22,7 +22,10 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--policy", required=True, help="a baseline name or a saved trained team directory")
     parser.add_argument(
-        "--graph", default="paper-50", help="a preset (paper-50/100/200, er-50/100/200) or a .graphml path"
+        "--graph",
+        default="paper-50",
+        help="a preset (paper-50/100/200, er-50/100/200, rgg-60, rooms-4, cliques-6x8, karate) or a "
+        ".graphml path; a team trained on another graph runs if its parameters do not depend on N",
     )
     parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
     parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")

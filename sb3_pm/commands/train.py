@@ -61,7 +61,8 @@ def register(subparsers: Any) -> None:
         "--env",
         default=None,
         help="a preset (paper-50/100/200: the paper's published graphs; er-50/100/200: seeded "
-        "Erdős–Rényi draws) or a .graphml path (default paper-50)",
+        "Erdős–Rényi draws; rgg-60, rooms-4, cliques-6x8, karate: other structures) or a .graphml "
+        "path (default paper-50)",
     )
     parser.add_argument(
         "--seed", type=int, default=None, help="seeds the env copies and every learner (default 0)"
