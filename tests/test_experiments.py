@@ -461,3 +461,13 @@ def test_eval_env_kwargs_reach_every_evaluation_and_no_training(tmp_path: Path) 
         assert all(episode["failed_agents"] == 1 for episode in payload["episodes"])
         assert all(episode["first_failure_step"] == 25 for episode in payload["episodes"])
     assert "avg_uncertainty_after_failure" in (out / "by_graph.md").read_text()
+
+
+def test_eval_env_kwargs_may_not_redefine_the_experiment(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yml"
+    path.write_text(
+        "graphs: [paper-50]\nseeds: [0]\neval_env_kwargs: {max_cycles: 10}\n"
+        "variants: {a: {kind: baseline, policy: random}}\n"
+    )
+    with pytest.raises(ExperimentError, match=r"eval_env_kwargs must not set \['max_cycles'\]"):
+        load_experiment(path)

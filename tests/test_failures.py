@@ -221,3 +221,68 @@ def test_an_env_pickled_before_failures_existed_still_resumes() -> None:
     observations, _ = restored.reset(seed=0)
     observations, *_ = restored.step(stay_actions(restored, observations))
     assert restored.agents == restored.possible_agents and restored.failures == {}
+
+
+def test_a_failed_agent_senses_nothing_even_in_a_shared_map() -> None:
+    # Path 0..6; agent_1 fails on node 6 after step 1. With a shared map, agent_0 (far away on 0)
+    # must not keep seeing node 6 through it: node 6's age grows.
+    env = persistent_monitoring_v0.parallel_env(
+        graph=path_graph(7, [6]),
+        n_agents=2,
+        max_cycles=10,
+        initial_positions=[0, 6],
+        failures={"agent_1": 1},
+        shared_map=True,
+    )
+    observations, _ = env.reset(seed=0)
+    observations, *_ = env.step(stay_actions(env, observations))
+    for expected_age in (1, 2, 3):
+        observations, *_ = env.step(stay_actions(env, observations))
+        assert observations["agent_0"]["nodes"][6, 1] == expected_age  # AGE column
+
+
+def test_the_harness_never_asks_a_failed_agent_to_act() -> None:
+    from sb3_pm.baselines import make_team
+
+    class Checked(type(make_team("random"))):  # type: ignore[misc]
+        def predict(self, observations, deterministic=True):
+            assert set(observations) <= set(self.env.agents)
+            return super().predict(observations, deterministic)
+
+    result = evaluate(
+        Checked(), "paper-50", episodes=1, max_cycles=30, env_kwargs={"failures": {"agent_2": 10}}
+    )
+    assert result.mean["failed_agents"] == 1
+
+
+def test_idle_fraction_counts_only_live_agent_steps() -> None:
+    # Two agents on the single target's path; agent_1 fails at once, agent_0 idles on the cleared
+    # target 0 for the rest of the episode: idle on every live agent-step after its first.
+    env = persistent_monitoring_v0.parallel_env(
+        graph=path_graph(3, [0]),
+        n_agents=2,
+        max_cycles=10,
+        initial_positions=[0, 2],
+        failures={"agent_1": 1},
+    )
+    observations, _ = env.reset(seed=0)
+    while env.agents:
+        observations, *_, infos = env.step(stay_actions(env, observations))
+    metrics = infos["agent_0"]["metrics"]
+    live_agent_steps = 2 + 9  # step 1 with both agents, then agent_0 alone
+    assert metrics["idle_fraction"] == pytest.approx(10 / live_agent_steps)
+
+
+def test_episodes_without_a_failure_are_left_out_of_the_after_failure_mean() -> None:
+    from sb3_pm.evaluation.harness import EpisodeRecord, EvaluationResult
+    from sb3_pm.evaluation.statistics import Summary
+
+    records = [
+        EpisodeRecord(0, 0, 0, {"avg_uncertainty_after_failure": 10.0}, np.zeros(1)),
+        EpisodeRecord(1, 1, 1, {"avg_uncertainty_after_failure": float("nan")}, np.zeros(1)),
+        EpisodeRecord(2, 2, 2, {"avg_uncertainty_after_failure": 20.0}, np.zeros(1)),
+    ]
+    result = EvaluationResult("p", "g", {}, records)
+    assert result.mean["avg_uncertainty_after_failure"] == 15.0
+    summary = Summary.of(result.values("avg_uncertainty_after_failure"))
+    assert (summary.mean, summary.n) == (15.0, 2)

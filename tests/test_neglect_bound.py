@@ -189,6 +189,12 @@ class TestDeadline:
         forced, allowed = deadline_row([0, 0, 0, 16, 0, 18], [0] * 6, [3, 5], self.EDGES, 0, 20.0)
         assert forced and allowed == [5]
 
+    def test_least_slack_breaks_ties_even_when_some_node_has_no_known_path(self) -> None:
+        # Path 0-1-2 and a node 3 with no known edge; from 1, targets 0 (u 10) and 2 (u 20) are
+        # both 1 hop away and due: 2 has less slack. (Node 3's huge distance once swamped the key.)
+        forced, allowed = deadline_row([10, 0, 20, 0], [0] * 4, [0, 2], [(0, 1), (1, 2)], 1, 10.0)
+        assert forced and allowed == [2]
+
     def test_unknown_and_unreachable_targets_are_never_due(self) -> None:
         # Node 3 is not a known target; with it known but no known edge to it, it cannot be due.
         assert not deadline_row([0, 0, 0, 99, 0, 0], [0] * 6, [], self.EDGES, 0, 20.0)[0]

@@ -98,5 +98,5 @@ def test_a_transferred_team_refuses_a_third_graph(saved_transferable: Path) -> N
     team = resolve_team(saved_transferable, graph="paper-50")
     env = persistent_monitoring_v0.parallel_env(graph=path_graph(6, [0]), n_agents=2, max_cycles=5)
     env.reset(seed=0)
-    with pytest.raises(ValueError, match="rebuilt for graph 'paper_50n_8t'|rebuilt for graph 'paper-50'"):
+    with pytest.raises(ValueError, match="not on graph 'path'.*rebuilt for graph 'paper-50'"):
         team.reset(env, seed=0)

@@ -130,6 +130,9 @@ class LearnedTeam(Team):
         unknown = sorted(set(changes) - names)
         if unknown:
             raise InputError(f"unknown DCBF filter setting(s) {unknown}; known: {sorted(names)}")
+        bound = changes.get("neglect_bound")
+        if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float))):
+            raise InputError(f"neglect_bound must be a number (or None), got {bound!r}")
         for name, model in self.model_files().items():
             policy = model.policy
             if not getattr(policy, "use_dcbf", False):
@@ -148,7 +151,7 @@ class LearnedTeam(Team):
         total = {"masks": 0, "forced": 0}
         for model in self.model_files().values():
             for key, value in getattr(model.policy, "filter_counts", {}).items():
-                total[key] = total.get(key, 0) + int(value)
+                total[key] = total.get(key, 0) + int(value)  # int() of a tensor count: one sync here
         return total
 
     # ---------------------------------------------------------- save / load

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from sb3_pm.agents.saved_teams import check_same_graph
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.team_interface import Observation, Team
@@ -109,11 +110,12 @@ class TransferredTeam(Team):
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
         other = getattr(getattr(env, "unwrapped", env), "graph", None)
-        if isinstance(other, GraphSpec) and other.fingerprint != self.graph.fingerprint:
-            raise InputError(
-                f"this team was rebuilt for graph {self.graph.name!r}, not {other.name!r}; "
-                "rebuild it with on_graph()"
-            )
+        if isinstance(other, GraphSpec):
+            try:
+                check_same_graph(self.graph, other)
+            except InputError as error:
+                rebuilt = f"it was rebuilt for graph {self.graph.name!r}: use on_graph()"
+                raise InputError(f"{error}; {rebuilt}") from error
         if seed is not None:
             th.manual_seed(seed)
 

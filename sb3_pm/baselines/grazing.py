@@ -48,7 +48,8 @@ class GrazingTeam(Team):
         all_positions = state.positions if active is None else state.positions[active]
         agents, positions = agent_positions(observations)
         if active is not None and not active.all():
-            self.goals = {a: g for a, g in self.goals.items() if a in observations}
+            live = set(state.agents)
+            self.goals = {a: g for a, g in self.goals.items() if a in live}
         targets = self.graph.target_indices
         is_target = self.graph.targets
         if not self.commit:

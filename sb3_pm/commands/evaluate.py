@@ -188,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
     if args.neglect_bound is not None:
         activity = team.filter_activity()  # type: ignore[attr-defined]  # apply_neglect_bound checked
         result.config["neglect_bound"] = args.neglect_bound
+        result.config["neglect_scope"] = args.neglect_scope or "known"
         result.config["filter_activity"] = activity
     print_summary(result)
     if args.neglect_bound is not None:

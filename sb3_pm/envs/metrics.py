@@ -63,12 +63,22 @@ class EpisodeMetrics:
         self.peak = 0
         self.saturated_steps = 0
         self.idle_agent_steps = 0
+        self.live_agent_steps = 0
         self._run = np.zeros(n_targets, dtype=np.int64)
         self._longest = np.zeros(n_targets, dtype=np.int64)
 
-    def update(self, uncertainty: np.ndarray, presence: np.ndarray, n_collided: int, n_idle: int) -> None:
+    def update(
+        self,
+        uncertainty: np.ndarray,
+        presence: np.ndarray,
+        n_collided: int,
+        n_idle: int,
+        n_live: int | None = None,
+    ) -> None:
         """Record step ``k``: ``(N,)`` uncertainties and ``(N,)`` bool presence after the move,
-        ``n_collided`` agents sharing a node and ``n_idle`` agents alone on a target at u = 0."""
+        ``n_collided`` agents sharing a node, ``n_idle`` agents alone on a target at u = 0 and
+        ``n_live`` agents that acted (all of them unless some failed)."""
+        self.live_agent_steps += self.n_agents if n_live is None else int(n_live)
         u = uncertainty[self.target_indices]
         self._run += 1
         self._run[presence[self.target_indices]] = 0
@@ -81,6 +91,13 @@ class EpisodeMetrics:
         highest = int(u.max())
         self.peak = max(self.peak, highest)
         self.saturated_steps += highest >= self.u_max
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (a checkpoint's env copy), filling counters added in later versions: an episode
+        recorded before them had every agent live on every step."""
+        self.__dict__.update(state)
+        self.__dict__.setdefault("live_agent_steps", self.steps * self.n_agents)
+        self.__dict__.setdefault("failure_steps", [])
 
     def record_failure(self, n_failed: int) -> None:
         """``n_failed`` agents failed after the step just recorded."""
@@ -95,7 +112,7 @@ class EpisodeMetrics:
             "collisions": float(self.collisions),
             "peak_uncertainty": float(self.peak),
             "saturated_fraction": float(self.saturated_steps / steps),
-            "idle_fraction": float(self.idle_agent_steps / (steps * self.n_agents)),
+            "idle_fraction": float(self.idle_agent_steps / max(self.live_agent_steps, 1)),
             "steps": float(self.steps),
         }
         if self.track_failures:

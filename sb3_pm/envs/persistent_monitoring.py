@@ -360,7 +360,11 @@ class PersistentMonitoringEnv(ParallelEnv):
             alone_on_target &= self._active  # a failed agent is on no node
         idle = alone_on_target & (outcome.u_before == 0)  # guarding a target that is already clean
         self.metrics.update(
-            self.core.uncertainty, outcome.presence, int(outcome.collided.sum()), int(idle.sum())
+            self.core.uncertainty,
+            outcome.presence,
+            int(outcome.collided.sum()),
+            int(idle.sum()),
+            int(self._active.sum()) if failures_on else self.n_agents,
         )
         last = self._step_count >= self.max_cycles
         reward_values, _ = self.rewards_computer.step(
@@ -430,6 +434,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._observed = self._observes[positions]  # (n_agents, N) bool
         self._last_outcome_counts = counts
         edge_nodes = self._edge_nodes[positions]
+        if not self._active.all():  # a failed agent senses nothing (nor feeds a shared map)
+            self._observed = self._observed & self._active[:, None]
+            edge_nodes = edge_nodes & self._active[:, None]
         map_observed = self._observed
         if self.shared_map:
             # Centralized setting: every map receives the union of the team's observations.

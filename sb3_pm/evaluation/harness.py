@@ -78,8 +78,9 @@ class EvaluationResult:
 
     @property
     def mean(self) -> dict[str, float]:
-        """Mean of each metric over the episodes."""
-        return {name: float(self.values(name).mean()) for name in self.metric_names}
+        """Mean of each metric over the episodes that define it (NaN values, such as the uncertainty
+        after a failure in an episode where no agent failed, are left out; NaN if none define it)."""
+        return {name: _defined_mean(self.values(name)) for name in self.metric_names}
 
     @property
     def std(self) -> dict[str, float]:
@@ -121,7 +122,13 @@ class EvaluationResult:
         return cls(policy=config["policy"], graph=config["graph"], config=config, episodes=records)
 
 
+def _defined_mean(values: np.ndarray) -> float:
+    defined = values[~np.isnan(values)]
+    return float(defined.mean()) if len(defined) else float("nan")
+
+
 def _sample_sd(values: np.ndarray) -> float:
+    values = values[~np.isnan(values)]
     return float(values.std(ddof=1)) if len(values) > 1 else 0.0
 
 
@@ -235,6 +242,8 @@ def run_episode(
     while env.agents:
         actions = team.predict(observations, deterministic=deterministic)
         observations, _, _, _, infos = env.step(actions)
+        if len(observations) > len(env.agents):  # agents that failed this step leave the team
+            observations = {agent: obs for agent, obs in observations.items() if agent in env.agents}
         steps += 1
         if frames is not None:
             frames.append(env.render())

@@ -55,7 +55,10 @@ class Summary:
 
     @classmethod
     def of(cls, values: np.ndarray) -> Summary:
+        """Mean, SD and count of the defined values: an episode with no value for a metric (NaN:
+        ``avg_uncertainty_after_failure`` when no agent failed) is left out, not averaged in."""
         values = np.asarray(values, dtype=float)
+        values = values[~np.isnan(values)]
         if len(values) == 0:
             return cls(math.nan, math.nan, 0)
         return cls(float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0, len(values))

@@ -311,7 +311,11 @@ _RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None}
 
 
 def experiment_record(experiment: Experiment) -> dict[str, Any]:
+    # eval_env_kwargs is recorded only when set (folders written before it existed resume), so a
+    # changed deployment condition is a different experiment and never reuses finished cells.
+    extra = {"eval_env_kwargs": experiment.eval_env_kwargs} if experiment.eval_env_kwargs else {}
     return {
+        **extra,
         "name": experiment.name,
         "graphs": list(experiment.graphs),
         "seeds": list(experiment.seeds),

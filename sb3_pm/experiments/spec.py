@@ -230,4 +230,10 @@ def load_experiment(path: str | Path) -> Experiment:
         raise _fail(path, str(error)) from error
     if experiment.episodes < 1:
         raise _fail(path, "'episodes' must be at least 1")
+    clash = sorted({"graph", "n_agents", "max_cycles"} & set(experiment.eval_env_kwargs))
+    if clash:
+        raise _fail(
+            path,
+            f"eval_env_kwargs must not set {clash}: use the experiment's graphs, n_agents and max_cycles",
+        )
     return experiment

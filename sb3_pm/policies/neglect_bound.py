@@ -43,33 +43,23 @@ from __future__ import annotations
 
 import torch as th
 
+from sb3_pm.policies.features import hop_distances as breadth_first_hops
+
 #: Distance of a node not reachable over the known edges.
 UNREACHABLE = 1 << 30
 
 
 def hop_distances(adjacency: th.Tensor, sources: th.Tensor) -> th.Tensor:
-    """Breadth-first hop distances from one source node per graph, over its nonzero entries.
+    """Breadth-first hop distances from one source node per graph (``features.hop_distances``),
+    with :data:`UNREACHABLE` where no path exists.
 
     Shapes:
-        - adjacency: ``(B, N, N)`` any dtype (``!= 0`` is an edge; symmetric for undirected graphs)
-        - sources: ``(B,)`` long
-        - output: ``(B, N)`` long, :data:`UNREACHABLE` where no path exists
+        - adjacency: ``(B, N, N)`` any dtype (``!= 0`` is an edge); sources: ``(B,)`` long
+        - output: ``(B, N)`` long
     """
-    batch, n = adjacency.shape[0], adjacency.shape[-1]
-    edges = (adjacency != 0).to(th.float32)
-    visited = th.nn.functional.one_hot(sources.long(), n).bool()
-    distance = th.full((batch, n), UNREACHABLE, dtype=th.long, device=adjacency.device)
-    distance[visited] = 0
-    frontier = visited.to(th.float32)
-    for hop in range(1, n):
-        # One hop from the frontier: a (B, 1, N) x (B, N, N) product, no Python loop over nodes.
-        reached = (th.bmm(frontier.unsqueeze(1), edges).squeeze(1) > 0) & ~visited
-        if not bool(reached.any()):
-            break
-        distance[reached] = hop
-        visited |= reached
-        frontier = reached.to(th.float32)
-    return distance
+    start = th.nn.functional.one_hot(sources.long(), adjacency.shape[-1])
+    distance = breadth_first_hops(adjacency, start)
+    return th.where(distance < 0, UNREACHABLE, distance)
 
 
 def neglect_deadline(
@@ -104,8 +94,8 @@ def neglect_deadline(
     known = known_target.bool()
     forced = th.zeros(batch, dtype=th.bool, device=u_last.device)
     allowed = th.zeros((batch, n), dtype=th.bool, device=u_last.device)
-    # A target can be due only if ū_m + (N - 1) >= B - 1 (no known path is longer): most steps of
-    # an episode skip both searches.
+    # A target can be due only if ū_m + (N - 1) >= B - 1 (no known path is longer); maps with no
+    # such target skip both searches (early in an episode; later most maps pass this test).
     candidates = (known & (projected + (n - 1) >= bound - 1)).any(-1)
     if not bool(candidates.any()):
         return forced, allowed
@@ -122,9 +112,8 @@ def neglect_deadline(
     # due target, every other one's arrival bound grows, so EDF would turn it round and round
     # between two targets; with nearest-first, the distance to the nearest due target falls by
     # one hop per step, so the agent reaches a due target within its distance.
-    scale = float(arrival.max()) + 1.0  # > any arrival bound: distance decides, then arrival
-    nearest = arrival - distance.to(arrival.dtype) * scale
-    key = th.where(due, nearest, th.full_like(arrival, -float("inf")))
+    nearest = distance.masked_fill(~due, UNREACHABLE).amin(-1, keepdim=True)
+    key = th.where(due & (distance == nearest), arrival, th.full_like(arrival, -float("inf")))
     chosen = key.argmax(-1)  # (b,)
     rows, chosen = rows[due_rows], chosen[due_rows]
     # Hop distances from the chosen target give, for each neighbour, whether it is one hop closer.

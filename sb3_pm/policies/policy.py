@@ -174,9 +174,10 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             None if neglect_bound is None else float(neglect_bound),
             str(neglect_scope),
         )
-        #: Masks the filter computed and how many of them rule 8 (the neglect bound) forced; a
-        #: diagnostic for reports (``sb3_pm.evaluation.filter_activity``), never saved.
-        self.filter_counts = {"masks": 0, "forced": 0}
+        #: Masks the filter computed with rule 8 (the neglect bound) on, and how many it forced: a
+        #: diagnostic read by ``LearnedTeam.filter_activity()``, never saved. ``forced`` is summed
+        #: as a tensor, so counting costs no device synchronisation per forward pass.
+        self.filter_counts: dict[str, Any] = {"masks": 0, "forced": 0}
         self.estimator_hidden = [int(w) for w in estimator_hidden]
         self.estimator_lr, self.estimator_epochs = float(estimator_lr), int(estimator_epochs)
         self.estimator_batch_size = int(estimator_batch_size)
@@ -331,7 +332,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             mask, forced = dcbf_filter_from_map(pre, u_hat, self.dcbf_config, self.u_max)
             if self.dcbf_config.neglect_bound is not None:
                 self.filter_counts["masks"] += int(forced.shape[0])
-                self.filter_counts["forced"] += int(forced.sum())
+                self.filter_counts["forced"] = self.filter_counts["forced"] + forced.sum()
         else:
             mask = pre["action_mask"] > 0.5
         if given is not None:
