@@ -340,11 +340,10 @@ class PersistentMonitoringEnv(ParallelEnv):
             raise InputError(f"no action given for {missing}")
         acting = list(self.agents)
         failures_on = self.metrics.track_failures
-        if failures_on:  # a failed agent gives no action; the core keeps it where it is
+        if failures_on:  # a failed agent gives no action (-1 here); the core keeps it where it is
             destinations = np.array(
                 [actions[agent] if agent in actions else -1 for agent in self.possible_agents], dtype=np.int64
             )
-            destinations[~self._active] = self.core.positions[~self._active]
         else:
             destinations = np.array([actions[agent] for agent in self.possible_agents], dtype=np.int64)
         previous = self.core.positions
