@@ -57,20 +57,19 @@ def load_trained_team(path: Path, graph: Any = None, device: str = "cpu") -> Tea
         ) from error
     # The manifest's ``format`` field says which team type wrote it (a run folder of
     # ``sb3-pm train`` keeps the team in ``team/``; the loaders handle both).
-    manifest_format = None
+    manifest: dict[str, Any] = {}
     for folder in (path, path / "team"):
         if (folder / "manifest.json").exists():
             try:
-                manifest_format = json.loads((folder / "manifest.json").read_text()).get("format")
-            except (json.JSONDecodeError, AttributeError) as error:
+                manifest = dict(json.loads((folder / "manifest.json").read_text()))
+            except (json.JSONDecodeError, TypeError, ValueError) as error:
                 message = f"cannot load the trained team in {path}: bad manifest.json ({error})"
                 raise PolicyError(message) from error
             break
-    team_class: Any = CentralizedPPO if manifest_format == CENTRALIZED else IndependentPPO
-    other_graph = graph is not None and _trained_fingerprint(path) not in (
-        None,
-        resolve_graph(graph).fingerprint,
-    )
+    team_class: Any = CentralizedPPO if manifest.get("format") == CENTRALIZED else IndependentPPO
+    saved_graph = manifest.get("graph")
+    trained_on = saved_graph.get("fingerprint") if isinstance(saved_graph, dict) else None
+    other_graph = graph is not None and trained_on not in (None, resolve_graph(graph).fingerprint)
     try:
         if not other_graph:
             return team_class.load(path, graph=graph, device=device)  # type: ignore[no-any-return]
@@ -85,16 +84,6 @@ def load_trained_team(path: Path, graph: Any = None, device: str = "cpu") -> Tea
         return team.on_graph(graph)  # type: ignore[no-any-return]
     except (FileNotFoundError, ValueError) as error:
         raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
-
-
-def _trained_fingerprint(path: Path) -> str | None:
-    """The fingerprint of the graph a saved team was trained on (``None`` if unreadable)."""
-    for folder in (path, path / "team"):
-        try:
-            return str(json.loads((folder / "manifest.json").read_text())["graph"]["fingerprint"])
-        except (OSError, ValueError, KeyError, TypeError):
-            continue
-    return None
 
 
 def team_env_kwargs(team: Team) -> dict[str, Any]:
