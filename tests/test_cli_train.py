@@ -123,3 +123,23 @@ def test_train_same_seed_same_parameters(tiny_train) -> None:
     for agent in ("agent_0", "agent_1"):
         saved = [zipfile.ZipFile(out / name / "team" / f"{agent}.zip").read("policy.pth") for name in "ab"]
         assert saved[0] == saved[1]
+
+
+def test_train_without_env_uses_the_configs_graph_family(tiny_train, capsys) -> None:
+    import json
+
+    config, _, out = tiny_train
+    family_config = config.with_name("family.yml")
+    family_config.write_text(config.read_text().replace("default:\n", "default:\n  env: family:er\n", 1))
+    argv = ["train", "--config", str(family_config), "--timesteps", "32", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "on family:er (a new graph each episode, up to 60 nodes)" in printed
+    assert "sb3-pm evaluate --policy" in printed and "--graph paper-50" in printed
+    assert yaml.safe_load((out / "config.yml").read_text())["env"] == "family:er"
+    assert "--env family:er" in (out / "command.txt").read_text()
+    manifest = json.loads((out / "team" / "manifest.json").read_text())
+    assert manifest["graph"]["family"]["kind"] == "erdos_renyi" and manifest["graph"]["n_nodes"] == 60
+    # --env still wins over the config's.
+    assert main([*argv[:-3], "--out", str(out.with_name("one")), "--env", "karate", "--no-progress"]) == 0
+    assert yaml.safe_load((out.with_name("one") / "config.yml").read_text())["env"] == "karate"

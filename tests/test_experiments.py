@@ -302,6 +302,19 @@ def test_resume_refuses_a_different_experiment(tmp_path: Path) -> None:
             "graphs: [paper-50]\nseeds: [0]\nvariants: {a: {config: missing.yml}}\n",
             "training config not found",
         ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\n"
+            "variants: {a: {kind: baseline, policy: random, train_env: paper-50}}\n",
+            "'train_env' applies to independent variants only",
+        ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {train_env: family:spiral}}\n",
+            "train_env: unknown graph family 'family:spiral'",
+        ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {timesteps: -3}}\n",
+            "'timesteps' must be a positive integer",
+        ),
     ],
 )
 def test_malformed_experiment_files(tmp_path: Path, text: str, message: str) -> None:
@@ -471,3 +484,48 @@ def test_eval_env_kwargs_may_not_redefine_the_experiment(tmp_path: Path) -> None
     )
     with pytest.raises(ExperimentError, match=r"eval_env_kwargs must not set \['max_cycles'\]"):
         load_experiment(path)
+
+
+def test_a_train_env_variant_trains_once_per_seed_and_deploys_on_every_graph(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from sb3_pm.graphs import erdos_renyi, save_graphml
+
+    tiny_experiment(tmp_path)
+    save_graphml(erdos_renyi(9, 0.4, n_targets=2, seed=4), tmp_path / "other.graphml")
+    (tmp_path / "config.yml").write_text(
+        (tmp_path / "config.yml").read_text().replace("gat_heads: 1}", "gat_heads: 1, laplacian: none}")
+    )
+    (tmp_path / "zero_shot.yml").write_text(
+        "name: zs\ngraphs: [tiny.graphml, other.graphml]\nseeds: [0, 1]\nepisodes: 1\nmax_cycles: 20\n"
+        "n_agents: 2\nconfig: config.yml\nvariants:\n"
+        "  transfer: {train_env: 'family:er', timesteps: 32}\n  random: {kind: baseline, policy: random}\n"
+    )
+    experiment = load_experiment(tmp_path / "zero_shot.yml")
+    experiment = experiment.with_graphs([str(tmp_path / "tiny.graphml"), str(tmp_path / "other.graphml")])
+    trained = []
+    original = runner_module._train
+
+    def counting_train(cell, variant, folder):
+        trained.append((cell.seed, Path(folder).relative_to(tmp_path / "out").as_posix()))
+        return original(cell, variant, folder)
+
+    monkeypatch.setattr(runner_module, "_train", counting_train)
+    reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    assert sorted(trained) == [
+        (0, "trained/transfer/family-er/seed0"),
+        (1, "trained/transfer/family-er/seed1"),
+    ]
+    from sb3_pm.agents.team import IndependentPPO
+
+    team = IndependentPPO.load(tmp_path / "out" / "trained" / "transfer" / "family-er" / "seed0" / "team")
+    assert team.graph.name == "family:er" and team.num_timesteps == 32  # the variant's own budget
+    results = json.loads((tmp_path / "out" / "results.json").read_text())["results"]
+    graphs = sorted(r["config"]["graph"] for r in results["transfer"])
+    assert graphs == ["other", "other", "tiny", "tiny"]  # every seed's one team on both graphs
+    # Resuming trains nothing again.
+    trained.clear()
+    for cell in plan_cells(experiment, tmp_path / "out"):
+        (Path(cell.folder) / "DONE").unlink()
+    reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    assert trained == []

@@ -28,7 +28,7 @@ from sb3_pm.agents.saved_teams import (
     write_manifest,
 )
 from sb3_pm.errors import InputError
-from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
+from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
 from sb3_pm.team_interface import Team
 
 #: DCBFConfig field -> the DCBF policy's keyword for it (where they differ).
@@ -46,7 +46,8 @@ class LearnedTeam(Team):
     MANIFEST_FORMAT: ClassVar[str]
     omniscient = False
 
-    graph: GraphSpec
+    #: The graph the team was built for, or the family of graphs it trains on.
+    graph: GraphSpec | GraphFamily
     n_agents: int
     n_envs: int
     seed: int
@@ -57,7 +58,7 @@ class LearnedTeam(Team):
 
     def _set_problem(
         self,
-        graph: GraphLike,
+        graph: GraphLike | GraphFamily,
         n_agents: int,
         n_envs: int,
         seed: int,
@@ -66,7 +67,7 @@ class LearnedTeam(Team):
         env_kwargs: Mapping[str, Any] | None,
     ) -> None:
         """Resolve and check what the team is built for (raises :class:`InputError` naming a bad value)."""
-        self.graph = resolve_graph(graph)
+        self.graph = resolve_graph_or_family(graph)
         if n_agents < 1:
             raise InputError(f"n_agents must be at least 1, got {n_agents}")
         if n_envs < 1:
@@ -84,7 +85,7 @@ class LearnedTeam(Team):
                 )
 
     @classmethod
-    def from_config(cls, config: Any, graph: GraphLike, seed: int = 0, **kwargs: Any) -> Any:
+    def from_config(cls, config: Any, graph: GraphLike | GraphFamily, seed: int = 0, **kwargs: Any) -> Any:
         """A team from a :class:`~sb3_pm.zoo.config.TrainConfig` (an entry of ``zoo/ippo.yml``).
 
         :param kwargs: further constructor arguments (``tensorboard_log``, ``verbose`` ...),
@@ -107,7 +108,12 @@ class LearnedTeam(Team):
         """
         super().reset(env, seed)
         other = getattr(getattr(env, "unwrapped", env), "graph", None)
-        if isinstance(other, GraphSpec):
+        if isinstance(self.graph, GraphFamily) and isinstance(other, GraphSpec):
+            raise InputError(
+                f"the team was trained on the graph family {self.graph.name!r}; deploy it on graph "
+                f"{other.name!r} with team.on_graph(graph) (observations of that graph's size)"
+            )
+        if isinstance(other, GraphSpec) and isinstance(self.graph, GraphSpec):
             check_same_graph(self.graph, other)
         if seed is not None:
             th.manual_seed(seed)
@@ -183,7 +189,7 @@ class LearnedTeam(Team):
     @classmethod
     def open_saved(
         cls, path: str | Path, graph: GraphLike | None, files: Any
-    ) -> tuple[Path, dict[str, Any], GraphSpec]:
+    ) -> tuple[Path, dict[str, Any], GraphSpec | GraphFamily]:
         """The folder, manifest and graph of a saved team of this kind, every model file checked present.
 
         :param path: a saved team, or a run folder of ``sb3-pm train`` holding it in ``team/``.

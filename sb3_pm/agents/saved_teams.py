@@ -5,7 +5,8 @@ A saved team is a folder::
     team/
       manifest.json     format, graph name + fingerprint, n_agents, env kwargs, algo, versions
       <model>.zip ...   SB3 zips (one per agent for IndependentPPO, one shared for CentralizedPPO)
-      graph.graphml     only for graphs that are not presets
+      graph.graphml     only for graphs that are not presets (a team trained on a graph family
+                        records the family's parameters in the manifest instead)
 
 Every file is written to a temporary name and renamed; the manifest goes last, so a folder with a
 manifest holds a whole team.
@@ -28,7 +29,15 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_pm.errors import InputError
 from sb3_pm.files import write_atomic
-from sb3_pm.graphs import PRESETS, GraphLike, GraphSpec, resolve_graph, save_graphml
+from sb3_pm.graphs import (
+    PRESETS,
+    GraphFamily,
+    GraphLike,
+    GraphSpec,
+    family_from_record,
+    resolve_graph,
+    save_graphml,
+)
 
 MANIFEST = "manifest.json"
 
@@ -75,8 +84,15 @@ def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
     }
 
 
-def graph_record(graph: GraphSpec) -> dict[str, Any]:
-    """How a saved team's manifest names its graph."""
+def graph_record(graph: GraphSpec | GraphFamily) -> dict[str, Any]:
+    """How a saved team's manifest names its graph (or the family it was trained on)."""
+    if isinstance(graph, GraphFamily):
+        return {
+            "name": graph.name,
+            "fingerprint": graph.fingerprint,
+            "n_nodes": graph.max_nodes,
+            "family": graph.record(),
+        }
     return {
         "name": graph.name,
         "fingerprint": graph.fingerprint,
@@ -85,8 +101,11 @@ def graph_record(graph: GraphSpec) -> dict[str, Any]:
     }
 
 
-def save_graph_copy(graph: GraphSpec, folder: Path) -> None:
-    """Keep a GraphML copy next to a saved team, unless the graph is a preset (rebuilt by name)."""
+def save_graph_copy(graph: GraphSpec | GraphFamily, folder: Path) -> None:
+    """Keep a GraphML copy next to a saved team, unless the graph is a preset (rebuilt by name) or
+    a family (rebuilt from the manifest's record)."""
+    if isinstance(graph, GraphFamily):
+        return
     if not (graph.name in PRESETS and resolve_graph(graph.name).same_problem(graph)):
         save_graphml(graph, folder / "graph.graphml", overwrite=True)
 
@@ -135,12 +154,22 @@ def read_manifest(folder: Path) -> dict[str, Any]:
         raise InputError(f"{path} is not valid JSON: {error}") from error
 
 
-def graph_for_saved_team(folder: Path, manifest: Mapping[str, Any], graph: GraphLike | None) -> GraphSpec:
-    """The graph to run a saved team on: ``graph`` if given, else the saved copy or preset.
+def graph_for_saved_team(
+    folder: Path, manifest: Mapping[str, Any], graph: GraphLike | None
+) -> GraphSpec | GraphFamily:
+    """The graph to run a saved team on: ``graph`` if given, else the saved copy or preset (or, for
+    a team trained on a graph family, that family).
 
     :raises ValueError: if it is not the problem the team was trained on (naming both graphs).
     """
     saved = manifest["graph"]
+    if "family" in saved:
+        if graph is not None:
+            raise InputError(
+                f"the team in {folder} was trained on the graph family {saved['name']!r}; load it "
+                "without a graph, then deploy it on one with on_graph() (sb3-pm evaluate --graph does)"
+            )
+        return family_from_record(saved["family"])
     if graph is None:
         graph_file = folder / "graph.graphml"
         spec = resolve_graph(graph_file if graph_file.exists() else saved["name"])

@@ -55,7 +55,7 @@ from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
 from sb3_pm.agents.transfer import on_graph
 from sb3_pm.errors import InputError
-from sb3_pm.graphs import GraphLike
+from sb3_pm.graphs import GraphFamily, GraphLike
 from sb3_pm.team_interface import Observation, Team
 from sb3_pm.zoo.registry import uses_masks
 
@@ -68,7 +68,9 @@ DEFAULT_WAIT_TIMEOUT = 1800.0
 class IndependentPPO(LearnedTeam):
     """A team of independent PPO-style learners on one persistent-monitoring graph.
 
-    :param graph: a preset name, a ``.graphml`` path or a :class:`GraphSpec`.
+    :param graph: a preset name, a ``.graphml`` path or a :class:`GraphSpec`; or a graph family
+        (``"family:er"``, a :class:`~sb3_pm.graphs.GraphFamily`) to train on a new graph every
+        episode, deployed afterwards on any graph with :meth:`on_graph`.
     :param n_agents: team size.
     :param env_kwargs: keyword arguments of :func:`sb3_pm.envs.persistent_monitoring_v0.parallel_env`
         (not ``graph``/``n_agents``). An algorithm without action masks (``ppo``) gets
@@ -102,7 +104,7 @@ class IndependentPPO(LearnedTeam):
 
     def __init__(
         self,
-        graph: GraphLike,
+        graph: GraphLike | GraphFamily,
         n_agents: int = 4,
         env_kwargs: Mapping[str, Any] | None = None,
         algo: str | type | None = None,

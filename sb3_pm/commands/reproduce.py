@@ -111,7 +111,9 @@ def run(args: argparse.Namespace) -> int:
     if args.timesteps is not None:
         if args.timesteps < 1:
             raise UsageError(f"--timesteps must be at least 1, got {args.timesteps}")
-        experiment = replace(experiment, timesteps=args.timesteps)
+        # Every learned variant's budget, its own included (a variant's ``timesteps`` key).
+        variants = tuple(replace(v, timesteps=None) for v in experiment.variants)
+        experiment = replace(experiment, timesteps=args.timesteps, variants=variants)
     for graph in experiment.graphs:
         resolve_graph(graph)  # every graph checked before hours of training start
     if args.jobs is not None and args.jobs < 1:

@@ -61,8 +61,10 @@ def register(subparsers: Any) -> None:
         "--env",
         default=None,
         help="a preset (paper-50/100/200: the paper's published graphs; er-50/100/200: seeded "
-        "Erdős–Rényi draws; rgg-60, rooms-4, cliques-6x8, karate: other structures) or a .graphml "
-        "path (default paper-50)",
+        "Erdős–Rényi draws; rgg-60, rooms-4, cliques-6x8, karate: other structures), a .graphml "
+        "path, or a graph family that draws a new graph each episode (family:er, family:rgg, "
+        "family:rooms, family:mixed, or family:FOLDER of .graphml files). Default: the config's "
+        "env, else paper-50",
     )
     parser.add_argument(
         "--seed", type=int, default=None, help="seeds the env copies and every learner (default 0)"
@@ -147,13 +149,14 @@ def check_run_folder(out: Path, overwrite: bool) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from sb3_pm.errors import UsageError
-    from sb3_pm.graphs import graph_label, resolve_graph
+    from sb3_pm.graphs import GraphFamily, graph_label, resolve_graph_or_family
     from sb3_pm.zoo import load_config
+    from sb3_pm.zoo.config import default_env
 
     if args.resume is not None:
         return resume(args)
     args.config = args.config or "ippo"
-    args.env = args.env or "paper-50"
+    args.env = args.env or default_env(args.config) or "paper-50"
     args.seed = 0 if args.seed is None else args.seed
     if args.checkpoint_every is None:
         args.checkpoint_every = DEFAULT_CHECKPOINT_EVERY
@@ -165,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--seed must be at least 0, got {args.seed}")
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every must be at least 0, got {args.checkpoint_every}")
-    graph = resolve_graph(args.env)
+    graph = resolve_graph_or_family(args.env)
     overrides = parse_overrides(args.hyperparams, "--hyperparams")
     env_overrides = parse_overrides(args.env_kwargs, "--env-kwargs")
     if env_overrides:
@@ -200,9 +203,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         with locked_run_folder(out, args.overwrite):
             _write_records(args, config, out)
+            size = (
+                f"a new graph each episode, up to {graph.n_nodes} nodes"
+                if isinstance(graph, GraphFamily)
+                else f"{graph.n_nodes} nodes, {graph.n_targets} targets"
+            )
             print(
-                f"training {config.n_agents} x {config.algo} on {graph.name} "
-                f"({graph.n_nodes} nodes, {graph.n_targets} targets), "
+                f"training {config.n_agents} x {config.algo} on {graph.name} ({size}), "
                 f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
             )
             return _learn_and_save(team, config.n_timesteps, args, out, args.checkpoint_every, args.env)
@@ -316,6 +323,8 @@ def _learn_and_save(
         return 130
     folder = team.save(out / "team")
     print(f"team saved to {folder}")
+    if graph.startswith("family:"):  # trained on no one graph: it is deployed on any
+        graph = "paper-50"
     print(f"evaluate it with: sb3-pm evaluate --policy {out} --graph {graph}")
     return 0
 
@@ -347,7 +356,9 @@ def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
     }
     recorded["out"] = str(out)
     write_atomic(out / "args.yml", yaml.safe_dump(recorded, sort_keys=True))
-    resolved = {"env": str(args.env), "entry": config.entry, "source": config.source, **config.to_dict()}
+    entry = config.to_dict()
+    entry.pop("env", None)  # the graph or family trained on is the run's (--env or the config's)
+    resolved = {"env": str(args.env), "entry": config.entry, "source": config.source, **entry}
     write_atomic(out / "config.yml", yaml.safe_dump(resolved, sort_keys=False))
     # The equivalent command (with every setting made explicit), to rerun this exact training.
     write_atomic(out / "command.txt", shlex.join(["sb3-pm", "train", *_argv_from(args, out)]) + "\n")

@@ -16,7 +16,11 @@ Arguments
 graph (``"paper-50"``)
     A preset name (``paper-50``, ``paper-100``, ``paper-200``: the paper's published graphs;
     ``er-50``, ``er-100``, ``er-200``: seeded Erdős–Rényi draws), a ``.graphml`` path, or a
-    :class:`~sb3_pm.graphs.GraphSpec`.
+    :class:`~sb3_pm.graphs.GraphSpec`. Or a graph *family* (``"family:er"``, ``"family:FOLDER"``
+    or a :class:`~sb3_pm.graphs.distributions.GraphFamily`): every reset then draws the episode's
+    graph from the reset seed's generator, every mental map starts empty on it, and observations
+    are padded to the family's ``max_nodes`` (padding nodes: zero features, no edges, never in the
+    action mask). Needs ``observation="map"``.
 n_agents (``4``)
     Team size, at most the number of nodes. Agents are named ``agent_0 ... agent_{n-1}``.
 max_cycles (``500``)
@@ -114,7 +118,8 @@ from sb3_pm.envs.mental_map import FEATURES, MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
 from sb3_pm.errors import InputError
-from sb3_pm.graphs import GraphLike, resolve_graph
+from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
+from sb3_pm.graphs.distributions import GraphFamily, is_family_name, resolve_family
 
 OBSERVATION_MODES = ("map", "local")
 INITIAL_UNCERTAINTY = ("zero", "random")
@@ -133,7 +138,7 @@ class PersistentMonitoringEnv(ParallelEnv):
 
     def __init__(
         self,
-        graph: GraphLike = "paper-50",
+        graph: GraphLike | GraphFamily = "paper-50",
         n_agents: int = 4,
         max_cycles: int = 500,
         u_max: int = 100,
@@ -150,6 +155,18 @@ class PersistentMonitoringEnv(ParallelEnv):
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
+        #: The family each reset draws a graph from (``None``: one fixed graph).
+        self.family: GraphFamily | None = None
+        if isinstance(graph, GraphFamily) or (isinstance(graph, str) and is_family_name(graph)):
+            self.family = resolve_family(graph)
+            # A placeholder until the first reset draws the episode's graph from the seeded generator.
+            graph = self.family.draw(np.random.default_rng(0))
+            if initial_positions is not None:
+                raise InputError(
+                    "initial_positions cannot be given with a graph family (each episode's graph differs)"
+                )
+            if observation != "map":
+                raise InputError("a graph family needs observation='map' (padded mental maps)")
         self.graph = resolve_graph(graph)
         if max_cycles < 1:
             raise InputError(f"max_cycles must be at least 1, got {max_cycles}")
@@ -167,7 +184,6 @@ class PersistentMonitoringEnv(ParallelEnv):
             raise InputError(
                 f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
             )
-        self.core = MonitoringCore(self.graph, n_agents, u_max)
         n_nodes = self.graph.n_nodes
         if initial_positions is not None:
             initial_positions = [int(p) for p in initial_positions]
@@ -199,29 +215,44 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._active = np.ones(n_agents, dtype=bool)
         self.agent_name_mapping = {name: i for i, name in enumerate(self.possible_agents)}
 
-        hops = self.graph.hop_distances
-        self._observes = hops <= self.obs_radius  # (N, N): node j is seen from node i
-        self._edge_nodes = hops <= self.obs_radius - 1  # incident edges of these are seen
-        self._reachable_i8 = self.graph.reachable.astype(np.int8)
-        self._targets = self.graph.targets
-        self.maps = MentalMaps(n_agents, self.graph.adjacency, graph_knowledge)
-        self.maps.track_uncertainty_sum = "change" in self.reward_weights
         self.rewards_computer = RewardComputer(self.reward_weights, n_agents, self.u_max)
-        self.metrics = EpisodeMetrics(self.graph.target_indices, self.u_max, self.max_cycles, n_agents)
-        self.metrics.track_failures = bool(self.failures) or self.failure_rate > 0
+        self._renderer: Any = None
+        self._use_graph(self.graph)
         self._rng = np.random.default_rng()
         self._step_count = 0
         self._dwell = np.zeros(n_agents, dtype=np.int64)
-        self._last_outcome_counts = np.zeros(n_nodes, dtype=np.int64)
-        self._renderer: Any = None
 
+        #: Nodes of the observation and action spaces: the graph's, or a family's largest graph.
+        self.space_nodes = self.family.max_nodes if self.family is not None else n_nodes
         self._observation_space = self._build_observation_space()
-        self._action_space = spaces.Discrete(n_nodes)
+        self._action_space = spaces.Discrete(self.space_nodes)
+
+    def _use_graph(self, graph: GraphSpec) -> None:
+        """Build everything that depends on the graph: the dynamics, fresh mental maps (a new graph
+        is unknown to every agent) and the metrics."""
+        self.graph = graph
+        self.core = MonitoringCore(graph, self.n_agents, self.u_max)
+        hops = graph.hop_distances
+        self._observes = hops <= self.obs_radius  # (N, N): node j is seen from node i
+        self._edge_nodes = hops <= self.obs_radius - 1  # incident edges of these are seen
+        self._reachable_i8 = graph.reachable.astype(np.int8)
+        self._targets = graph.targets
+        self.maps = MentalMaps(self.n_agents, graph.adjacency, self.graph_knowledge)
+        self.maps.track_uncertainty_sum = "change" in self.reward_weights
+        self.metrics = EpisodeMetrics(graph.target_indices, self.u_max, self.max_cycles, self.n_agents)
+        self.metrics.track_failures = bool(self.failures) or self.failure_rate > 0
+        self._last_outcome_counts = np.zeros(graph.n_nodes, dtype=np.int64)
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Unpickle, giving attributes added in later versions their defaults (a checkpoint's env
         copies written before agent failures existed resume as envs without failures)."""
         self.__dict__.update(state)
+        if "family" not in state:  # written before graph families existed
+            self.family = None
+            self.space_nodes = self.graph.n_nodes
         if "_active" not in state:
             self.failures, self.failure_rate = {}, 0.0
             self._fail_at = np.full(self.n_agents, self.max_cycles + 1, dtype=np.int64)
@@ -249,7 +280,7 @@ class PersistentMonitoringEnv(ParallelEnv):
 
     # --------------------------------------------------------------- spaces
     def _build_observation_space(self) -> spaces.Dict:
-        n = self.graph.n_nodes
+        n = self.space_nodes
         mask = spaces.Box(0, 1, shape=(n,), dtype=np.int8)
         if self.observation_mode == "map":
             high = np.ones((n, len(FEATURES)), dtype=np.float32)
@@ -308,7 +339,11 @@ class PersistentMonitoringEnv(ParallelEnv):
             self._rng = np.random.default_rng(seed)
         options = options or {}
         # Other keys are ignored, as PettingZoo expects (its API test passes arbitrary options).
-        if options.get("new_lifetime"):
+        if self.family is not None:
+            # Every episode on a new graph, drawn first so the sequence of graphs flows from the seed.
+            self._use_graph(self.family.draw(self._rng))
+            self.rewards_computer.forget_history()
+        elif options.get("new_lifetime"):
             # Agents that have never lived: no discovered edges, no past episodes for `change`.
             self.maps.forget_edges()
             self.rewards_computer.forget_history()
@@ -457,10 +492,15 @@ class PersistentMonitoringEnv(ParallelEnv):
         if self.observation_mode == "map":
             nodes = self.maps.features  # a fresh array; rows handed out as views
             dwell = self._dwell.astype(np.float32)[:, None]
+            adjacency: Sequence[np.ndarray] | np.ndarray = [
+                self.maps.adjacency_observation(i) for i in range(self.n_agents)
+            ]
+            if self.space_nodes > self.graph.n_nodes:
+                nodes, adjacency, masks = self._padded(nodes, adjacency, masks)
             return {
                 agent: {
                     "nodes": nodes[i],
-                    "adjacency": self.maps.adjacency_observation(i),
+                    "adjacency": adjacency[i],
                     "position": int(positions[i]),
                     "dwell": dwell[i],
                     "action_mask": masks[i],
@@ -468,6 +508,28 @@ class PersistentMonitoringEnv(ParallelEnv):
                 for i, agent in enumerate(self.possible_agents)
             }
         return {agent: self._local_observation(i, masks[i]) for i, agent in enumerate(self.possible_agents)}
+
+    def _padded(
+        self, nodes: np.ndarray, adjacency: Sequence[np.ndarray] | np.ndarray, masks: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Map observations padded from the graph's N nodes to the space's M.
+
+        A padding node has zero features, no edge and is never reachable: to the agent it looks
+        like a node it has not discovered, and since it has no edge the GAT passes nothing from it
+        to a real node, so the actor's logits on real nodes do not depend on the padding.
+
+        Shapes: nodes ``(n_agents, N, 5)`` -> ``(n_agents, M, 5)``; adjacency ``n_agents x (N, N)``
+        -> ``(n_agents, M, M)``; masks ``(n_agents, N)`` -> ``(n_agents, M)``.
+        """
+        n, m = self.graph.n_nodes, self.space_nodes
+        padded_nodes = np.zeros((self.n_agents, m, nodes.shape[-1]), dtype=nodes.dtype)
+        padded_nodes[:, :n] = nodes
+        padded_adjacency = np.zeros((self.n_agents, m, m), dtype=np.int8)
+        for i, known in enumerate(adjacency):
+            padded_adjacency[i, :n, :n] = known
+        padded_masks = np.zeros((self.n_agents, m), dtype=np.int8)
+        padded_masks[:, :n] = masks
+        return padded_nodes, padded_adjacency, padded_masks
 
     def _local_observation(self, i: int, mask: np.ndarray) -> dict[str, Any]:
         """The raw observation of agent ``i`` (no memory): its ball of radius ``obs_radius``."""

@@ -11,6 +11,9 @@ Layout of the output folder::
                                 sweep stopped during evaluation resumes without retraining
           tb/                   TensorBoard logs of its training
           evaluation.json       the cell's evaluation (EvaluationResult.to_dict())
+      trained/<variant>/<train_env>/seed<k>/team/
+                                the one team of a ``train_env`` variant and seed, trained before
+                                the cells (one job each) and deployed zero-shot on every graph
           DONE                  written last, with the checksum of the cell's files: a cell with
                                 a sound DONE is never run again, a damaged one runs again
       results.md results.csv results.tex anova.txt by_graph.md effects.md results.json
@@ -69,6 +72,8 @@ class Cell:
     #: torch device of a learned team; not part of the experiment record (results do not depend
     #: on where they ran, up to floating point).
     device: str = "cpu"
+    #: Where a ``train_env`` variant's team is trained (shared by its cells on every graph).
+    team_folder: str | None = None
 
     @property
     def done(self) -> bool:
@@ -79,12 +84,19 @@ def cell_folder(out: Path, variant: Variant, graph: str, seed: int) -> Path:
     return out / "cells" / variant.key / graph_label(graph) / f"seed{seed}"
 
 
+def training_folder(out: Path, variant: Variant, seed: int) -> Path:
+    """Where a ``train_env`` variant trains its one team per seed."""
+    assert variant.train_env is not None
+    return out / "trained" / variant.key / graph_label(variant.train_env) / f"seed{seed}"
+
+
 def plan_cells(experiment: Experiment, out: Path, device: str = "cpu") -> list[Cell]:
     """Every cell of the grid, in table order."""
     cells = []
     for variant in experiment.variants:
         for graph in experiment.graphs:
             for seed in experiment.seeds:
+                shared = None if variant.train_env is None else str(training_folder(out, variant, seed))
                 cells.append(
                     Cell(
                         variant=asdict(variant),
@@ -100,9 +112,32 @@ def plan_cells(experiment: Experiment, out: Path, device: str = "cpu") -> list[C
                         hyperparams=dict(experiment.hyperparams),
                         eval_env_kwargs=dict(experiment.eval_env_kwargs),
                         device=device,
+                        team_folder=shared,
                     )
                 )
     return cells
+
+
+def training_jobs(cells: list[Cell]) -> list[Cell]:
+    """One cell per ``train_env`` variant and seed whose shared team is not saved yet (the job that
+    trains it; its other fields are the first such cell's)."""
+    jobs: dict[str, Cell] = {}
+    for cell in cells:
+        if cell.team_folder is not None and not (Path(cell.team_folder) / "team" / "manifest.json").exists():
+            jobs.setdefault(cell.team_folder, cell)
+    return list(jobs.values())
+
+
+def train_shared_team(cell: Cell) -> str:
+    """Train (or resume) and save the shared team of a ``train_env`` cell; returns its folder."""
+    import torch
+
+    torch.set_num_threads(1)
+    assert cell.team_folder is not None
+    folder = Path(cell.team_folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    _train(cell, Variant(**cell.variant), folder)
+    return str(folder)
 
 
 def cell_config(cell: Cell, variant: Variant) -> Any:
@@ -112,7 +147,7 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
 
     source = variant.config or cell.config
     assert source is not None
-    config = load_config(source, cell.graph)
+    config = load_config(source, variant.train_env or cell.graph)
     config.hyperparams.update({**cell.hyperparams, **variant.hyperparams})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
     if variant.policy_kwargs:
@@ -128,17 +163,18 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
 def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
     """Train the learned team of a cell and save it to ``folder/team``."""
     config = cell_config(cell, variant)
-    timesteps = cell.timesteps or config.n_timesteps
+    timesteps = variant.timesteps or cell.timesteps or config.n_timesteps
     from sb3_pm.agents.checkpoints import CHECKPOINTS
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.sharing.centralized import CentralizedPPO
 
     team_class: Any = CentralizedPPO if variant.kind == "centralized" else IndependentPPO
+    graph = variant.train_env or cell.graph
     if variant.train and team_class is IndependentPPO:
-        team = _train_with_checkpoints(cell, config, timesteps, folder)
+        team = _train_with_checkpoints(cell, config, timesteps, folder, graph)
     else:
         team = team_class.from_config(
-            config, cell.graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
+            config, graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
         )
         if variant.train:
             team.learn(timesteps)
@@ -151,7 +187,7 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
 CELL_CHECKPOINT_EVERY = 10
 
 
-def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Path) -> Any:
+def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Path, graph: str) -> Any:
     """Train a decentralized cell with checkpoints in ``folder/checkpoints``, continuing from the
     newest one a stopped sweep left there (bit for bit, so a resumed sweep loses no training)."""
     from sb3_pm.agents.checkpoints import CHECKPOINTS, CheckpointError, CheckpointSchedule
@@ -172,7 +208,7 @@ def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Pat
             aside = move_aside(folder / CHECKPOINTS)
             print(f"warning: the checkpoints of {folder} are another run's; kept as {aside}", file=sys.stderr)
     team = IndependentPPO.from_config(
-        config, cell.graph, seed=cell.seed, tensorboard_log=tensorboard_log, device=cell.device
+        config, graph, seed=cell.seed, tensorboard_log=tensorboard_log, device=cell.device
     )
     team.learn(timesteps, checkpoints=schedule)
     return team
@@ -204,7 +240,7 @@ def schedule(cells: list[Cell]) -> list[Cell]:
     sizes = {graph: resolve_graph(graph).n_nodes for graph in {cell.graph for cell in cells}}
 
     def cost(cell: Cell) -> tuple[bool, int]:
-        return Variant(**cell.variant).learned, sizes[cell.graph]
+        return Variant(**cell.variant).learned and cell.team_folder is None, sizes[cell.graph]
 
     return sorted(cells, key=cost, reverse=True)  # stable: table order within equal costs
 
@@ -220,7 +256,12 @@ def run_cell(cell: Cell) -> dict[str, Any]:
     folder.mkdir(parents=True, exist_ok=True)
     variant = Variant(**cell.variant)
     started = time.time()
-    if variant.learned:
+    if cell.team_folder is not None:  # trained once on train_env, deployed here zero-shot
+        from sb3_pm.evaluation.teams import load_trained_team
+
+        team = load_trained_team(Path(cell.team_folder) / "team", graph=cell.graph, device=cell.device)
+        env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}  # type: ignore[attr-defined]
+    elif variant.learned:
         team = _load_finished_team(folder / "team", cell.device) or _train(cell, variant, folder)
         env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}
     else:
@@ -277,6 +318,10 @@ def reproduce(
         if damage is not None:
             print(f"warning: finished cell is damaged, running it again: {damage}", file=sys.stderr)
     todo = schedule([cell for cell in cells if not cell.done])
+    jobs = training_jobs(todo)
+    if jobs:  # the shared teams first: the cells that deploy them wait for them
+        print(f"{experiment.name}: training {len(jobs)} shared team(s) (train_env variants) before the cells")
+        run_jobs(train_shared_team, jobs, backend=backend, n_jobs=n_jobs, ray_address=ray_address)
     bar = None
     if progress and todo:
         from sb3_pm.progress import progress_bar
@@ -307,7 +352,7 @@ def reproduce(
 
 
 #: Variant fields left out of the record when they hold these defaults.
-_RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None}
+_RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None, "train_env": None, "timesteps": None}
 
 
 def experiment_record(experiment: Experiment) -> dict[str, Any]:

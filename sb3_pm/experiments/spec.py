@@ -28,7 +28,10 @@ builds the team and evaluates its *initial* policy without training it: the cont
 much of a learned row comes from training rather than from the DCBF filter around an untrained
 actor), ``config`` (learned variants: another team config to start from, relative to this file,
 instead of the experiment's; the variant's overrides then merge over that one), ``label`` (the name
-in tables; defaults to the key).
+in tables; defaults to the key), ``train_env`` (independent variants: train once per seed on this
+graph or graph family, e.g. ``family:er``, and evaluate that one team zero-shot on every graph of the
+experiment, instead of training on each graph), ``timesteps`` (learned variants: this variant's
+budget per learner, instead of the experiment's).
 """
 
 from __future__ import annotations
@@ -58,7 +61,18 @@ _TOP_KEYS = {
     "eval_env_kwargs",
     "hyperparams",
 }
-_VARIANT_KEYS = {"kind", "policy", "policy_kwargs", "hyperparams", "env_kwargs", "label", "train", "config"}
+_VARIANT_KEYS = {
+    "kind",
+    "policy",
+    "policy_kwargs",
+    "hyperparams",
+    "env_kwargs",
+    "label",
+    "train",
+    "config",
+    "train_env",
+    "timesteps",
+}
 
 
 class ExperimentError(InputError):
@@ -78,6 +92,10 @@ class Variant:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     train: bool = True
     config: str | None = None
+    #: Train once per seed on this graph or family and evaluate that team on every graph.
+    train_env: str | None = None
+    #: This variant's budget per learner (``None``: the experiment's).
+    timesteps: int | None = None
 
     @property
     def learned(self) -> bool:
@@ -107,7 +125,10 @@ class Experiment:
 
     def quick(self) -> Experiment:
         """The ``--quick`` version: smaller budgets for smoke tests (its numbers are not results)."""
-        return replace(self, **_coerce_top(self.quick_overrides, self.source, base=self.source))
+        overrides = _coerce_top(self.quick_overrides, self.source, base=self.source)
+        if "timesteps" in overrides:  # the smoke-test budget wins over every variant's own
+            overrides["variants"] = tuple(replace(v, timesteps=None) for v in self.variants)
+        return replace(self, **overrides)
 
     def with_graphs(self, graphs: list[str]) -> Experiment:
         return replace(self, graphs=tuple(graphs))
@@ -185,6 +206,24 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(
                 path, f"variant {key!r}: training config not found: {path.parent / str(variant_config)}"
             )
+        train_env = settings.get("train_env")
+        if train_env is not None:
+            if kind != "independent":
+                raise _fail(path, f"variant {key!r}: 'train_env' applies to independent variants only")
+            from sb3_pm.graphs import resolve_graph_or_family
+
+            try:
+                resolve_graph_or_family(str(train_env))
+            except (InputError, FileNotFoundError) as error:
+                raise _fail(path, f"variant {key!r}: train_env: {error}") from None
+        timesteps = settings.get("timesteps")
+        if timesteps is not None and (
+            kind == "baseline"
+            or isinstance(timesteps, bool)
+            or not isinstance(timesteps, int)
+            or timesteps < 1
+        ):
+            raise _fail(path, f"variant {key!r}: 'timesteps' must be a positive integer of a learned variant")
         variants.append(
             Variant(
                 key=str(key),
@@ -196,6 +235,8 @@ def load_experiment(path: str | Path) -> Experiment:
                 env_kwargs=dict(settings.get("env_kwargs", {})),
                 train=train,
                 config=None if variant_config is None else str(path.parent / str(variant_config)),
+                train_env=None if train_env is None else str(train_env),
+                timesteps=timesteps,
             )
         )
     config = raw.get("config")

@@ -1,21 +1,26 @@
-"""Graphs for persistent monitoring: one immutable :class:`GraphSpec`, its generators and GraphML I/O."""
+"""Graphs for persistent monitoring: one immutable :class:`GraphSpec`, its generators, GraphML I/O
+and seeded graph families to train on (:mod:`sb3_pm.graphs.distributions`)."""
 
+from sb3_pm.graphs.distributions import FAMILY_NAMES, GraphFamily, family_from_record, resolve_family
 from sb3_pm.graphs.families import from_networkx, random_geometric, ring_of_cliques, rooms
 from sb3_pm.graphs.generators import erdos_renyi, hyperrectangle
 from sb3_pm.graphs.io import load_graphml, save_graphml
 from sb3_pm.graphs.presets import ER_PRESETS, FAMILY_PRESETS, PRESETS, PUBLISHED, preset, published_graph_path
-from sb3_pm.graphs.resolve import GraphLike, graph_label, resolve_graph
+from sb3_pm.graphs.resolve import GraphLike, graph_label, resolve_graph, resolve_graph_or_family
 from sb3_pm.graphs.spec import GraphError, GraphSpec
 
 __all__ = [
     "ER_PRESETS",
+    "FAMILY_NAMES",
     "FAMILY_PRESETS",
     "PRESETS",
     "PUBLISHED",
     "GraphError",
+    "GraphFamily",
     "GraphLike",
     "GraphSpec",
     "erdos_renyi",
+    "family_from_record",
     "from_networkx",
     "graph_label",
     "hyperrectangle",
@@ -23,7 +28,9 @@ __all__ = [
     "preset",
     "published_graph_path",
     "random_geometric",
+    "resolve_family",
     "resolve_graph",
+    "resolve_graph_or_family",
     "ring_of_cliques",
     "rooms",
     "save_graphml",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sb3_pm.graphs.distributions import GraphFamily, is_family_name, resolve_family
 from sb3_pm.graphs.io import load_graphml
 from sb3_pm.graphs.presets import PRESETS, preset
 from sb3_pm.graphs.spec import GraphError, GraphSpec
@@ -33,9 +34,19 @@ def resolve_graph(graph: GraphLike) -> GraphSpec:
     )
 
 
-def graph_label(graph: GraphLike) -> str:
-    """A short name for reports: the preset name or the file's stem."""
-    if isinstance(graph, GraphSpec):
-        return graph.name
+def resolve_graph_or_family(graph: GraphLike | GraphFamily) -> GraphSpec | GraphFamily:
+    """:func:`resolve_graph`, or a graph family for ``family:...`` values and
+    :class:`~sb3_pm.graphs.distributions.GraphFamily` objects (what training accepts)."""
+    if isinstance(graph, GraphFamily) or (isinstance(graph, str) and is_family_name(graph)):
+        return resolve_family(graph)
+    return resolve_graph(graph)
+
+
+def graph_label(graph: GraphLike | GraphFamily) -> str:
+    """A short name for reports and folders: the preset name, the file's stem, or ``family-NAME``."""
+    if isinstance(graph, (GraphSpec, GraphFamily)):
+        return graph.name.replace(":", "-").replace("/", "-")
     text = str(graph)
+    if is_family_name(text):
+        return "family-" + Path(text.split(":", 1)[1]).name
     return text if text in PRESETS else Path(text).stem

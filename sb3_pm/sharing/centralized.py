@@ -27,7 +27,7 @@ from sb3_pm.agents.learner_callbacks import close_loggers, with_episode_metrics
 from sb3_pm.agents.learners import learn_seed, resolve_hyperparams
 from sb3_pm.agents.saved_teams import load_model_file
 from sb3_pm.errors import InputError
-from sb3_pm.graphs import GraphLike
+from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
 from sb3_pm.team_interface import Observation
 from sb3_pm.zoo.registry import uses_masks
@@ -55,7 +55,7 @@ class CentralizedPPO(LearnedTeam):
 
     def __init__(
         self,
-        graph: GraphLike,
+        graph: GraphLike | GraphFamily,
         n_agents: int = 4,
         env_kwargs: Mapping[str, Any] | None = None,
         algo: str | type | None = None,
@@ -71,6 +71,10 @@ class CentralizedPPO(LearnedTeam):
         self._set_problem(
             graph, n_agents, n_envs, seed, algo, policy, {**dict(env_kwargs or {}), "shared_map": True}
         )
+        if not isinstance(self.graph, GraphSpec):
+            raise InputError(
+                f"CentralizedPPO trains on one graph, not on the graph family {self.graph.name!r}"
+            )
         self.hyperparams = dict(hyperparams or {})
         self.agents = [f"agent_{i}" for i in range(self.n_agents)]
         self.venv = make_parameter_sharing_vec_env(self.graph, self.n_envs, self.n_agents, self.env_kwargs)

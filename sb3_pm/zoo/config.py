@@ -48,7 +48,7 @@ from sb3_pm.zoo.shipped import resolve_config_path
 
 DEFAULT_ENTRY = "default"
 #: Keys that belong to the team, not to one learner's algorithm.
-TEAM_KEYS = ("n_timesteps", "n_envs", "n_agents", "algo", "env_kwargs", "agents")
+TEAM_KEYS = ("n_timesteps", "n_envs", "n_agents", "algo", "env_kwargs", "agents", "env")
 #: Algorithm arguments the team sets itself (never from a config).
 MANAGED_ARGS = {"self", "policy", "env", "seed", "tensorboard_log", "verbose", "device", "_init_setup_model"}
 #: Keys allowed in a per-agent override: learner hyperparameters, but not the team's own keys
@@ -78,6 +78,9 @@ class TrainConfig:
     hyperparams: dict[str, Any] = field(default_factory=dict)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     agents: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The graph or graph family this entry trains on when the command line names none
+    #: (``sb3-pm train`` without ``--env``); ``None``: the default graph.
+    env: str | None = None
 
     def team_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of ``IndependentPPO`` (all but ``graph``, ``seed`` and logging)."""
@@ -104,6 +107,8 @@ class TrainConfig:
         }
         if self.agents:
             data["agents"] = {agent: dict(values) for agent, values in self.agents.items()}
+        if self.env is not None:
+            data["env"] = self.env
         return data
 
 
@@ -302,6 +307,9 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
             f"{where}.env_kwargs: unknown key {unknown_env[0]!r} (not an argument of the environment)"
         )
 
+    train_env = raw.get("env")
+    if train_env is not None and not isinstance(train_env, str):
+        raise ConfigError(f"{where}.env: expected a graph or family name, got {train_env!r}")
     hyperparams = _hyperparams(raw, allowed, where, set(TEAM_KEYS) | {"policy"})
     n_agents = _as_int(raw.get("n_agents", 4), f"{where}.n_agents")
     agents_raw = raw.get("agents") or {}
@@ -334,7 +342,21 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
         hyperparams=hyperparams,
         env_kwargs=dict(env_kwargs),
         agents=agents,
+        env=train_env,
     )
+
+
+def default_env(path: str | Path) -> str | None:
+    """The ``env`` of a config's ``default`` entry: what ``sb3-pm train`` trains on without ``--env``.
+
+    :raises ConfigError: for malformed YAML or an ``env`` that is not a string.
+    """
+    source = str(resolve_config_path(path))
+    entry = read_yaml(source).get(DEFAULT_ENTRY) or {}
+    env = entry.get("env")
+    if env is not None and not isinstance(env, str):
+        raise ConfigError(f"{source}: {DEFAULT_ENTRY}.env: expected a graph or family name, got {env!r}")
+    return env
 
 
 __all__ = [
@@ -342,6 +364,7 @@ __all__ = [
     "ConfigError",
     "TrainConfig",
     "apply_overrides",
+    "default_env",
     "entry_for",
     "load_config",
     "read_yaml",
