@@ -130,11 +130,15 @@ def test_train_without_env_uses_the_configs_graph_family(tiny_train, capsys) -> 
 
     config, _, out = tiny_train
     family_config = config.with_name("family.yml")
-    family_config.write_text(config.read_text().replace("default:\n", "default:\n  env: family:er\n", 1))
+    family_config.write_text(
+        config.read_text()
+        .replace("default:\n", "default:\n  env: family:er\n", 1)
+        .replace("algo: maskable_ppo", "algo: dcbf_ppo\n  policy_kwargs: {laplacian: none, hidden_dim: 8}")
+    )
     argv = ["train", "--config", str(family_config), "--timesteps", "32", "--out", str(out), "--no-progress"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
-    assert "on family:er (a new graph each episode, up to 60 nodes)" in printed
+    assert "on family:er (a new graph each episode, 20 to 60 nodes)" in printed
     assert "sb3-pm evaluate --policy" in printed and "--graph paper-50" in printed
     assert yaml.safe_load((out / "config.yml").read_text())["env"] == "family:er"
     assert "--env family:er" in (out / "command.txt").read_text()
@@ -143,3 +147,13 @@ def test_train_without_env_uses_the_configs_graph_family(tiny_train, capsys) -> 
     # --env still wins over the config's.
     assert main([*argv[:-3], "--out", str(out.with_name("one")), "--env", "karate", "--no-progress"]) == 0
     assert yaml.safe_load((out.with_name("one") / "config.yml").read_text())["env"] == "karate"
+
+
+def test_a_family_run_refuses_what_cannot_transfer_and_a_stray_env_override(tiny_train, capsys) -> None:
+    config, _, out = tiny_train
+    argv = ["train", "--config", str(config), "--env", "family:er", "--out", str(out), "--no-progress"]
+    assert main(argv) == 2  # maskable_ppo's flat MultiInputPolicy reads fixed-size observations
+    assert "must transfer: agent_0's policy (MaskableMultiInputActorCriticPolicy)" in capsys.readouterr().err
+    assert not out.exists()
+    assert main([*argv, "--hyperparams", "env:karate"]) == 2
+    assert "--hyperparams env:... is not read; name the graph or family with --env" in capsys.readouterr().err

@@ -77,12 +77,16 @@ def test_a_family_record_rebuilds_the_same_family(tmp_path: Path) -> None:
     assert families[0].fingerprint != ErdosRenyiFamily().fingerprint
 
 
-def test_a_folder_family_draws_its_files(tmp_path: Path) -> None:
+def test_a_folder_family_draws_its_files(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     save_graphml(path_graph(5, [0]), tmp_path / "a.graphml")
     save_graphml(erdos_renyi(7, 0.5, n_targets=2, seed=1), tmp_path / "b.graphml")
     family = resolve_family(f"family:{tmp_path}")
-    assert family.max_nodes == 7
+    assert (family.min_nodes, family.max_nodes) == (5, 7)
     assert {family.draw(np.random.default_rng(s)).n_nodes for s in range(20)} == {5, 7}
+    # A relative folder is recorded absolute: a saved team finds it from any working directory.
+    monkeypatch.chdir(tmp_path.parent)
+    relative = resolve_family(f"family:{tmp_path.name}")
+    assert relative.record()["folder"] == str(tmp_path.resolve())
 
 
 @pytest.mark.parametrize(
@@ -103,6 +107,12 @@ def test_an_empty_folder_and_bad_ranges_are_refused(tmp_path: Path) -> None:
         FolderFamily(folder=str(tmp_path))
     with pytest.raises(GraphError, match=r"edge_prob must satisfy"):
         ErdosRenyiFamily(edge_prob=(0.5, 0.2))
+    with pytest.raises(GraphError, match=r"n_nodes_range must be a \(low, high\) pair of integers"):
+        ErdosRenyiFamily(n_nodes_range=(10.7, 20.2))  # type: ignore[arg-type]
+    with pytest.raises(GraphError, match=r"edge_prob must be a \(low, high\) pair of numbers"):
+        ErdosRenyiFamily(edge_prob=("a", "b"))  # type: ignore[arg-type]
+    with pytest.raises(GraphError, match=r"degree must satisfy 4.0 <= low"):
+        RandomGeometricFamily(degree=(1, 2))
     with pytest.raises(GraphError, match="unknown graph family kind"):
         family_from_record({"kind": "spiral"})
 
@@ -164,6 +174,17 @@ def test_mental_maps_start_empty_on_each_new_graph() -> None:
 def test_family_options_that_need_one_graph_are_refused() -> None:
     with pytest.raises(InputError, match="initial_positions cannot be given with a graph family"):
         persistent_monitoring_v0.parallel_env(graph=SMALL, n_agents=2, initial_positions=[0, 1])
+    env = persistent_monitoring_v0.parallel_env(graph=SMALL, n_agents=2)
+    with pytest.raises(InputError, match="initial_positions cannot be given with a graph family"):
+        env.reset(seed=0, options={"initial_positions": [0, 1]})
+    with pytest.raises(
+        InputError, match="9 agents do not fit the graph family 'small-er': its smallest graph has 8"
+    ):
+        persistent_monitoring_v0.parallel_env(graph=SMALL, n_agents=9)
+    from sb3_pm.graphs import resolve_graph
+
+    with pytest.raises(GraphError, match="'family:er' is a graph family, which only training takes"):
+        resolve_graph("family:er")
     with pytest.raises(InputError, match="a graph family needs observation='map'"):
         persistent_monitoring_v0.parallel_env(graph="family:er", observation="local")
 
@@ -236,6 +257,26 @@ def test_family_training_gives_the_same_parameters_for_the_same_seed() -> None:
 
     for a, b in zip(train(), train(), strict=True):
         assert th.equal(a, b)
+
+
+def test_a_family_team_that_cannot_transfer_is_refused_before_training() -> None:
+    with pytest.raises(
+        InputError, match=r"family 'small-er' must transfer: .*Laplacian-rows encoding .* N = 14"
+    ):
+        IndependentPPO(
+            SMALL, n_agents=2, env_kwargs={"max_cycles": 30}, hyperparams={**TINY, "policy_kwargs": {}}
+        )
+
+
+def test_a_folder_family_whose_files_changed_is_refused_on_load(tmp_path: Path) -> None:
+    graphs = tmp_path / "graphs"
+    graphs.mkdir()
+    save_graphml(erdos_renyi(8, 0.5, n_targets=2, seed=1), graphs / "a.graphml")
+    team = IndependentPPO(f"family:{graphs}", n_agents=2, env_kwargs={"max_cycles": 10}, hyperparams=TINY)
+    team.save(tmp_path / "team")
+    save_graphml(erdos_renyi(9, 0.5, n_targets=2, seed=2), graphs / "b.graphml")
+    with pytest.raises(InputError, match=r"trained on the graph family .* which now rebuilds as family-"):
+        IndependentPPO.load(tmp_path / "team")
 
 
 def test_a_centralized_team_refuses_a_family() -> None:

@@ -169,7 +169,13 @@ def graph_for_saved_team(
                 f"the team in {folder} was trained on the graph family {saved['name']!r}; load it "
                 "without a graph, then deploy it on one with on_graph() (sb3-pm evaluate --graph does)"
             )
-        return family_from_record(saved["family"])
+        family = family_from_record(saved["family"])
+        if family.fingerprint != saved["fingerprint"]:  # e.g. a folder family whose files changed
+            raise InputError(
+                f"the team in {folder} was trained on the graph family {saved['name']!r} "
+                f"(fingerprint {saved['fingerprint']}), which now rebuilds as {family.fingerprint}"
+            )
+        return family
     if graph is None:
         graph_file = folder / "graph.graphml"
         spec = resolve_graph(graph_file if graph_file.exists() else saved["name"])

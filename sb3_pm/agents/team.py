@@ -53,7 +53,7 @@ from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_k
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
-from sb3_pm.agents.transfer import on_graph
+from sb3_pm.agents.transfer import on_graph, transfer_problem
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike
 from sb3_pm.team_interface import Observation, Team
@@ -161,6 +161,14 @@ class IndependentPPO(LearnedTeam):
                 )
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
+            if isinstance(self.graph, GraphFamily):
+                # A family team acts on a graph only through on_graph(): refuse what cannot.
+                problem = transfer_problem(self)
+                if problem is not None:
+                    self.close()
+                    raise InputError(
+                        f"a team trained on the graph family {self.graph.name!r} must transfer: {problem}"
+                    )
 
     # ------------------------------------------------------------ building
     def _make_env(self) -> Any:

@@ -48,7 +48,7 @@ def transfer_problem(team: Any) -> str | None:
         if encoder["laplacian"] == "rows":
             return (
                 f"{agent}'s encoder uses the Laplacian-rows encoding (laplacian: rows), N numbers per "
-                f"node, which ties its first GAT layer to N = {team.graph.n_nodes}; train it with "
+                f"node, which ties its first GAT layer to N = {policy.n_nodes}; train it with "
                 "policy_kwargs laplacian: none (or eigen) to deploy on other graphs"
             )
     return None

@@ -170,6 +170,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--checkpoint-every must be at least 0, got {args.checkpoint_every}")
     graph = resolve_graph_or_family(args.env)
     overrides = parse_overrides(args.hyperparams, "--hyperparams")
+    if "env" in overrides:
+        raise UsageError("--hyperparams env:... is not read; name the graph or family with --env")
     env_overrides = parse_overrides(args.env_kwargs, "--env-kwargs")
     if env_overrides:
         overrides["env_kwargs"] = {**overrides.get("env_kwargs", {}), **env_overrides}
@@ -204,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
         with locked_run_folder(out, args.overwrite):
             _write_records(args, config, out)
             size = (
-                f"a new graph each episode, up to {graph.n_nodes} nodes"
+                f"a new graph each episode, {graph.min_nodes} to {graph.max_nodes} nodes"
                 if isinstance(graph, GraphFamily)
                 else f"{graph.n_nodes} nodes, {graph.n_targets} targets"
             )

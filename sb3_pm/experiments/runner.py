@@ -119,12 +119,18 @@ def plan_cells(experiment: Experiment, out: Path, device: str = "cpu") -> list[C
 
 
 def training_jobs(cells: list[Cell]) -> list[Cell]:
-    """One cell per ``train_env`` variant and seed whose shared team is not saved yet (the job that
-    trains it; its other fields are the first such cell's)."""
+    """One cell per ``train_env`` variant and seed whose shared team is not saved, or does not load
+    (kept aside, like a damaged cell's team): the job that trains it, with the first such cell's
+    other fields."""
     jobs: dict[str, Cell] = {}
     for cell in cells:
-        if cell.team_folder is not None and not (Path(cell.team_folder) / "team" / "manifest.json").exists():
-            jobs.setdefault(cell.team_folder, cell)
+        if cell.team_folder is None or cell.team_folder in jobs:
+            continue
+        team = _load_finished_team(Path(cell.team_folder) / "team", cell.device)
+        if team is None:
+            jobs[cell.team_folder] = cell
+        else:
+            team.close()
     return list(jobs.values())
 
 

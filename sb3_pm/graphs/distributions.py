@@ -4,16 +4,19 @@ A team trained on one graph learns that graph. To learn a patrol that transfers,
 built on a :class:`GraphFamily` draws a new graph at every reset, from its own seeded generator, so
 the sequence of graphs flows from the environment's seed like every other draw. The families:
 
-``family:er``     Erdős–Rényi, N in [20, 60], edge probability in [0.1, 0.3], 10–25% of the
+``family:er``     Erdős–Rényi, N in [20, 60], edge probability in [0.1, 0.3] (raised to at least
+                  1.5 ln N / N, so that draws are connected: 0.225 at N = 20), 10–25% of the
                   nodes targets (the paper's graphs are N = 50, p = 0.2, 16%).
-``family:rgg``    random geometric graphs, N in [30, 80], radius set for a mean degree of 7–12
-                  (sparse, spatial, large diameter).
-``family:rooms``  Algorithm 1 room rows, 2–5 rooms of 3–5 × 3–4 cells joined by single doors.
+``family:rgg``    random geometric graphs, N in [30, 80], radius set for a nominal mean degree of
+                  7–12 (nodes near the square's edges have fewer neighbours; measured 5–10.5):
+                  sparse, spatial, large diameter.
+``family:rooms``  Algorithm 1 room rows, 2–5 rooms of 3–5 × 3–4 cells joined by single doors, with
+                  as many targets as 1–2 per room, placed uniformly over all cells.
 ``family:mixed``  one of the three above, uniformly.
 a folder          every ``.graphml`` file in it, drawn uniformly (``family:DIR`` or the folder's path).
 
-The classes are public: ``ErdosRenyiFamily(n_nodes=(30, 90))`` is a family with other ranges, for
-the Python API. Observation spaces have a fixed size in SB3, so a family states ``max_nodes``, the
+The classes are public: ``ErdosRenyiFamily(n_nodes_range=(30, 90))`` is a family with other
+ranges, for the Python API. Observation spaces have a fixed size in SB3, so a family states ``max_nodes``, the
 size every observation is padded to (:mod:`sb3_pm.envs.persistent_monitoring`, ``graph``).
 """
 
@@ -37,10 +40,18 @@ from sb3_pm.graphs.spec import GraphError, GraphSpec
 FAMILY_PREFIX = "family:"
 
 
-def _check_range(name: str, bounds: tuple[float, float], low: float, high: float) -> tuple[float, float]:
-    """``bounds`` as a validated ``(lo, hi)`` pair within ``[low, high]``."""
-    if len(bounds) != 2:
-        raise GraphError(f"{name} must be a (low, high) pair, got {bounds!r}")
+def _check_range(
+    name: str, bounds: tuple[float, float], low: float, high: float, integer: bool = False
+) -> tuple[float, float]:
+    """``bounds`` as a validated ``(lo, hi)`` pair within ``[low, high]`` (of integers if asked)."""
+    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
+    if (
+        not isinstance(bounds, (tuple, list))
+        or len(bounds) != 2
+        or not all(isinstance(v, kinds) and not isinstance(v, bool) for v in bounds)
+    ):
+        what = "integers" if integer else "numbers"
+        raise GraphError(f"{name} must be a (low, high) pair of {what}, got {bounds!r}")
     lo, hi = bounds
     if not low <= lo <= hi <= high:
         raise GraphError(f"{name} must satisfy {low} <= low <= high <= {high}, got {tuple(bounds)}")
@@ -68,6 +79,11 @@ class GraphFamily:
         """The largest graph this family draws (the padded observation size)."""
         raise NotImplementedError
 
+    @property
+    def min_nodes(self) -> int:
+        """The smallest graph this family draws (a team may have at most this many agents)."""
+        raise NotImplementedError
+
     def draw(self, rng: np.random.Generator) -> GraphSpec:
         """One graph, every random choice from ``rng``."""
         raise NotImplementedError
@@ -88,11 +104,6 @@ class GraphFamily:
         text = json.dumps({"kind": self.kind, **self.parameters()}, sort_keys=True)
         return "family-" + hashlib.sha1(text.encode()).hexdigest()[:9]
 
-    # What code that also handles single graphs reads (run-folder names, manifests, messages).
-    @property
-    def n_nodes(self) -> int:
-        return self.max_nodes
-
     def __str__(self) -> str:
         return self.name
 
@@ -107,13 +118,17 @@ class ErdosRenyiFamily(GraphFamily):
     target_fraction: tuple[float, float] = (0.10, 0.25)
 
     def __post_init__(self) -> None:
-        _check_range("n_nodes_range", self.n_nodes_range, 2, 10_000)
+        _check_range("n_nodes_range", self.n_nodes_range, 2, 10_000, integer=True)
         _check_range("edge_prob", self.edge_prob, 1e-9, 1.0)
         _check_range("target_fraction", self.target_fraction, 0.0, 1.0)
 
     @property
     def max_nodes(self) -> int:
         return int(self.n_nodes_range[1])
+
+    @property
+    def min_nodes(self) -> int:
+        return int(self.n_nodes_range[0])
 
     def draw(self, rng: np.random.Generator) -> GraphSpec:
         n_nodes = int(rng.integers(self.n_nodes_range[0], self.n_nodes_range[1], endpoint=True))
@@ -133,13 +148,18 @@ class RandomGeometricFamily(GraphFamily):
     target_fraction: tuple[float, float] = (0.10, 0.25)
 
     def __post_init__(self) -> None:
-        _check_range("n_nodes_range", self.n_nodes_range, 2, 10_000)
-        _check_range("degree", self.degree, 1.0, 10_000.0)
+        _check_range("n_nodes_range", self.n_nodes_range, 2, 10_000, integer=True)
+        # Below a mean degree of about 4 a random geometric graph is almost never connected.
+        _check_range("degree", self.degree, 4.0, 10_000.0)
         _check_range("target_fraction", self.target_fraction, 0.0, 1.0)
 
     @property
     def max_nodes(self) -> int:
         return int(self.n_nodes_range[1])
+
+    @property
+    def min_nodes(self) -> int:
+        return int(self.n_nodes_range[0])
 
     def draw(self, rng: np.random.Generator) -> GraphSpec:
         n_nodes = int(rng.integers(self.n_nodes_range[0], self.n_nodes_range[1], endpoint=True))
@@ -150,7 +170,8 @@ class RandomGeometricFamily(GraphFamily):
 
 @dataclass(frozen=True)
 class RoomsFamily(GraphFamily):
-    """Rows of Algorithm 1 rooms joined by single doors, with 1–2 targets per room."""
+    """Rows of Algorithm 1 rooms joined by single doors; ``n_rooms`` to ``2 n_rooms`` targets, placed
+    uniformly over all cells."""
 
     kind: ClassVar[str] = "rooms"
     n_rooms: tuple[int, int] = (2, 5)
@@ -158,13 +179,17 @@ class RoomsFamily(GraphFamily):
     room_depth: tuple[int, int] = (3, 4)
 
     def __post_init__(self) -> None:
-        _check_range("n_rooms", self.n_rooms, 2, 1000)
-        _check_range("room_width", self.room_width, 1, 1000)
-        _check_range("room_depth", self.room_depth, 1, 1000)
+        _check_range("n_rooms", self.n_rooms, 2, 1000, integer=True)
+        _check_range("room_width", self.room_width, 1, 1000, integer=True)
+        _check_range("room_depth", self.room_depth, 1, 1000, integer=True)
 
     @property
     def max_nodes(self) -> int:
         return int(self.n_rooms[1] * self.room_width[1] * self.room_depth[1])
+
+    @property
+    def min_nodes(self) -> int:
+        return int(self.n_rooms[0] * self.room_width[0] * self.room_depth[0])
 
     def draw(self, rng: np.random.Generator) -> GraphSpec:
         n_rooms = int(rng.integers(self.n_rooms[0], self.n_rooms[1], endpoint=True))
@@ -186,6 +211,8 @@ class FolderFamily(GraphFamily):
     folder: str = "."
 
     def __post_init__(self) -> None:
+        # Absolute, so a saved team's record finds the folder from any working directory.
+        object.__setattr__(self, "folder", str(Path(self.folder).expanduser().resolve()))
         path = Path(self.folder)
         if not path.is_dir():
             raise GraphError(f"graph family folder {self.folder} is not a folder")
@@ -201,6 +228,10 @@ class FolderFamily(GraphFamily):
     @property
     def max_nodes(self) -> int:
         return max(graph.n_nodes for graph in self.graphs)
+
+    @property
+    def min_nodes(self) -> int:
+        return min(graph.n_nodes for graph in self.graphs)
 
     def draw(self, rng: np.random.Generator) -> GraphSpec:
         return self.graphs[int(rng.integers(len(self.graphs)))]
@@ -226,6 +257,10 @@ class MixtureFamily(GraphFamily):
     @property
     def max_nodes(self) -> int:
         return max(member.max_nodes for member in self.members)
+
+    @property
+    def min_nodes(self) -> int:
+        return min(member.min_nodes for member in self.members)
 
     def draw(self, rng: np.random.Generator) -> GraphSpec:
         return self.members[int(rng.integers(len(self.members)))].draw(rng)

@@ -29,6 +29,11 @@ def resolve_graph(graph: GraphLike) -> GraphSpec:
         return preset(text)
     if text.lower().endswith((".graphml", ".xml")) or isinstance(graph, Path):
         return load_graphml(text)
+    if is_family_name(text):
+        raise GraphError(
+            f"{text!r} is a graph family, which only training takes (sb3-pm train --env); "
+            "evaluate on a graph: a preset or a .graphml path"
+        )
     raise GraphError(
         f"unknown graph {text!r}: use a preset ({', '.join(sorted(PRESETS))}) or a .graphml path"
     )
