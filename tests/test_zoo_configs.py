@@ -206,22 +206,21 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
     assert model.num_timesteps == 128
 
 
-def test_ippo_transfer_is_the_default_without_the_rows_encoding_on_a_family() -> None:
+def test_ippo_transfer_is_the_default_without_the_rows_encoding() -> None:
     transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo", "paper-50")
     t_kwargs, d_kwargs = transfer.team_kwargs(), default.team_kwargs()
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
     d_policy = dict(d_kwargs["hyperparams"].pop("policy_kwargs"))
     assert t_policy.pop("laplacian") == "none" and "laplacian" not in d_policy
     assert t_policy == d_policy and t_kwargs == d_kwargs
-    # It trains on a graph family, for longer; the default trains on the command line's graph.
-    assert (transfer.env, default.env) == ("family:er", None)
-    assert transfer.n_timesteps == 3 * default.n_timesteps
+    # It names the graph it trains on without --env; the default trains on the command line's.
+    assert (transfer.env, default.env) == ("paper-50", None)
 
 
 def test_a_config_env_is_what_train_uses_without_env(tmp_path: Path) -> None:
     from sb3_pm.zoo.config import default_env
 
-    assert default_env("ippo_transfer") == "family:er" and default_env("ippo") is None
+    assert default_env("ippo_transfer") == "paper-50" and default_env("ippo") is None
     bad = tmp_path / "bad.yml"
     bad.write_text("default:\n  env: [paper-50]\n  algo: dcbf_ppo\n")
     with pytest.raises(ConfigError, match=r"default.env: expected a graph or family name"):
