@@ -109,17 +109,14 @@ class GraphFamily:
 
 
 @dataclass(frozen=True)
-class ErdosRenyiFamily(GraphFamily):
-    """Connected G(N, p) draws with N, p and the target fraction uniform in their ranges."""
+class _RandomSizeFamily(GraphFamily):
+    """A family whose graphs have a node count and a target fraction uniform in their ranges."""
 
-    kind: ClassVar[str] = "erdos_renyi"
     n_nodes_range: tuple[int, int] = (20, 60)
-    edge_prob: tuple[float, float] = (0.1, 0.3)
     target_fraction: tuple[float, float] = (0.10, 0.25)
 
     def __post_init__(self) -> None:
         _check_range("n_nodes_range", self.n_nodes_range, 2, 10_000, integer=True)
-        _check_range("edge_prob", self.edge_prob, 1e-9, 1.0)
         _check_range("target_fraction", self.target_fraction, 0.0, 1.0)
 
     @property
@@ -130,41 +127,49 @@ class ErdosRenyiFamily(GraphFamily):
     def min_nodes(self) -> int:
         return int(self.n_nodes_range[0])
 
+    def _draw_n_nodes(self, rng: np.random.Generator) -> int:
+        return int(rng.integers(self.n_nodes_range[0], self.n_nodes_range[1], endpoint=True))
+
+    def _draw_n_targets(self, rng: np.random.Generator, n_nodes: int) -> int:
+        return _n_targets(n_nodes, float(rng.uniform(*self.target_fraction)))
+
+
+@dataclass(frozen=True)
+class ErdosRenyiFamily(_RandomSizeFamily):
+    """Connected G(N, p) draws with N, p and the target fraction uniform in their ranges."""
+
+    kind: ClassVar[str] = "erdos_renyi"
+    edge_prob: tuple[float, float] = (0.1, 0.3)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_range("edge_prob", self.edge_prob, 1e-9, 1.0)
+
     def draw(self, rng: np.random.Generator) -> GraphSpec:
-        n_nodes = int(rng.integers(self.n_nodes_range[0], self.n_nodes_range[1], endpoint=True))
+        n_nodes = self._draw_n_nodes(rng)
         # Below ln(N)/N a G(N, p) draw is rarely connected: keep p above it so redraws stay few.
         p = max(float(rng.uniform(*self.edge_prob)), 1.5 * math.log(n_nodes) / n_nodes)
-        n_targets = _n_targets(n_nodes, float(rng.uniform(*self.target_fraction)))
+        n_targets = self._draw_n_targets(rng, n_nodes)
         return erdos_renyi(n_nodes, min(p, 1.0), n_targets=n_targets, seed=int(rng.integers(2**31)))
 
 
 @dataclass(frozen=True)
-class RandomGeometricFamily(GraphFamily):
+class RandomGeometricFamily(_RandomSizeFamily):
     """Random geometric graphs: N uniform, radius for a mean degree uniform in ``degree``."""
 
     kind: ClassVar[str] = "random_geometric"
     n_nodes_range: tuple[int, int] = (30, 80)
     degree: tuple[float, float] = (7.0, 12.0)
-    target_fraction: tuple[float, float] = (0.10, 0.25)
 
     def __post_init__(self) -> None:
-        _check_range("n_nodes_range", self.n_nodes_range, 2, 10_000, integer=True)
+        super().__post_init__()
         # Below a mean degree of about 4 a random geometric graph is almost never connected.
         _check_range("degree", self.degree, 4.0, 10_000.0)
-        _check_range("target_fraction", self.target_fraction, 0.0, 1.0)
-
-    @property
-    def max_nodes(self) -> int:
-        return int(self.n_nodes_range[1])
-
-    @property
-    def min_nodes(self) -> int:
-        return int(self.n_nodes_range[0])
 
     def draw(self, rng: np.random.Generator) -> GraphSpec:
-        n_nodes = int(rng.integers(self.n_nodes_range[0], self.n_nodes_range[1], endpoint=True))
+        n_nodes = self._draw_n_nodes(rng)
         radius = math.sqrt(float(rng.uniform(*self.degree)) / (math.pi * n_nodes))  # pi r^2 N = degree
-        n_targets = _n_targets(n_nodes, float(rng.uniform(*self.target_fraction)))
+        n_targets = self._draw_n_targets(rng, n_nodes)
         return random_geometric(n_nodes, radius, n_targets, seed=int(rng.integers(2**31)))
 
 
