@@ -118,12 +118,12 @@ from sb3_pm.envs.mental_map import FEATURES, MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
 from sb3_pm.errors import InputError
-from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
-from sb3_pm.graphs.distributions import GraphFamily, is_family_name, resolve_family
+from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
 
 OBSERVATION_MODES = ("map", "local")
 INITIAL_UNCERTAINTY = ("zero", "random")
 ILLEGAL_ACTION_MODES = ("raise", "stay")
+_FAMILY_POSITIONS = "initial_positions cannot be given with a graph family (each episode's graph differs)"
 
 
 class PersistentMonitoringEnv(ParallelEnv):
@@ -155,16 +155,14 @@ class PersistentMonitoringEnv(ParallelEnv):
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
+        problem = resolve_graph_or_family(graph)
         #: The family each reset draws a graph from (``None``: one fixed graph).
-        self.family: GraphFamily | None = None
-        if isinstance(graph, GraphFamily) or (isinstance(graph, str) and is_family_name(graph)):
-            self.family = resolve_family(graph)
+        self.family: GraphFamily | None = problem if isinstance(problem, GraphFamily) else None
+        if self.family is not None:
             # A placeholder until the first reset draws the episode's graph from the seeded generator.
-            graph = self.family.draw(np.random.default_rng(0))
+            problem = self.family.draw(np.random.default_rng(0))
             if initial_positions is not None:
-                raise InputError(
-                    "initial_positions cannot be given with a graph family (each episode's graph differs)"
-                )
+                raise InputError(_FAMILY_POSITIONS)
             if observation != "map":
                 raise InputError("a graph family needs observation='map' (padded mental maps)")
             if n_agents > self.family.min_nodes:
@@ -172,7 +170,8 @@ class PersistentMonitoringEnv(ParallelEnv):
                     f"{n_agents} agents do not fit the graph family {self.family.name!r}: "
                     f"its smallest graph has {self.family.min_nodes} nodes"
                 )
-        self.graph = resolve_graph(graph)
+        assert isinstance(problem, GraphSpec)
+        self.graph: GraphSpec = problem
         if max_cycles < 1:
             raise InputError(f"max_cycles must be at least 1, got {max_cycles}")
         if obs_radius < 0:
@@ -346,9 +345,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         # Other keys are ignored, as PettingZoo expects (its API test passes arbitrary options).
         if self.family is not None:
             if "initial_positions" in options:
-                raise InputError(
-                    "initial_positions cannot be given with a graph family (each episode's graph differs)"
-                )
+                raise InputError(_FAMILY_POSITIONS)
             # Every episode on a new graph, drawn first so the sequence of graphs flows from the seed.
             self._use_graph(self.family.draw(self._rng))
             self.rewards_computer.forget_history()
@@ -501,11 +498,11 @@ class PersistentMonitoringEnv(ParallelEnv):
         if self.observation_mode == "map":
             nodes = self.maps.features  # a fresh array; rows handed out as views
             dwell = self._dwell.astype(np.float32)[:, None]
-            adjacency: Sequence[np.ndarray] | np.ndarray = [
-                self.maps.adjacency_observation(i) for i in range(self.n_agents)
-            ]
+            adjacency: Sequence[np.ndarray] | np.ndarray
             if self.space_nodes > self.graph.n_nodes:
-                nodes, adjacency, masks = self._padded(nodes, adjacency, masks)
+                nodes, adjacency, masks = self._padded(nodes, masks)
+            else:
+                adjacency = [self.maps.adjacency_observation(i) for i in range(self.n_agents)]
             return {
                 agent: {
                     "nodes": nodes[i],
@@ -518,9 +515,7 @@ class PersistentMonitoringEnv(ParallelEnv):
             }
         return {agent: self._local_observation(i, masks[i]) for i, agent in enumerate(self.possible_agents)}
 
-    def _padded(
-        self, nodes: np.ndarray, adjacency: Sequence[np.ndarray] | np.ndarray, masks: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _padded(self, nodes: np.ndarray, masks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Map observations padded from the graph's N nodes to the space's M.
 
         A padding node has zero features, no edge and is never reachable: to the agent it looks
@@ -529,15 +524,14 @@ class PersistentMonitoringEnv(ParallelEnv):
         depend on the padding; with ``eigen`` the padded Laplacian's extra zero eigenvalues shift
         the encoding slightly (measured up to 2.4e-4 in the logits of an untrained policy).
 
-        Shapes: nodes ``(n_agents, N, 5)`` -> ``(n_agents, M, 5)``; adjacency ``n_agents x (N, N)``
-        -> ``(n_agents, M, M)``; masks ``(n_agents, N)`` -> ``(n_agents, M)``.
+        Shapes: nodes ``(n_agents, N, 5)`` -> ``(n_agents, M, 5)``; the maps' known adjacency
+        ``(n_agents, N, N)`` -> ``(n_agents, M, M)``; masks ``(n_agents, N)`` -> ``(n_agents, M)``.
         """
         n, m = self.graph.n_nodes, self.space_nodes
         padded_nodes = np.zeros((self.n_agents, m, nodes.shape[-1]), dtype=nodes.dtype)
         padded_nodes[:, :n] = nodes
         padded_adjacency = np.zeros((self.n_agents, m, m), dtype=np.int8)
-        for i, known in enumerate(adjacency):
-            padded_adjacency[i, :n, :n] = known
+        padded_adjacency[:, :n, :n] = self.maps.adjacency
         padded_masks = np.zeros((self.n_agents, m), dtype=np.int8)
         padded_masks[:, :n] = masks
         return padded_nodes, padded_adjacency, padded_masks
