@@ -209,8 +209,12 @@ def test_padding_does_not_change_the_actor_on_real_nodes() -> None:
         with th.no_grad():
             pre_small = rebuilt._preprocess(rebuilt.obs_to_tensor(obs)[0])
             pre_padded = policy._preprocess(policy.obs_to_tensor(padded)[0])
-            small = rebuilt._logits(pre_small, rebuilt.uncertainty(pre_small))
-            large = policy._logits(pre_padded, policy.uncertainty(pre_padded))
+            # Every real node's logit, not only the allowed ones: the padded nodes are masked out.
+            real = th.ones((1, 10), dtype=th.bool)
+            small = rebuilt._logits(pre_small, rebuilt.uncertainty(pre_small), real)
+            large = policy._logits(
+                pre_padded, policy.uncertainty(pre_padded), th.nn.functional.pad(real, (0, 4))
+            )
         th.testing.assert_close(large[:, :10], small, rtol=1e-5, atol=1e-5)
         actions = {a: int(np.flatnonzero(o["action_mask"])[-1]) for a, o in observations.items()}
         observations, *_ = env.step(actions)

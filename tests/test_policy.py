@@ -123,6 +123,18 @@ class TestLayers:
         graphs, index = unique_graphs(adjacency)
         assert len(graphs) == 2 and th.equal(graphs[index], adjacency)
 
+    def test_unique_graphs_when_distinct_graphs_share_a_key(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """The exact comparison catches a key collision and falls back to an exact search."""
+        from sb3_pm.policies import attention
+
+        monkeypatch.setattr(attention, "_graph_keys", lambda flat: th.zeros(flat.shape[0], 3))
+        adjacency = random_graphs(12, 6, 0.4)
+        adjacency[6:] = adjacency[0]
+        graphs, index = attention.unique_graphs(adjacency)
+        assert len(graphs) == len(th.unique(adjacency.flatten(1), dim=0)) and th.equal(
+            graphs[index], adjacency
+        )
+
     def test_encoding_per_graph_matches_concatenated_input(self) -> None:
         """The first layer's per-distinct-graph product with the encoding equals the plain layer."""
         from sb3_pm.policies.attention import unique_graphs
@@ -259,6 +271,39 @@ class TestPolicy:
         embeddings, own = th.randn(3, N, 33), th.randn(3, 32)
         expanded = th.cat((embeddings, own.unsqueeze(1).expand(-1, N, -1)), dim=-1)
         th.testing.assert_close(policy._actor_hidden(embeddings, own), policy.actor_body(expanded))
+
+    def test_actor_on_allowed_nodes_is_the_same_distribution(self, env: SingleAgentMonitoringEnv) -> None:
+        """actor_nodes="allowed" skips masked nodes; log-probabilities, entropies, values and their
+        gradients match "all" (the earlier arithmetic) up to rounding."""
+        th.manual_seed(0)
+        allowed = make_policy(env, use_dcbf=False)
+        every = make_policy(env, use_dcbf=False, actor_nodes="all")
+        every.load_state_dict(allowed.state_dict())
+        obs = observation_batch(env, steps=16)
+        masks = obs["action_mask"].bool()
+        assert (masks.sum(-1) < N).all()  # some nodes are masked out on every row
+        actions = th.as_tensor([int(np.flatnonzero(row)[-1]) for row in masks.numpy()])
+        results = []
+        for policy in (allowed, every):
+            values, log_prob, entropy = policy.evaluate_actions(obs, actions, action_masks=masks)
+            (log_prob.sum() + entropy.sum() + values.sum()).backward()
+            grads = [p.grad.clone() for p in policy.actor_body.parameters()]
+            results.append((values, log_prob, entropy, grads))
+        for got, want in zip(results[0][:3], results[1][:3]):
+            th.testing.assert_close(got, want)
+        for got, want in zip(results[0][3], results[1][3]):
+            th.testing.assert_close(got, want, atol=1e-5, rtol=1e-4)
+        with th.no_grad():
+            pre = allowed._preprocess(obs)
+            logits = allowed._logits(pre, allowed.uncertainty(pre), masks)
+        assert (logits[~masks] == -1e8).all() and (logits[masks] > -1e7).all()
+        first, _ = allowed.predict({k: v.numpy() for k, v in obs.items()}, deterministic=True)
+        second, _ = every.predict({k: v.numpy() for k, v in obs.items()}, deterministic=True)
+        assert np.array_equal(first, second)
+
+    def test_unknown_actor_nodes_is_refused(self, env: SingleAgentMonitoringEnv) -> None:
+        with pytest.raises(ValueError, match="actor_nodes must be one of"):
+            make_policy(env, actor_nodes="some")
 
     def test_collection_sampling_matches_the_masked_distribution(self, env: SingleAgentMonitoringEnv) -> None:
         """forward_with_masks' inline sampling: same log-probabilities as MaskableCategorical."""

@@ -78,8 +78,9 @@ def test_a_rebuilt_policy_computes_what_the_trained_one_does(saved_transferable:
         tensor, _ = policy.obs_to_tensor(obs)
         with th.no_grad():
             pre_a, pre_b = policy._preprocess(tensor), rebuilt._preprocess(tensor)
-            a = policy._logits(pre_a, policy.uncertainty(pre_a))
-            b = rebuilt._logits(pre_b, rebuilt.uncertainty(pre_b))
+            every = th.ones_like(pre_a["action_mask"], dtype=th.bool)  # every node's logit
+            a = policy._logits(pre_a, policy.uncertainty(pre_a), every)
+            b = rebuilt._logits(pre_b, rebuilt.uncertainty(pre_b), every)
         assert th.equal(a, b)
         actions = {agent: int(np.flatnonzero(o["action_mask"])[0]) for agent, o in observations.items()}
         observations, *_ = env.step(actions)

@@ -69,6 +69,30 @@ def use_dense(adjacency: th.Tensor, backend: str) -> bool:
     return density >= SPARSE_DENSITY
 
 
+def _graph_keys(flat: th.Tensor) -> th.Tensor:
+    """Three float32 keys per flattened adjacency ``(B, N * N) -> (B, 3)``: fixed pseudo-random
+    integer weightings of its entries.
+
+    The weights are small enough that, for 0/1 entries, every partial sum is an integer below
+    2**24, so each key is exact whatever order the product sums in: equal graphs always get equal
+    keys (a float weighting rounds differently in different rows of the batch). Distinct graphs
+    share all three keys only by chance, which every caller rules out with an exact comparison.
+    The weights come from a generator of their own, so computing keys draws nothing from torch's
+    global random state.
+    """
+    size = flat.shape[-1]
+    weights = _KEY_WEIGHTS.get((size, flat.device))
+    if weights is None:
+        generator = th.Generator().manual_seed(size)
+        high = max(2, (2**24 - 1) // max(size, 1))  # size * (high - 1) < 2**24
+        weights = th.randint(1, high, (size, 3), generator=generator).float().to(flat.device)
+        _KEY_WEIGHTS[(size, flat.device)] = weights
+    return th.matmul(flat if flat.dtype == th.float32 else flat.float(), weights)
+
+
+_KEY_WEIGHTS: dict[tuple[int, th.device], th.Tensor] = {}
+
+
 def unique_graphs(adjacency: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
     """The distinct adjacencies of a batch and, per map, the index of its adjacency among them.
 
@@ -82,17 +106,29 @@ def unique_graphs(adjacency: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
     if batch <= UNIQUE_MIN_BATCH:
         return adjacency, th.arange(batch, device=adjacency.device)
     flat = adjacency.reshape(batch, -1)
-    # Cheap key first (edge count); one exact comparison confirms that equal keys mean equal graphs.
-    counts = flat.sum(-1)
-    keys, inverse = th.unique(counts, return_inverse=True)
+    arange = th.arange(batch, device=adjacency.device)
+    # A cheap key first (a weighted sum, not the edge count: two maps of a rollout often know as
+    # many edges but different ones); one exact comparison confirms that equal keys mean equal graphs.
+    keys, inverse = th.unique(_graph_keys(flat), dim=0, return_inverse=True)
     first = th.full((len(keys),), batch, dtype=th.long, device=adjacency.device)
-    first.scatter_reduce_(0, inverse, th.arange(batch, device=adjacency.device), reduce="amin")
-    if bool((flat == flat[first[inverse]]).all()):
+    first.scatter_reduce_(0, inverse, arange, reduce="amin")
+    if not bool((flat == flat[first[inverse]]).all()):  # two distinct graphs share a key
+        _, inverse = th.unique(flat, dim=0, return_inverse=True)
+        first = th.full((int(inverse.max()) + 1,), batch, dtype=th.long, device=adjacency.device)
+        first.scatter_reduce_(0, inverse, arange, reduce="amin")
         return adjacency[first], inverse
-    _, inverse = th.unique(flat, dim=0, return_inverse=True)  # graphs with equal edge counts differ
-    first = th.full((int(inverse.max()) + 1,), batch, dtype=th.long, device=adjacency.device)
-    first.scatter_reduce_(0, inverse, th.arange(batch, device=adjacency.device), reduce="amin")
-    return adjacency[first], inverse
+    # Put the distinct graphs in the order earlier releases used (by edge count, or in
+    # lexicographic order where two share a count): the batched products that follow round
+    # differently when their rows move, and this order keeps trained parameters bit for bit.
+    distinct = flat[first]
+    counts = distinct.sum(-1)
+    if len(th.unique(counts)) == len(counts):
+        order = th.argsort(counts)
+    else:
+        order = th.argsort(th.unique(distinct, dim=0, return_inverse=True)[1])
+    rank = th.empty_like(order)
+    rank[order] = th.arange(len(order), device=order.device)
+    return adjacency[first[order]], rank[inverse]
 
 
 def attention_bias(adjacency: th.Tensor) -> th.Tensor:

@@ -40,6 +40,8 @@ from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 
 MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
+#: Where the actor head runs: only on the nodes the mask allows (the default), or on every node.
+ACTOR_NODES = ("allowed", "all")
 #: Logit given to masked-out actions, sb3-contrib's ``MaskableCategorical`` value.
 _HUGE_NEG = th.tensor(-1e8)
 
@@ -108,6 +110,13 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param estimator_lr: Adam learning rate of the estimator.
     :param estimator_epochs: passes over each rollout's pairs when fitting the estimator.
     :param estimator_batch_size: minibatch size (pairs) when fitting the estimator.
+    :param actor_nodes: ``"allowed"`` (default) runs the actor head only on the nodes the action
+        mask allows and gives every other node the masking constant -1e8 as its logit; ``"all"``
+        runs it on every node first, as the code did before. The masked distribution is the same
+        function either way (a masked node's logit never reaches a probability or a gradient), but
+        rounding differs in the last bits, so ``"all"`` is kept to reproduce earlier runs bit for
+        bit. With at most ``degree + 1`` allowed nodes, ``"allowed"`` cuts the head's work by about
+        ``N / (degree + 1)``.
     """
 
     def __init__(
@@ -145,7 +154,10 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         estimator_lr: float = 1e-3,
         estimator_epochs: int = 5,
         estimator_batch_size: int = 256,
+        actor_nodes: str = "allowed",
     ) -> None:
+        if actor_nodes not in ACTOR_NODES:
+            raise InputError(f"actor_nodes must be one of {ACTOR_NODES}, got {actor_nodes!r}")
         if not isinstance(observation_space, spaces.Dict) or any(
             k not in observation_space.spaces for k in MAP_KEYS
         ):
@@ -163,6 +175,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self.use_dcbf, self.use_estimator = bool(use_dcbf), bool(use_estimator)
         self.avoid_collisions, self.extra_attention = bool(avoid_collisions), bool(extra_attention)
         self.estimator_target = estimator_target
+        self.actor_nodes = actor_nodes
         if neglect_bound is not None and not use_dcbf:
             raise InputError("neglect_bound is rule 8 of the DCBF filter: it needs use_dcbf=True")
         self.dcbf_config = DCBFConfig(
@@ -291,6 +304,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             estimator_lr=self.estimator_lr,
             estimator_epochs=self.estimator_epochs,
             estimator_batch_size=self.estimator_batch_size,
+            actor_nodes=self.actor_nodes,
         )
         return data
 
@@ -359,38 +373,63 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             embeddings = th.cat((embeddings, (u_hat / self.u_max).unsqueeze(-1)), dim=-1)
         return embeddings, own
 
-    def _heads(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """Per-node logits ``(B, N)`` and values ``(B, 1)``."""
+    def _heads(
+        self, pre: dict[str, th.Tensor], u_hat: th.Tensor, masks: th.Tensor
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """Per-node logits ``(B, N)`` (see :meth:`_actor_logits`) and values ``(B, 1)``."""
         embeddings, own = self._node_inputs(pre, u_hat)
-        logits = self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
-        pooled = th.cat((embeddings.mean(1), own), dim=-1)
-        values = self.value_net(self.critic_body(pooled))
-        return logits, values
+        return self._actor_logits(embeddings, own, masks), self._value(embeddings, own)
 
-    def _logits(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> th.Tensor:
+    def _value(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
+        """The critic on ``[mean_m embeddings_m, own]``: ``(B, N, d)``, ``(B, h)`` -> ``(B, 1)``."""
+        return self.value_net(self.critic_body(th.cat((embeddings.mean(1), own), dim=-1)))
+
+    def _logits(self, pre: dict[str, th.Tensor], u_hat: th.Tensor, masks: th.Tensor) -> th.Tensor:
         """Per-node logits ``(B, N)`` alone: acting needs no critic."""
         embeddings, own = self._node_inputs(pre, u_hat)
-        return self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
+        return self._actor_logits(embeddings, own, masks)
 
-    def _actor_hidden(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
-        """The actor body on ``[embeddings_m, own]`` for every node ``m``.
+    def _actor_logits(self, embeddings: th.Tensor, own: th.Tensor, masks: th.Tensor) -> th.Tensor:
+        """One logit per node; with ``actor_nodes="allowed"`` only the allowed nodes' are computed.
+
+        Every consumer masks the logits with -1e8 before normalizing (sb3-contrib's
+        ``MaskableCategorical`` and :meth:`forward_with_masks`), so a masked node's logit reaches
+        neither a probability nor a gradient; it is set to that constant instead of computed.
+
+        Shapes:
+            - embeddings: ``(B, N, d)``; own: ``(B, h)``; masks: ``(B, N)`` bool, no row all False
+            - output: ``(B, N)``
+        """
+        if self.actor_nodes == "all":
+            return self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
+        rows, cols = masks.nonzero(as_tuple=True)  # (M,) each: the allowed (map, node) pairs
+        allowed = self.action_net(self._actor_hidden(embeddings[rows, cols], own, rows)).squeeze(-1)
+        logits = th.full(masks.shape, -1e8, dtype=allowed.dtype, device=allowed.device)
+        return logits.index_put((rows, cols), allowed)
+
+    def _actor_hidden(
+        self, embeddings: th.Tensor, own: th.Tensor, rows: th.Tensor | None = None
+    ) -> th.Tensor:
+        """The actor body on ``[embeddings_m, own]`` for every node ``m`` given.
 
         The first layer's product with ``own`` is the same for every node of a map, so it is computed
         once per map and broadcast instead of multiplying ``N`` copies (same function and parameters
         as ``actor_body(cat(embeddings, own expanded))``; a third of the actor's first-layer work).
 
         Shapes:
-            - embeddings: ``(B, N, d)``; own: ``(B, h)``
-            - output: ``(B, N, pi_out)``
+            - embeddings: ``(B, N, d)`` (every node of each map), or ``(M, d)`` with ``rows``
+              ``(M,)`` naming each node's map; own: ``(B, h)``
+            - output: ``(B, N, pi_out)`` or ``(M, pi_out)``
         """
         first = self.actor_body[0] if len(self.actor_body) else None
+        own_per_node = own[rows] if rows is not None else own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
         if not isinstance(first, nn.Linear):  # no hidden layer: plain concatenation
-            own_expanded = own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
-            return self.actor_body(th.cat((embeddings, own_expanded), dim=-1))
+            return self.actor_body(th.cat((embeddings, own_per_node), dim=-1))
         width = embeddings.shape[-1]
-        per_node = nn.functional.linear(embeddings, first.weight[:, :width], first.bias)  # (B, N, w)
+        per_node = nn.functional.linear(embeddings, first.weight[:, :width], first.bias)  # (..., w)
         per_map = nn.functional.linear(own, first.weight[:, width:])  # (B, w)
-        return self.actor_body[1:](per_node + per_map.unsqueeze(1))
+        per_map = per_map[rows] if rows is not None else per_map.unsqueeze(1)
+        return self.actor_body[1:](per_node + per_map)
 
     def _distribution(self, logits: th.Tensor, masks: th.Tensor) -> MaskableDistribution:
         distribution = self.action_dist.proba_distribution(action_logits=logits)
@@ -408,7 +447,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
         masks = self._masks(pre, u_hat, None)
-        logits, values = self._heads(pre, u_hat)
+        logits, values = self._heads(pre, u_hat, masks)
         # sb3-contrib's masked categorical, without building distribution objects: this runs once
         # per env step with a batch of n_envs, where constructing and re-masking two Categoricals
         # (each normalizing its logits) cost about a quarter of the step. Same masking constant,
@@ -426,8 +465,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
-        logits, values = self._heads(pre, u_hat)
-        distribution = self._distribution(logits, self._masks(pre, u_hat, action_masks))
+        masks = self._masks(pre, u_hat, action_masks)
+        logits, values = self._heads(pre, u_hat, masks)
+        distribution = self._distribution(logits, masks)
         actions = distribution.get_actions(deterministic=deterministic)
         return actions, values, distribution.log_prob(actions)
 
@@ -437,11 +477,11 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         """Values, log-probabilities and entropies; ``action_masks`` (PPO's stored masks) are used as is."""
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
-        logits, values = self._heads(pre, u_hat)
         if action_masks is None:
             masks = self._masks(pre, u_hat, None)
         else:  # the stored mask, unchanged: recomputing it would corrupt PPO's ratio
-            masks = th.as_tensor(action_masks, device=logits.device).reshape(logits.shape).bool()
+            masks = th.as_tensor(action_masks, device=u_hat.device).reshape(u_hat.shape).bool()
+        logits, values = self._heads(pre, u_hat, masks)
         distribution = self._distribution(logits, masks)
         return values, distribution.log_prob(actions), distribution.entropy()
 
@@ -450,12 +490,12 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     ) -> MaskableDistribution:
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
-        logits = self._logits(pre, u_hat)
-        return self._distribution(logits, self._masks(pre, u_hat, action_masks))
+        masks = self._masks(pre, u_hat, action_masks)
+        return self._distribution(self._logits(pre, u_hat, masks), masks)
 
     def predict_values(self, obs: PyTorchObs) -> th.Tensor:
         pre = self._preprocess(obs)
-        return self._heads(pre, self.uncertainty(pre))[1]
+        return self._value(*self._node_inputs(pre, self.uncertainty(pre)))  # no actor, no mask
 
     def set_training_mode(self, mode: bool) -> None:
         """SB3 calls this on every ``predict``; setting the mode on the whole module tree each time was
@@ -473,4 +513,5 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         # call in sb3-contrib, with argument checks): the same arithmetic, the same action.
         pre = self._preprocess(observation)
         u_hat = self.uncertainty(pre)
-        return masked_mode(self._logits(pre, u_hat), self._masks(pre, u_hat, action_masks))
+        masks = self._masks(pre, u_hat, action_masks)
+        return masked_mode(self._logits(pre, u_hat, masks), masks)
