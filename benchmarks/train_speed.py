@@ -2,7 +2,7 @@
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
-                                     [--updates side-by-side serial]
+                                     [--updates side-by-side serial] [--arithmetic current earlier]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -18,6 +18,11 @@ runs (the CPU may be shared; the load average is printed).
 ``IndependentPPO(concurrent_updates=True)``, each learner's ``train()`` in its own thread) and/or
 ``serial`` (one after another); both give the same parameters, so listing both measures the gain.
 
+``--arithmetic`` picks the policy's kernels: ``current`` (the defaults: the actor head on the allowed
+nodes only, the CSR sparse attention kernel) and/or ``earlier`` (``actor_nodes: all``,
+``gat_sparse_kernel: pyg``: the arithmetic of earlier releases, bit for bit). Listing both gives
+the before/after ratio in one run. They compute the same function; only rounding differs.
+
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
 fit, and the rest (buffers, callbacks, the multiplexer's hand-offs). With serial updates only the
@@ -28,6 +33,7 @@ updates the learners' update phases overlap, so their sums exceed it and no rest
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import statistics
 import threading
@@ -78,6 +84,7 @@ def team_speed(
     n_steps: int | None,
     profile: bool = False,
     concurrent: bool = True,
+    arithmetic: str = "current",
 ) -> float:
     """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
@@ -94,6 +101,9 @@ def team_speed(
         options["hyperparams"] = {**options["hyperparams"], "n_steps": n_steps, "batch_size": n_steps}
     if options["algo"] != "dcbf_ppo":  # policy_kwargs of the DCBF policy mean nothing to others
         options["hyperparams"].pop("policy_kwargs", None)
+    elif arithmetic == "earlier":
+        kwargs = options["hyperparams"].get("policy_kwargs", {})
+        options["hyperparams"]["policy_kwargs"] = {**kwargs, "actor_nodes": "all", "gat_sparse_kernel": "pyg"}
     team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, **options)
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
     team.learn(rollout)  # warm-up: one rollout and one train() per learner
@@ -152,6 +162,13 @@ def main() -> None:
         default=["side-by-side"],
         help="how the learners' update phases run (default side-by-side; give both to compare)",
     )
+    parser.add_argument(
+        "--arithmetic",
+        nargs="+",
+        choices=["current", "earlier"],
+        default=["current"],
+        help="the policy's kernels (default current; give both for the before/after ratio)",
+    )
     args = parser.parse_args()
     th.set_num_threads(args.threads)
     print(
@@ -162,9 +179,9 @@ def main() -> None:
         + f"; load average {os.getloadavg()[0]:.2f}"
     )
     cartpole = cartpole_speed(args.cartpole_timesteps)
-    print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<48} {cartpole:>10.0f} steps/s")
+    print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<56} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
-        for mode in args.updates:
+        for mode, arithmetic in itertools.product(args.updates, args.arithmetic):
             runs = [
                 team_speed(
                     graph,
@@ -175,15 +192,16 @@ def main() -> None:
                     args.n_steps,
                     args.profile,
                     concurrent=mode == "side-by-side",
+                    arithmetic=arithmetic,
                 )
                 for _ in range(args.repeats)
             ]
             speed = statistics.median(runs)
             paper = 4 * 50_000 / speed
             spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
-            label = f"team {graph} ({args.algo or 'config'}, {mode})"
+            label = f"team {graph} ({args.algo or 'config'}, {mode}, {arithmetic})"
             print(
-                f"{label:<48} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
+                f"{label:<56} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
                 f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"
             )
 

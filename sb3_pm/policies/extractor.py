@@ -29,6 +29,7 @@ from torch import nn
 from sb3_pm.envs.mental_map import U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import BACKENDS, UNIQUE_MIN_BATCH, attention_bias, unique_graphs, use_dense
+from sb3_pm.policies.csr_attention import SPARSE_KERNELS, csr_graph
 from sb3_pm.policies.encodings import LAPLACIAN_MODES, encoding_dim, positional_encoding
 from sb3_pm.policies.features import DERIVED_FEATURES, derived_node_features
 from sb3_pm.policies.layers import GraphAttention, GraphTransformer
@@ -52,6 +53,8 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         kernel (default) or plain autograd (same results, more memory); see
         :func:`~sb3_pm.policies.attention.chunked_attention`. The DCBF policy passes it through
         ``features_extractor_kwargs``.
+    :param sparse_kernel: the GAT layers' sparse kernel, ``"csr"`` (default) or ``"pyg"``
+        (:class:`~sb3_pm.policies.layers.GraphAttention`); the DCBF policy's ``gat_sparse_kernel``.
 
     Shapes:
         - input: the preprocessed dict, ``nodes`` ``(B, N, 5)``, ``adjacency`` ``(B, N, N)``,
@@ -71,6 +74,7 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         backend: str = "auto",
         derived_features: bool = False,
         custom_kernel: bool = True,
+        sparse_kernel: str = "csr",
     ) -> None:
         if laplacian not in LAPLACIAN_MODES:
             raise InputError(f"laplacian must be one of {LAPLACIAN_MODES}, got {laplacian!r}")
@@ -90,6 +94,9 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             laplacian_k,
         )
         self.extra_attention, self.backend = extra_attention, backend
+        if sparse_kernel not in SPARSE_KERNELS:
+            raise InputError(f"sparse_kernel must be one of {SPARSE_KERNELS}, got {sparse_kernel!r}")
+        self.sparse_kernel = sparse_kernel
         self.derived_features = bool(derived_features)
         self.u_max = float(nodes_space.high[:, U].max())
         self.inv_high: th.Tensor
@@ -108,12 +115,18 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
                 heads=gat_heads,
                 backend=backend,
                 custom_kernel=custom_kernel,
+                sparse_kernel=sparse_kernel,
             )
             for i in range(gat_layers)
         )
         if extra_attention:
             self.extra_gat: GraphAttention | None = GraphAttention(
-                hidden_dim, hidden_dim, heads=1, backend=backend, custom_kernel=custom_kernel
+                hidden_dim,
+                hidden_dim,
+                heads=1,
+                backend=backend,
+                custom_kernel=custom_kernel,
+                sparse_kernel=sparse_kernel,
             )
             self.transformer: GraphTransformer | None = GraphTransformer(hidden_dim, backend=backend)
         else:
@@ -175,12 +188,16 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         encoding_u, bias_u = self._graph_inputs(graphs, dense)
         encoding = None if encoding_u is None else (encoding_u, index)
         bias = None if bias_u is None else (bias_u, index)  # shared by every GAT layer
+        # The sparse CSR kernel's pattern, likewise built once and shared by every GAT layer.
+        graph = csr_graph(adjacency, (graphs, index)) if not dense and self.sparse_kernel == "csr" else None
         for i, layer in enumerate(self.gat):
             x = self.activation(
-                layer(x, adjacency, dense=dense, bias=bias, encoding=encoding if i == 0 else None)
+                layer(
+                    x, adjacency, dense=dense, bias=bias, encoding=encoding if i == 0 else None, graph=graph
+                )
             )
         if self.extra_gat is not None and self.transformer is not None:
-            x = self.activation(self.extra_gat(x, adjacency, dense=dense, bias=bias))
+            x = self.activation(self.extra_gat(x, adjacency, dense=dense, bias=bias, graph=graph))
             x = self.activation(self.transformer(x, adjacency, dense=dense))
         return x
 

@@ -26,6 +26,7 @@ from sb3_pm.policies.attention import (
     unique_graphs,
     use_dense,
 )
+from sb3_pm.policies.csr_attention import SPARSE_KERNELS, CSRGraph, csr_gat_attention, csr_graph
 
 
 class GraphAttention(nn.Module):
@@ -42,6 +43,9 @@ class GraphAttention(nn.Module):
     :param custom_kernel: on large graphs, run the dense kernel's attention through the chunked
         custom autograd function (``True``) or through plain autograd (``False``); see
         :func:`~sb3_pm.policies.attention.chunked_attention`. Results are the same either way.
+    :param sparse_kernel: the sparse kernel: ``"csr"`` (default, sparse matrix products,
+        :mod:`sb3_pm.policies.csr_attention`) or ``"pyg"`` (GATConv's message passing, as earlier
+        releases ran it). Same function; only rounding differs.
 
     Shapes:
         - x: ``(B, N, in_channels)``; adjacency: ``(B, N, N)`` (0/1, no self loops needed)
@@ -55,10 +59,14 @@ class GraphAttention(nn.Module):
         heads: int = 1,
         backend: str = "auto",
         custom_kernel: bool = True,
+        sparse_kernel: str = "csr",
     ) -> None:
         super().__init__()
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if sparse_kernel not in SPARSE_KERNELS:
+            raise InputError(f"sparse_kernel must be one of {SPARSE_KERNELS}, got {sparse_kernel!r}")
+        self.sparse_kernel = sparse_kernel
         self.in_channels, self.out_channels, self.heads, self.backend = (
             in_channels,
             out_channels,
@@ -78,6 +86,7 @@ class GraphAttention(nn.Module):
         dense: bool | None = None,
         bias: th.Tensor | tuple[th.Tensor, th.Tensor] | None = None,
         encoding: tuple[th.Tensor, th.Tensor] | None = None,
+        graph: CSRGraph | None = None,
     ) -> th.Tensor:
         """Attend over ``adjacency`` (plus self loops).
 
@@ -87,6 +96,8 @@ class GraphAttention(nn.Module):
         :param encoding: extra input columns given per distinct adjacency, ``((U, N, E), (B,))``:
             the layer's input is then ``[x, encoding[0][encoding[1]]]`` (``in_channels = F + E``),
             and its linear map of the encoding is computed once per distinct adjacency.
+        :param graph: sparse CSR kernel: the batch's :func:`~sb3_pm.policies.csr_attention.csr_graph`,
+            when the caller shares one between layers.
         """
         if dense is None:
             dense = use_dense(adjacency, self.backend)
@@ -97,11 +108,34 @@ class GraphAttention(nn.Module):
             elif isinstance(bias, th.Tensor):
                 bias = (bias, th.arange(bias.shape[0], device=bias.device))
             return self._dense(x, *bias, encoding=encoding)
+        if self.sparse_kernel == "csr":
+            return self._csr(x, adjacency if graph is None else graph, encoding)
         if encoding is not None:
             x = th.cat((x, encoding[0][encoding[1]]), dim=-1)
         batch, n, _ = x.shape
         out = self.conv(x.reshape(batch * n, -1), batched_edge_index(adjacency))
         return out.view(batch, n, -1)
+
+    def _csr(
+        self, x: th.Tensor, graph: th.Tensor | CSRGraph, encoding: tuple[th.Tensor, th.Tensor] | None
+    ) -> th.Tensor:
+        """GATConv's function through the CSR kernel (:mod:`sb3_pm.policies.csr_attention`).
+
+        Shapes:
+            - x: ``(B, N, F)``; graph: adjacency ``(B, N, N)`` or its CSR pattern
+            - output: ``(B, N, out_channels)``
+        """
+        conv = self.conv
+        batch, n, _ = x.shape
+        if not isinstance(graph, CSRGraph):
+            graph = csr_graph(graph)
+        h = self._project(x, encoding).reshape(batch * n, self.heads, self.out_channels)
+        a_src = (h * conv.att_src).sum(-1)  # att_src: (1, heads, C) -> (B*N, heads)
+        a_dst = (h * conv.att_dst).sum(-1)
+        out = csr_gat_attention(h, a_src, a_dst, graph, conv.negative_slope, conv.dropout, self.training)
+        out = out.mean(1)  # heads averaged (concat=False)
+        out = out + conv.bias if conv.bias is not None else out
+        return out.view(batch, n, self.out_channels)
 
     def _project(self, x: th.Tensor, encoding: tuple[th.Tensor, th.Tensor] | None) -> th.Tensor:
         """The layer's linear map ``W [x, encoding]``, ``(B, N, heads * C)``."""
@@ -148,6 +182,7 @@ class GraphAttention(nn.Module):
     def __repr__(self) -> str:
         name = type(self).__name__
         kernel = "" if self.custom_kernel else ", custom_kernel=False"
+        kernel += "" if self.sparse_kernel == "csr" else f", sparse_kernel={self.sparse_kernel!r}"
         return (
             f"{name}({self.in_channels}, {self.out_channels}, heads={self.heads}, "
             f"backend={self.backend!r}{kernel})"

@@ -106,6 +106,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param hidden_dim: node embedding size ``h``.
     :param gat_layers: number of multi-head GAT layers.
     :param gat_backend: ``"auto"``, ``"dense"`` or ``"sparse"``.
+    :param gat_sparse_kernel: the sparse kernel, ``"csr"`` (default, sparse matrix products) or
+        ``"pyg"`` (PyG's message passing, the arithmetic of earlier releases bit for bit); see
+        :class:`~sb3_pm.policies.layers.GraphAttention`.
     :param estimator_hidden: hidden sizes of the estimator MLP.
     :param estimator_lr: Adam learning rate of the estimator.
     :param estimator_epochs: passes over each rollout's pairs when fitting the estimator.
@@ -150,6 +153,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         hidden_dim: int = 32,
         gat_layers: int = 2,
         gat_backend: str = "auto",
+        gat_sparse_kernel: str = "csr",
         estimator_hidden: list[int] | tuple[int, ...] = (64, 64),
         estimator_lr: float = 1e-3,
         estimator_epochs: int = 5,
@@ -202,11 +206,12 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             gat_layers=gat_layers,
             extra_attention=extra_attention,
             backend=gat_backend,
+            sparse_kernel=gat_sparse_kernel,
         )
         # The encoder's settings are this policy's own arguments. The same key in
         # features_extractor_kwargs with another value used to be overwritten without a word
         # (hidden_dim: 64 there gave 32); now it is an error that names the argument to use.
-        argument_for = {"backend": "gat_backend"}
+        argument_for = {"backend": "gat_backend", "sparse_kernel": "gat_sparse_kernel"}
         clash = sorted(
             key
             for key, value in (features_extractor_kwargs or {}).items()
@@ -300,6 +305,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             hidden_dim=self._encoder_kwargs["hidden_dim"],
             gat_layers=self._encoder_kwargs["gat_layers"],
             gat_backend=self._encoder_kwargs["backend"],
+            gat_sparse_kernel=self._encoder_kwargs["sparse_kernel"],
             estimator_hidden=self.estimator_hidden,
             estimator_lr=self.estimator_lr,
             estimator_epochs=self.estimator_epochs,
