@@ -127,7 +127,7 @@ class TestLayers:
         """The exact comparison catches a key collision and falls back to an exact search."""
         from sb3_pm.policies import attention
 
-        monkeypatch.setattr(attention, "_graph_keys", lambda flat: th.zeros(flat.shape[0], 3))
+        monkeypatch.setattr(attention, "_graph_keys", lambda flat: th.zeros(flat.shape[0], dtype=th.float64))
         adjacency = random_graphs(12, 6, 0.4)
         adjacency[6:] = adjacency[0]
         graphs, index = attention.unique_graphs(adjacency)

@@ -72,24 +72,26 @@ def use_dense(adjacency: th.Tensor, backend: str) -> bool:
 
 
 def _graph_keys(flat: th.Tensor) -> th.Tensor:
-    """Three float32 keys per flattened adjacency ``(B, N * N) -> (B, 3)``: fixed pseudo-random
-    integer weightings of its entries.
+    """One float64 key per flattened adjacency ``(B, N * N) -> (B,)``: two fixed pseudo-random
+    integer weightings of its entries, ``k0 * 2**24 + k1``.
 
-    The weights are small enough that, for 0/1 entries, every partial sum is an integer below
-    2**24, so each key is exact whatever order the product sums in: equal graphs always get equal
-    keys (a float weighting rounds differently in different rows of the batch). Distinct graphs
-    share all three keys only by chance, which every caller rules out with an exact comparison.
-    The weights come from a generator of their own, so computing keys draws nothing from torch's
-    global random state.
+    The weights are small enough that, for 0/1 entries, every partial sum of either weighting is an
+    integer below 2**24, so both are exact in float32 whatever order the product sums in, and their
+    combination is exact in float64: equal graphs always get equal keys (a float weighting rounds
+    differently in different rows of the batch). Distinct graphs share a key only by chance, which
+    every caller rules out with an exact comparison. One key per graph keeps the search a 1-D
+    ``unique`` (over rows, ``unique`` compares element by element). The weights come from a
+    generator of their own, so computing keys draws nothing from torch's global random state.
     """
     size = flat.shape[-1]
     weights = _KEY_WEIGHTS.get((size, flat.device))
     if weights is None:
         generator = th.Generator().manual_seed(size)
         high = max(2, (2**24 - 1) // max(size, 1))  # size * (high - 1) < 2**24
-        weights = th.randint(1, high, (size, 3), generator=generator).float().to(flat.device)
+        weights = th.randint(1, high, (size, 2), generator=generator).float().to(flat.device)
         _KEY_WEIGHTS[(size, flat.device)] = weights
-    return th.matmul(flat if flat.dtype == th.float32 else flat.float(), weights)
+    keys = th.matmul(flat if flat.dtype == th.float32 else flat.float(), weights).double()  # (B, 2)
+    return keys[:, 0] * 2.0**24 + keys[:, 1]
 
 
 _KEY_WEIGHTS: dict[tuple[int, th.device], th.Tensor] = {}
@@ -111,7 +113,7 @@ def unique_graphs(adjacency: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
     arange = th.arange(batch, device=adjacency.device)
     # A cheap key first (a weighted sum, not the edge count: two maps of a rollout often know as
     # many edges but different ones); one exact comparison confirms that equal keys mean equal graphs.
-    keys, inverse = th.unique(_graph_keys(flat), dim=0, return_inverse=True)
+    keys, inverse = th.unique(_graph_keys(flat), return_inverse=True)
     first = th.full((len(keys),), batch, dtype=th.long, device=adjacency.device)
     first.scatter_reduce_(0, inverse, arange, reduce="amin")
     if not bool((flat == flat[first[inverse]]).all()):  # two distinct graphs share a key
