@@ -2,13 +2,16 @@
 
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
+                                    [--arithmetic current earlier]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
 ``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
-timed runs (the development machine is a shared VM, and single runs varied by 20%). Then renders
-and writes a GIF of ``--gif-frames`` frames on the first graph (drawing and writing timed
-separately). The load
+timed runs (the development machine is a shared VM, and single runs varied by 20%).
+``--arithmetic earlier`` runs the policy as earlier releases did (``actor_nodes: all``,
+``gat_sparse_kernel: pyg``; see ``benchmarks/train_speed.py``), for a before/after ratio in one
+run. Then renders and writes a GIF of ``--gif-frames`` frames on the first graph (drawing and
+writing timed separately). The load
 average is printed: on a shared CPU the figures are lower.
 
 Measured on the 2-core development machine, idle, with torch 2.13.0 (see the README's Speed
@@ -24,7 +27,15 @@ import time
 from pathlib import Path
 
 
-def evaluation_speed(graph: str, config: str, episodes: int, steps: int, threads: int, repeats: int) -> float:
+def evaluation_speed(
+    graph: str,
+    config: str,
+    episodes: int,
+    steps: int,
+    threads: int,
+    repeats: int,
+    arithmetic: str = "current",
+) -> float:
     """Episodes per second of a 4-agent learned team on ``graph`` with ``threads`` torch threads
     (the median of ``repeats`` timed runs)."""
     import statistics
@@ -33,7 +44,10 @@ def evaluation_speed(graph: str, config: str, episodes: int, steps: int, threads
     from sb3_pm.evaluation import evaluate
     from sb3_pm.zoo import load_config
 
-    team = IndependentPPO.from_config(load_config(config, graph), graph, seed=0)
+    overrides = {}
+    if arithmetic == "earlier":
+        overrides = {"policy_kwargs": {"actor_nodes": "all", "gat_sparse_kernel": "pyg"}}
+    team = IndependentPPO.from_config(load_config(config, graph, overrides=overrides), graph, seed=0)
     evaluate(team, graph, episodes=1, max_cycles=steps, threads=threads)  # warm-up
     rates = []
     for _ in range(repeats):
@@ -76,16 +90,20 @@ def main() -> None:
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gif-frames", type=int, default=500)
+    parser.add_argument("--arithmetic", nargs="+", choices=["current", "earlier"], default=["current"])
     args = parser.parse_args()
     import torch
 
     print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
-    print("| graph | torch threads | episodes/s | seconds per episode |")
-    print("|---|---:|---:|---:|")
+    print("| graph | arithmetic | torch threads | episodes/s | seconds per episode |")
+    print("|---|---|---:|---:|---:|")
     for graph in args.graphs:
-        for threads in args.threads:
-            rate = evaluation_speed(graph, args.config, args.episodes, args.steps, threads, args.repeats)
-            print(f"| {graph} | {threads} | {rate:.3f} | {1 / rate:.1f} |", flush=True)
+        for arithmetic in args.arithmetic:
+            for threads in args.threads:
+                rate = evaluation_speed(
+                    graph, args.config, args.episodes, args.steps, threads, args.repeats, arithmetic
+                )
+                print(f"| {graph} | {arithmetic} | {threads} | {rate:.3f} | {1 / rate:.1f} |", flush=True)
     if args.gif_frames > 0:
         draw, write = gif_speed(args.graphs[0], args.gif_frames)
         print(
