@@ -2,16 +2,15 @@
 
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
-                                    [--arithmetic current earlier]
+                                    [--arithmetic default earlier allowed]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
 ``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
-``--arithmetic earlier`` runs the policy as earlier releases did (``actor_nodes: all``,
-``gat_sparse_kernel: pyg``; see ``benchmarks/train_speed.py``), for a before/after ratio in one
-run. Then renders and writes a GIF of ``--gif-frames`` frames on the first graph (drawing and
-writing timed separately). The load
+``--arithmetic`` runs the policy with other kernels (``earlier``, ``allowed``; see
+``benchmarks/train_speed.py``), for before/after ratios in one run. Then renders and writes a GIF
+of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). The load
 average is printed: on a shared CPU the figures are lower.
 
 Measured on the 2-core development machine, idle, with torch 2.13.0 (see the README's Speed
@@ -26,6 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from train_speed import ARITHMETIC  # the same --arithmetic choices (benchmarks/ is the script's path)
+
 
 def evaluation_speed(
     graph: str,
@@ -34,7 +35,7 @@ def evaluation_speed(
     steps: int,
     threads: int,
     repeats: int,
-    arithmetic: str = "current",
+    arithmetic: str = "default",
 ) -> float:
     """Episodes per second of a 4-agent learned team on ``graph`` with ``threads`` torch threads
     (the median of ``repeats`` timed runs)."""
@@ -44,9 +45,7 @@ def evaluation_speed(
     from sb3_pm.evaluation import evaluate
     from sb3_pm.zoo import load_config
 
-    overrides = {}
-    if arithmetic == "earlier":
-        overrides = {"policy_kwargs": {"actor_nodes": "all", "gat_sparse_kernel": "pyg"}}
+    overrides = {"policy_kwargs": ARITHMETIC[arithmetic]}
     team = IndependentPPO.from_config(load_config(config, graph, overrides=overrides), graph, seed=0)
     evaluate(team, graph, episodes=1, max_cycles=steps, threads=threads)  # warm-up
     rates = []
@@ -90,7 +89,7 @@ def main() -> None:
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gif-frames", type=int, default=500)
-    parser.add_argument("--arithmetic", nargs="+", choices=["current", "earlier"], default=["current"])
+    parser.add_argument("--arithmetic", nargs="+", choices=list(ARITHMETIC), default=["default"])
     args = parser.parse_args()
     import torch
 

@@ -2,7 +2,7 @@
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
-                                     [--updates side-by-side serial] [--arithmetic current earlier]
+                                     [--updates side-by-side serial] [--arithmetic default earlier allowed]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -18,10 +18,11 @@ runs (the CPU may be shared; the load average is printed).
 ``IndependentPPO(concurrent_updates=True)``, each learner's ``train()`` in its own thread) and/or
 ``serial`` (one after another); both give the same parameters, so listing both measures the gain.
 
-``--arithmetic`` picks the policy's kernels: ``current`` (the defaults: the actor head on the allowed
-nodes only, the CSR sparse attention kernel) and/or ``earlier`` (``actor_nodes: all``,
-``gat_sparse_kernel: pyg``: the arithmetic of earlier releases, bit for bit). Listing both gives
-the before/after ratio in one run. They compute the same function; only rounding differs.
+``--arithmetic`` picks the policy's kernels, one or more of (all compute the same function; only
+rounding differs): ``default``; ``earlier`` (``gat_sparse_kernel: pyg``, the arithmetic of earlier
+releases bit for bit; on graphs of up to 64 nodes the sparse kernel never runs, so it equals
+``default``); ``allowed`` (``actor_nodes: allowed``, the actor head on the allowed nodes only, not
+the default: see docs/RESULTS.md). Listing several gives before/after ratios in one run.
 
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
@@ -45,6 +46,14 @@ from typing import Any
 import torch as th
 
 _PHASES_LOCK = threading.Lock()
+
+
+#: Policy kwargs of each ``--arithmetic`` choice: the same function computed by other kernels.
+ARITHMETIC: dict[str, dict[str, str]] = {
+    "default": {},
+    "earlier": {"gat_sparse_kernel": "pyg"},
+    "allowed": {"actor_nodes": "allowed"},
+}
 
 
 def _timed(phases: dict[str, float], name: str, method: Callable[..., Any]) -> Callable[..., Any]:
@@ -84,7 +93,7 @@ def team_speed(
     n_steps: int | None,
     profile: bool = False,
     concurrent: bool = True,
-    arithmetic: str = "current",
+    arithmetic: str = "default",
 ) -> float:
     """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
@@ -101,9 +110,9 @@ def team_speed(
         options["hyperparams"] = {**options["hyperparams"], "n_steps": n_steps, "batch_size": n_steps}
     if options["algo"] != "dcbf_ppo":  # policy_kwargs of the DCBF policy mean nothing to others
         options["hyperparams"].pop("policy_kwargs", None)
-    elif arithmetic == "earlier":
+    else:
         kwargs = options["hyperparams"].get("policy_kwargs", {})
-        options["hyperparams"]["policy_kwargs"] = {**kwargs, "actor_nodes": "all", "gat_sparse_kernel": "pyg"}
+        options["hyperparams"]["policy_kwargs"] = {**kwargs, **ARITHMETIC[arithmetic]}
     team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, **options)
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
     team.learn(rollout)  # warm-up: one rollout and one train() per learner
@@ -165,9 +174,9 @@ def main() -> None:
     parser.add_argument(
         "--arithmetic",
         nargs="+",
-        choices=["current", "earlier"],
-        default=["current"],
-        help="the policy's kernels (default current; give both for the before/after ratio)",
+        choices=list(ARITHMETIC),
+        default=["default"],
+        help="the policy's kernels (default: default; give several for before/after ratios)",
     )
     args = parser.parse_args()
     th.set_num_threads(args.threads)

@@ -276,8 +276,8 @@ class TestPolicy:
         """actor_nodes="allowed" skips masked nodes; log-probabilities, entropies, values and their
         gradients match "all" (the earlier arithmetic) up to rounding."""
         th.manual_seed(0)
-        allowed = make_policy(env, use_dcbf=False)
-        every = make_policy(env, use_dcbf=False, actor_nodes="all")
+        allowed = make_policy(env, use_dcbf=False, actor_nodes="allowed")
+        every = make_policy(env, use_dcbf=False)  # the default, "all"
         every.load_state_dict(allowed.state_dict())
         obs = observation_batch(env, steps=16)
         masks = obs["action_mask"].bool()

@@ -40,8 +40,8 @@ from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 
 MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
-#: Where the actor head runs: only on the nodes the mask allows (the default), or on every node.
-ACTOR_NODES = ("allowed", "all")
+#: Where the actor head runs: on every node (the default), or only on the nodes the mask allows.
+ACTOR_NODES = ("all", "allowed")
 #: Logit given to masked-out actions, sb3-contrib's ``MaskableCategorical`` value.
 _HUGE_NEG = th.tensor(-1e8)
 
@@ -113,13 +113,15 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param estimator_lr: Adam learning rate of the estimator.
     :param estimator_epochs: passes over each rollout's pairs when fitting the estimator.
     :param estimator_batch_size: minibatch size (pairs) when fitting the estimator.
-    :param actor_nodes: ``"allowed"`` (default) runs the actor head only on the nodes the action
-        mask allows and gives every other node the masking constant -1e8 as its logit; ``"all"``
-        runs it on every node first, as the code did before. The masked distribution is the same
-        function either way (a masked node's logit never reaches a probability or a gradient), but
-        rounding differs in the last bits, so ``"all"`` is kept to reproduce earlier runs bit for
-        bit. With at most ``degree + 1`` allowed nodes, ``"allowed"`` cuts the head's work by about
-        ``N / (degree + 1)``.
+    :param actor_nodes: ``"all"`` (default) runs the actor head on every node; ``"allowed"`` runs
+        it only on the nodes the action mask allows and gives every other node the masking constant
+        -1e8 as its logit, which cuts the head's work by about ``N / (degree + 1)`` (a quarter of
+        ``train()`` on the 50-node graph). The masked distribution is the same function either way
+        (a masked node's logit never reaches a probability or a gradient; a trained team deploys to
+        the same actions with either), but rounding differs in the last bits, and training
+        amplifies that into a different team. Over 5 training seeds ``"allowed"`` trained worse
+        teams (docs/RESULTS.md, "Faster arithmetic"), a difference we could not tell from chance
+        but could not rule out either, so it is not the default.
     """
 
     def __init__(
@@ -158,7 +160,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         estimator_lr: float = 1e-3,
         estimator_epochs: int = 5,
         estimator_batch_size: int = 256,
-        actor_nodes: str = "allowed",
+        actor_nodes: str = "all",
     ) -> None:
         if actor_nodes not in ACTOR_NODES:
             raise InputError(f"actor_nodes must be one of {ACTOR_NODES}, got {actor_nodes!r}")
