@@ -2,13 +2,13 @@
 
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
-                                    [--arithmetic default earlier allowed]
+                                    [--arithmetic default csr allowed fast]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
 ``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
-``--arithmetic`` runs the policy with other kernels (``earlier``, ``allowed``; see
+``--arithmetic`` runs the policy with other kernels (``csr``, ``allowed``, ``fast``; see
 ``benchmarks/train_speed.py``), for before/after ratios in one run. Then renders and writes a GIF
 of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). The load
 average is printed: on a shared CPU the figures are lower.

@@ -2,7 +2,7 @@
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
-                                     [--updates side-by-side serial] [--arithmetic default earlier allowed]
+                                     [--updates side-by-side serial] [--arithmetic default csr allowed fast]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -18,11 +18,12 @@ runs (the CPU may be shared; the load average is printed).
 ``IndependentPPO(concurrent_updates=True)``, each learner's ``train()`` in its own thread) and/or
 ``serial`` (one after another); both give the same parameters, so listing both measures the gain.
 
-``--arithmetic`` picks the policy's kernels, one or more of (all compute the same function; only
-rounding differs): ``default``; ``earlier`` (``gat_sparse_kernel: pyg``, the arithmetic of earlier
-releases bit for bit; on graphs of up to 64 nodes the sparse kernel never runs, so it equals
-``default``); ``allowed`` (``actor_nodes: allowed``, the actor head on the allowed nodes only, not
-the default: see docs/RESULTS.md). Listing several gives before/after ratios in one run.
+``--arithmetic`` picks the policy's kernels, one or more of: ``default``; ``csr``
+(``gat_sparse_kernel: csr``: sparse matrix products for sparse minibatches; graphs of up to 64
+nodes never run the sparse kernel, so there it equals ``default``); ``allowed`` (``actor_nodes:
+allowed``: the actor head on the allowed nodes only); ``fast`` (both). All compute the same
+function, but rounding differs and training turns it into different teams, so neither option is
+the default (docs/RESULTS.md, "Faster arithmetic"). Listing several gives the ratios in one run.
 
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
@@ -51,8 +52,9 @@ _PHASES_LOCK = threading.Lock()
 #: Policy kwargs of each ``--arithmetic`` choice: the same function computed by other kernels.
 ARITHMETIC: dict[str, dict[str, str]] = {
     "default": {},
-    "earlier": {"gat_sparse_kernel": "pyg"},
+    "csr": {"gat_sparse_kernel": "csr"},
     "allowed": {"actor_nodes": "allowed"},
+    "fast": {"gat_sparse_kernel": "csr", "actor_nodes": "allowed"},
 }
 
 

@@ -18,8 +18,8 @@ def random_graphs(batch: int, n: int, density: float, seed: int = 0) -> th.Tenso
 
 def twin_layers(in_channels: int, heads: int) -> tuple[GraphAttention, GraphAttention]:
     th.manual_seed(0)
-    csr = GraphAttention(in_channels, 8, heads=heads, backend="sparse")
-    pyg = GraphAttention(in_channels, 8, heads=heads, backend="sparse", sparse_kernel="pyg")
+    csr = GraphAttention(in_channels, 8, heads=heads, backend="sparse", sparse_kernel="csr")
+    pyg = GraphAttention(in_channels, 8, heads=heads, backend="sparse")  # the default, "pyg"
     pyg.load_state_dict(csr.state_dict())
     return csr, pyg
 
@@ -88,7 +88,9 @@ def test_extractor_sparse_kernels_agree() -> None:
         }
     )
     th.manual_seed(0)
-    csr = GATFeaturesExtractor(space, hidden_dim=8, gat_heads=2, laplacian="none", backend="sparse")
+    csr = GATFeaturesExtractor(
+        space, hidden_dim=8, gat_heads=2, laplacian="none", backend="sparse", sparse_kernel="csr"
+    )
     pyg = GATFeaturesExtractor(
         space, hidden_dim=8, gat_heads=2, laplacian="none", backend="sparse", sparse_kernel="pyg"
     )

@@ -11,8 +11,9 @@ the attention weights, so no per-edge feature tensor is ever built. Only per-edg
 (scores, probabilities) go through ordinary autograd.
 
 It computes :class:`torch_geometric.nn.GATConv`'s function (self loops added, heads averaged by the
-caller) on its parameters; only float rounding differs. ``sparse_kernel="pyg"`` in the layer keeps
-PyG's message passing, to reproduce runs made with it bit for bit.
+caller) on its parameters; only float rounding differs. It is opt-in (``gat_sparse_kernel: csr``):
+the default, PyG's message passing, reproduces earlier runs bit for bit, and a different rounding
+trains a different team from the same seed.
 """
 
 from __future__ import annotations
@@ -83,21 +84,25 @@ def csr_graph(adjacency: th.Tensor, distinct: tuple[th.Tensor, th.Tensor] | None
     eye = th.eye(n, dtype=th.bool, device=device)
     size = batch * n
     if distinct is None:
-        b, i, j = ((adjacency != 0) | eye).nonzero(as_tuple=True)  # sorted by (b, i, j): CSR order
+        graphs, index = adjacency, th.arange(batch, device=device)
     else:
         graphs, index = distinct
-        g, gi, gj = ((graphs != 0) | eye).nonzero(as_tuple=True)  # sorted by (graph, i, j)
-        per_graph = th.bincount(g, minlength=graphs.shape[0])
-        starts = per_graph.cumsum(0) - per_graph
-        per_map = per_graph[index]  # (B,) edges of each map
-        b = th.repeat_interleave(th.arange(batch, device=device), per_map)
-        within = th.arange(len(b), device=device) - th.repeat_interleave(per_map.cumsum(0) - per_map, per_map)
-        source = starts[index][b] + within  # each map's edges, in its graph's (i, j) order
-        i, j = gi[source], gj[source]
-    row, col = b * n + i, b * n + j
+    # Edges of each distinct graph, sorted by (graph, i, j), and their transposed order, sorted by
+    # (graph, j, i): a sort over the distinct graphs' edges only, not over the whole batch's.
+    g, gi, gj = ((graphs != 0) | eye).nonzero(as_tuple=True)
+    per_graph = th.bincount(g, minlength=graphs.shape[0])
+    starts = per_graph.cumsum(0) - per_graph
+    local_perm = th.argsort((g * n + gj) * n + gi) - starts[g]  # within its graph's edges
+    # Copy each map's graph: map b's edges, in its graph's order, follow map b-1's.
+    per_map = per_graph[index]  # (B,) edges of each map
+    map_start = per_map.cumsum(0) - per_map
+    b = th.repeat_interleave(th.arange(batch, device=device), per_map)
+    within = th.arange(len(b), device=device) - map_start[b]
+    source = starts[index][b] + within  # each edge's entry among the distinct graphs' edges
+    row, col = b * n + gi[source], b * n + gj[source]
     crow = th.zeros(size + 1, dtype=th.long, device=device)
     crow[1:] = th.bincount(row, minlength=size).cumsum(0)
-    perm = th.argsort(col * size + row)
+    perm = map_start[b] + local_perm[source]  # blocks stay in map order in the transpose too
     t_crow = th.zeros_like(crow)
     t_crow[1:] = th.bincount(col, minlength=size).cumsum(0)
     return CSRGraph(size, crow, col, row, t_crow, row[perm], perm)

@@ -53,7 +53,7 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         kernel (default) or plain autograd (same results, more memory); see
         :func:`~sb3_pm.policies.attention.chunked_attention`. The DCBF policy passes it through
         ``features_extractor_kwargs``.
-    :param sparse_kernel: the GAT layers' sparse kernel, ``"csr"`` (default) or ``"pyg"``
+    :param sparse_kernel: the GAT layers' sparse kernel, ``"pyg"`` (default) or ``"csr"``
         (:class:`~sb3_pm.policies.layers.GraphAttention`); the DCBF policy's ``gat_sparse_kernel``.
 
     Shapes:
@@ -74,7 +74,7 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         backend: str = "auto",
         derived_features: bool = False,
         custom_kernel: bool = True,
-        sparse_kernel: str = "csr",
+        sparse_kernel: str = "pyg",
     ) -> None:
         if laplacian not in LAPLACIAN_MODES:
             raise InputError(f"laplacian must be one of {LAPLACIAN_MODES}, got {laplacian!r}")

@@ -106,9 +106,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param hidden_dim: node embedding size ``h``.
     :param gat_layers: number of multi-head GAT layers.
     :param gat_backend: ``"auto"``, ``"dense"`` or ``"sparse"``.
-    :param gat_sparse_kernel: the sparse kernel, ``"csr"`` (default, sparse matrix products) or
-        ``"pyg"`` (PyG's message passing, the arithmetic of earlier releases bit for bit); see
-        :class:`~sb3_pm.policies.layers.GraphAttention`.
+    :param gat_sparse_kernel: the sparse kernel, ``"pyg"`` (default, PyG's message passing) or
+        ``"csr"`` (sparse matrix products, faster on large sparse graphs, not bit for bit the same
+        teams); see :class:`~sb3_pm.policies.layers.GraphAttention`.
     :param estimator_hidden: hidden sizes of the estimator MLP.
     :param estimator_lr: Adam learning rate of the estimator.
     :param estimator_epochs: passes over each rollout's pairs when fitting the estimator.
@@ -155,7 +155,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         hidden_dim: int = 32,
         gat_layers: int = 2,
         gat_backend: str = "auto",
-        gat_sparse_kernel: str = "csr",
+        gat_sparse_kernel: str = "pyg",
         estimator_hidden: list[int] | tuple[int, ...] = (64, 64),
         estimator_lr: float = 1e-3,
         estimator_epochs: int = 5,
