@@ -2,7 +2,8 @@
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
-                                     [--updates side-by-side serial] [--arithmetic default csr allowed fast]
+                                     [--updates side-by-side serial]
+                                     [--arithmetic default csr allowed fast fast-sparse]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -21,7 +22,8 @@ runs (the CPU may be shared; the load average is printed).
 ``--arithmetic`` picks the policy's kernels, one or more of: ``default``; ``csr``
 (``gat_sparse_kernel: csr``: sparse matrix products for sparse minibatches; graphs of up to 64
 nodes never run the sparse kernel, so there it equals ``default``); ``allowed`` (``actor_nodes:
-allowed``: the actor head on the allowed nodes only); ``fast`` (both). All compute the same
+allowed``: the actor head on the allowed nodes only); ``fast`` (both); ``fast-sparse`` (both,
+and ``gat_backend: sparse``, so that every minibatch runs the CSR kernel). All compute the same
 function, but rounding differs and training turns it into different teams, so neither option is
 the default (docs/RESULTS.md, "Faster arithmetic"). Listing several gives the ratios in one run.
 
@@ -55,6 +57,7 @@ ARITHMETIC: dict[str, dict[str, str]] = {
     "csr": {"gat_sparse_kernel": "csr"},
     "allowed": {"actor_nodes": "allowed"},
     "fast": {"gat_sparse_kernel": "csr", "actor_nodes": "allowed"},
+    "fast-sparse": {"gat_sparse_kernel": "csr", "actor_nodes": "allowed", "gat_backend": "sparse"},
 }
 
 
