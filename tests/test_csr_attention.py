@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch as th
 
-from sb3_pm.policies import GATFeaturesExtractor, GraphAttention
+from sb3_pm.policies import GATFeaturesExtractor, GraphAttention, layers
 from sb3_pm.policies.attention import unique_graphs
-from sb3_pm.policies.csr_attention import _CSRAggregate, csr_graph
+from sb3_pm.policies.csr_attention import _CSRAggregate, csr_gat_attention, csr_graph
 
 
 def random_graphs(batch: int, n: int, density: float, seed: int = 0) -> th.Tensor:
@@ -75,7 +75,7 @@ def test_the_pattern_from_distinct_graphs_is_the_direct_one() -> None:
     )
 
 
-def test_extractor_sparse_kernels_agree() -> None:
+def test_extractor_sparse_kernels_agree(monkeypatch: pytest.MonkeyPatch) -> None:
     """A whole encoder on a sparse minibatch: CSR and PyG kernels give the same embeddings."""
     from gymnasium import spaces
 
@@ -97,7 +97,30 @@ def test_extractor_sparse_kernels_agree() -> None:
     pyg.load_state_dict(csr.state_dict())
     adjacency = random_graphs(16, n, 0.03).to(th.int8)
     obs = {"nodes": th.rand(16, n, 5), "adjacency": adjacency, "position": th.zeros(16, n)}
+    calls = []
+    monkeypatch.setattr(
+        layers, "csr_gat_attention", lambda *a, **k: calls.append(1) or csr_gat_attention(*a, **k)
+    )
     th.testing.assert_close(csr.node_embeddings(obs), pyg.node_embeddings(obs), atol=1e-5, rtol=1e-5)
+    assert len(calls) == len(csr.gat)  # the CSR encoder really ran its kernel, the PyG one did not
+
+
+def test_the_policy_passes_its_kernel_options_down() -> None:
+    from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
+    from sb3_pm.graphs import erdos_renyi
+    from sb3_pm.policies import DCBFActorCriticPolicy
+
+    env = SingleAgentMonitoringEnv(erdos_renyi(10, 0.3, n_targets=3, seed=1), n_agents=2, max_cycles=5)
+    policy = DCBFActorCriticPolicy(
+        env.observation_space,
+        env.action_space,
+        lambda _: 3e-4,
+        gat_sparse_kernel="csr",
+        actor_nodes="allowed",
+    )
+    assert all(layer.sparse_kernel == "csr" for layer in policy.features_extractor.gat)
+    saved = policy._get_constructor_parameters()
+    assert saved["gat_sparse_kernel"] == "csr" and saved["actor_nodes"] == "allowed"
 
 
 def test_unknown_sparse_kernel_is_refused() -> None:

@@ -123,17 +123,43 @@ class TestLayers:
         graphs, index = unique_graphs(adjacency)
         assert len(graphs) == 2 and th.equal(graphs[index], adjacency)
 
-    def test_unique_graphs_when_distinct_graphs_share_a_key(self, monkeypatch: pytest.MonkeyPatch) -> None:
-        """The exact comparison catches a key collision and falls back to an exact search."""
+    @pytest.mark.parametrize("collide", [False, True])
+    def test_unique_graphs_keep_the_earlier_order(
+        self, collide: bool, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        """Distinct graphs come out in the order of the earlier search (by edge count, lexicographic
+        where counts tie), which keeps trained parameters bit for bit; a key collision is caught by
+        the exact comparison and changes nothing."""
         from sb3_pm.policies import attention
 
-        monkeypatch.setattr(attention, "_graph_keys", lambda flat: th.zeros(flat.shape[0], dtype=th.float64))
-        adjacency = random_graphs(12, 6, 0.4)
-        adjacency[6:] = adjacency[0]
-        graphs, index = attention.unique_graphs(adjacency)
-        assert len(graphs) == len(th.unique(adjacency.flatten(1), dim=0)) and th.equal(
-            graphs[index], adjacency
-        )
+        def earlier(adjacency: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+            flat = adjacency.reshape(adjacency.shape[0], -1)
+            counts = flat.sum(-1)
+            if len(th.unique(counts)) == len(th.unique(flat, dim=0)):
+                _, inverse = th.unique(counts, return_inverse=True)
+            else:
+                _, inverse = th.unique(flat, dim=0, return_inverse=True)
+            first = th.full((int(inverse.max()) + 1,), len(flat), dtype=th.long)
+            first.scatter_reduce_(0, inverse, th.arange(len(flat)), reduce="amin")
+            return adjacency[first], inverse
+
+        if collide:
+            monkeypatch.setattr(
+                attention, "_graph_keys", lambda flat: th.zeros(flat.shape[0], dtype=th.float64)
+            )
+        # Counts that differ, in the opposite of lexicographic order: A has one edge (0, 1), B two
+        # edges (3, 1) and (3, 2); sorted rows put B first, edge counts put A first.
+        distinct_counts = th.zeros(10, 4, 4)
+        distinct_counts[::2, 0, 1] = distinct_counts[::2, 1, 0] = 1.0
+        distinct_counts[1::2, 3, 1] = distinct_counts[1::2, 1, 3] = 1.0
+        distinct_counts[1::2, 3, 2] = distinct_counts[1::2, 2, 3] = 1.0
+        tied_counts = random_graphs(14, 6, 0.4, seed=1)
+        tied_counts[:2] = 0.0  # two distinct graphs with one edge each
+        tied_counts[0, 0, 1] = tied_counts[0, 1, 0] = tied_counts[1, 2, 3] = tied_counts[1, 3, 2] = 1.0
+        for adjacency in (distinct_counts, tied_counts, random_graphs(14, 6, 0.4, seed=2)):
+            graphs, index = attention.unique_graphs(adjacency)
+            want_graphs, want_index = earlier(adjacency)
+            assert th.equal(graphs, want_graphs) and th.equal(index, want_index)
 
     def test_encoding_per_graph_matches_concatenated_input(self) -> None:
         """The first layer's per-distinct-graph product with the encoding equals the plain layer."""

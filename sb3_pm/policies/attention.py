@@ -120,7 +120,6 @@ def unique_graphs(adjacency: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         _, inverse = th.unique(flat, dim=0, return_inverse=True)
         first = th.full((int(inverse.max()) + 1,), batch, dtype=th.long, device=adjacency.device)
         first.scatter_reduce_(0, inverse, arange, reduce="amin")
-        return adjacency[first], inverse
     # Put the distinct graphs in the order earlier releases used (by edge count, or in
     # lexicographic order where two share a count): the batched products that follow round
     # differently when their rows move, and this order keeps trained parameters bit for bit.

@@ -126,7 +126,9 @@ class _CSRAggregate(th.autograd.Function):
         grad_out = grad_out.contiguous()
         grad_values = grad_features = None
         if ctx.needs_input_grad[0]:
-            sampled = th.sparse.sampled_addmm(graph.matrix(values), grad_out, features.t(), beta=0.0)
+            # Only the pattern is sampled (beta=0 still lets NaN values through, so zeros are given).
+            pattern = graph.matrix(th.zeros_like(values))
+            sampled = th.sparse.sampled_addmm(pattern, grad_out, features.t(), beta=0.0)
             grad_values = sampled.values()
         if ctx.needs_input_grad[1]:
             grad_features = graph.transposed(values) @ grad_out

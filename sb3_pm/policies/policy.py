@@ -430,8 +430,10 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             - output: ``(B, N, pi_out)`` or ``(M, pi_out)``
         """
         first = self.actor_body[0] if len(self.actor_body) else None
-        own_per_node = own[rows] if rows is not None else own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
         if not isinstance(first, nn.Linear):  # no hidden layer: plain concatenation
+            own_per_node = (
+                own[rows] if rows is not None else own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
+            )
             return self.actor_body(th.cat((embeddings, own_per_node), dim=-1))
         width = embeddings.shape[-1]
         per_node = nn.functional.linear(embeddings, first.weight[:, :width], first.bias)  # (..., w)
