@@ -29,7 +29,7 @@ from torch import nn
 from sb3_pm.envs.mental_map import U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import BACKENDS, UNIQUE_MIN_BATCH, attention_bias, unique_graphs, use_dense
-from sb3_pm.policies.csr_attention import SPARSE_KERNELS, csr_graph
+from sb3_pm.policies.csr_attention import csr_graph
 from sb3_pm.policies.encodings import LAPLACIAN_MODES, encoding_dim, positional_encoding
 from sb3_pm.policies.features import DERIVED_FEATURES, derived_node_features
 from sb3_pm.policies.layers import GraphAttention, GraphTransformer
@@ -94,9 +94,7 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             laplacian_k,
         )
         self.extra_attention, self.backend = extra_attention, backend
-        if sparse_kernel not in SPARSE_KERNELS:
-            raise InputError(f"sparse_kernel must be one of {SPARSE_KERNELS}, got {sparse_kernel!r}")
-        self.sparse_kernel = sparse_kernel
+        self.sparse_kernel = sparse_kernel  # validated by the GAT layers, which run it
         self.derived_features = bool(derived_features)
         self.u_max = float(nodes_space.high[:, U].max())
         self.inv_high: th.Tensor

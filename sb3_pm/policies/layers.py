@@ -111,26 +111,22 @@ class GraphAttention(nn.Module):
                 bias = (bias, th.arange(bias.shape[0], device=bias.device))
             return self._dense(x, *bias, encoding=encoding)
         if self.sparse_kernel == "csr":
-            return self._csr(x, adjacency if graph is None else graph, encoding)
+            return self._csr(x, csr_graph(adjacency) if graph is None else graph, encoding)
         if encoding is not None:
             x = th.cat((x, encoding[0][encoding[1]]), dim=-1)
         batch, n, _ = x.shape
         out = self.conv(x.reshape(batch * n, -1), batched_edge_index(adjacency))
         return out.view(batch, n, -1)
 
-    def _csr(
-        self, x: th.Tensor, graph: th.Tensor | CSRGraph, encoding: tuple[th.Tensor, th.Tensor] | None
-    ) -> th.Tensor:
+    def _csr(self, x: th.Tensor, graph: CSRGraph, encoding: tuple[th.Tensor, th.Tensor] | None) -> th.Tensor:
         """GATConv's function through the CSR kernel (:mod:`sb3_pm.policies.csr_attention`).
 
         Shapes:
-            - x: ``(B, N, F)``; graph: adjacency ``(B, N, N)`` or its CSR pattern
+            - x: ``(B, N, F)``; graph: the batch's CSR pattern
             - output: ``(B, N, out_channels)``
         """
         conv = self.conv
         batch, n, _ = x.shape
-        if not isinstance(graph, CSRGraph):
-            graph = csr_graph(graph)
         h = self._project(x, encoding).reshape(batch * n, self.heads, self.out_channels)
         a_src = (h * conv.att_src).sum(-1)  # att_src: (1, heads, C) -> (B*N, heads)
         a_dst = (h * conv.att_dst).sum(-1)
