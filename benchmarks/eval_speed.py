@@ -3,13 +3,17 @@
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
                                     [--arithmetic default csr allowed fast]
+                                    [--inference serial stacked]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
 ``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
 ``--arithmetic`` runs the policy with other kernels (``csr``, ``allowed``, ``fast``; see
-``benchmarks/train_speed.py``), for before/after ratios in one run. Then renders and writes a GIF
+``benchmarks/train_speed.py``), for before/after ratios in one run. ``--inference`` times the
+team acting one forward pass per agent (``serial``, the earlier releases' path) and one stacked
+pass for the whole team (``stacked``, the default; the same actions, bit for bit,
+:mod:`sb3_pm.agents.stacked_inference`), and prints their ratio. Then renders and writes a GIF
 of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). The load
 average is printed: on a shared CPU the figures are lower.
 
@@ -36,6 +40,7 @@ def evaluation_speed(
     threads: int,
     repeats: int,
     arithmetic: str = "default",
+    inference: str = "stacked",
 ) -> float:
     """Episodes per second of a 4-agent learned team on ``graph`` with ``threads`` torch threads
     (the median of ``repeats`` timed runs)."""
@@ -47,6 +52,7 @@ def evaluation_speed(
 
     overrides = {"policy_kwargs": ARITHMETIC[arithmetic]}
     team = IndependentPPO.from_config(load_config(config, graph, overrides=overrides), graph, seed=0)
+    team.stacked_inference = inference == "stacked"
     evaluate(team, graph, episodes=1, max_cycles=steps, threads=threads)  # warm-up
     rates = []
     for _ in range(repeats):
@@ -90,19 +96,34 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gif-frames", type=int, default=500)
     parser.add_argument("--arithmetic", nargs="+", choices=list(ARITHMETIC), default=["default"])
+    parser.add_argument(
+        "--inference", nargs="+", choices=["serial", "stacked"], default=["serial", "stacked"]
+    )
     args = parser.parse_args()
     import torch
 
     print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
-    print("| graph | arithmetic | torch threads | episodes/s | seconds per episode |")
-    print("|---|---|---:|---:|---:|")
+    print("| graph | arithmetic | inference | torch threads | episodes/s | seconds per episode | × serial |")
+    print("|---|---|---|---:|---:|---:|---:|")
     for graph in args.graphs:
         for arithmetic in args.arithmetic:
             for threads in args.threads:
-                rate = evaluation_speed(
-                    graph, args.config, args.episodes, args.steps, threads, args.repeats, arithmetic
-                )
-                print(f"| {graph} | {arithmetic} | {threads} | {rate:.3f} | {1 / rate:.1f} |", flush=True)
+                serial = None
+                for inference in args.inference:
+                    rate = evaluation_speed(
+                        graph,
+                        args.config,
+                        args.episodes,
+                        args.steps,
+                        threads,
+                        args.repeats,
+                        arithmetic,
+                        inference,
+                    )
+                    serial = rate if inference == "serial" else serial
+                    ratio = f"{rate / serial:.2f}" if serial else "—"
+                    row = f"| {graph} | {arithmetic} | {inference} | {threads} | {rate:.3f} | {1 / rate:.1f}"
+                    print(f"{row} | {ratio} |", flush=True)
     if args.gif_frames > 0:
         draw, write = gif_speed(args.graphs[0], args.gif_frames)
         print(

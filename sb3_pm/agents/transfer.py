@@ -27,6 +27,7 @@ import numpy as np
 import torch as th
 
 from sb3_pm.agents.saved_teams import check_same_graph
+from sb3_pm.agents.stacked_inference import StackedInference
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.team_interface import Observation, Team
@@ -85,8 +86,11 @@ class TransferredTeam(Team):
     """
 
     omniscient = False
+    #: as :attr:`IndependentPPO.stacked_inference <sb3_pm.agents.team.IndependentPPO.stacked_inference>`
+    stacked_inference: bool = True
 
     def __init__(self, source: Any, graph: GraphSpec) -> None:
+        self._stacker = StackedInference()
         from sb3_pm.envs import persistent_monitoring_v0
 
         self.source, self.graph = source, graph
@@ -120,6 +124,14 @@ class TransferredTeam(Team):
             th.manual_seed(seed)
 
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+        """Each agent's action from its learner's rebuilt policy; deterministic actions through one
+        stacked pass where it applies, as in ``IndependentPPO.predict``."""
+        if deterministic and self.stacked_inference and observations:
+            agents = list(observations)
+            policies = [self.policies[self.learner_for(agent)] for agent in agents]
+            stacked = self._stacker.actions(policies, [observations[agent] for agent in agents])
+            if stacked is not None:
+                return {agent: int(action) for agent, action in zip(agents, stacked)}
         actions: dict[str, int] = {}
         for agent, obs in observations.items():
             policy = self.policies[self.learner_for(agent)]

@@ -350,18 +350,33 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self, pre: dict[str, th.Tensor], u_hat: th.Tensor, given: th.Tensor | np.ndarray | None
     ) -> th.Tensor:
         """The DCBF mask (or the reachable set), intersected with a caller's mask if any."""
+        mask, forced = self.filtered_masks(pre, u_hat, given)
+        if forced is not None:
+            self.count_forced(forced)
+        return mask
+
+    def filtered_masks(
+        self, pre: dict[str, th.Tensor], u_hat: th.Tensor, given: th.Tensor | np.ndarray | None
+    ) -> tuple[th.Tensor, th.Tensor | None]:
+        """:meth:`_masks` without counting: the mask ``(B, N)`` bool, and where rule 8 forced it
+        ``(B,)`` bool (``None`` when rule 8 is off)."""
+        forced = None
         if self.use_dcbf:
             mask, forced = dcbf_filter_from_map(pre, u_hat, self.dcbf_config, self.u_max)
-            if self.dcbf_config.neglect_bound is not None:
-                self.filter_counts["masks"] += int(forced.shape[0])
-                self.filter_counts["forced"] = self.filter_counts["forced"] + forced.sum()
+            if self.dcbf_config.neglect_bound is None:
+                forced = None
         else:
             mask = pre["action_mask"] > 0.5
         if given is not None:
             given_t = th.as_tensor(given, device=mask.device).reshape(mask.shape).bool()
             both = mask & given_t
             mask = th.where(both.any(-1, keepdim=True), both, mask)
-        return mask
+        return mask, forced
+
+    def count_forced(self, forced: th.Tensor) -> None:
+        """Add one batch of rule-8 decisions ``(B,)`` bool to :attr:`filter_counts`."""
+        self.filter_counts["masks"] += int(forced.shape[0])
+        self.filter_counts["forced"] = self.filter_counts["forced"] + forced.sum()
 
     def compute_masks(self, obs: PyTorchObs) -> th.Tensor:
         """The DCBF mask for raw (unpreprocessed) tensor observations, ``(B, N)`` bool."""
@@ -373,7 +388,13 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         """The heads' inputs: per-node ``[H_m, û_m / u_max]`` ``(B, N, d)`` and the agent's own
         node's embedding ``(B, h)``."""
         extractor: GATFeaturesExtractor = self.features_extractor  # type: ignore[assignment]
-        embeddings = extractor.node_embeddings(pre)  # (B, N, h)
+        return self._with_estimate(extractor.node_embeddings(pre), pre, u_hat)
+
+    def _with_estimate(
+        self, embeddings: th.Tensor, pre: dict[str, th.Tensor], u_hat: th.Tensor
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """``[H_m, û_m / u_max]`` ``(B, N, d)`` and the own node's ``H_φ`` ``(B, h)`` from the
+        embeddings ``H`` ``(B, N, h)``."""
         batch = embeddings.shape[0]
         position = pre["position_index"] if "position_index" in pre else pre["position"].argmax(-1)
         own = embeddings[th.arange(batch, device=embeddings.device), position]  # (B, h)

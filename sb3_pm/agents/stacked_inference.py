@@ -1,0 +1,320 @@
+"""One forward pass for a whole team: the learners' policies run stacked, each with its own weights.
+
+A deployed team acts with one small forward pass per agent per step, each made of about 150
+small tensor operations, so a team's evaluation spends its time on per-operation overhead rather
+than arithmetic. When the learners' policies share one architecture (always, for a team built
+from one config), each parameter can be stacked along a new leading axis and every agent's pass
+becomes one batched operation on ``K`` maps: a batched matrix product with each map's own weights,
+an elementwise operation on the stacked tensors.
+
+Nothing is shared but the arithmetic: agent ``k``'s action depends only on its own observation and
+its own learner's parameters, as in the serial path. The parameter-free parts (SB3's
+preprocessing, the DCBF filter, the positional encodings, the attention masks) run on the batch
+of ``K`` maps as they are.
+
+**Bit for bit.** The stacked pass computes the serial pass's logits exactly
+(``tests/test_stacked_inference.py`` compares them on every step of several episodes), so it is
+the default for deterministic acting. Three kinds of operation would round differently if batched,
+and run map by map on the serial path's own tensors instead:
+
+* a product with one output unit (the actor's logit, the estimator's prediction) or one input row
+  (the actor's product with the own node's embedding): the serial kernel is a matrix-vector
+  product, whose summation order no batched kernel reproduces;
+* a transcendental activation (ELU, Tanh) over a number of elements per map that is not a
+  multiple of :data:`TAIL_FREE`: its vectorized loop computes the leftover elements with scalar
+  code, so where an element falls in the loop depends on the tensor's size. With the default
+  sizes (32 and 64 units, an even number of nodes) every map fills whole blocks and stays batched.
+
+Sampled actions keep the serial path (their draws from torch's generator come in a fixed order).
+
+This pass covers the configurations the package trains by default: the dense GAT kernel, the
+estimator (or none), any positional encoding, one or more heads, and an actor with a hidden layer.
+A step runs serially instead (:meth:`StackedInference.actions` returns ``None``, and
+:func:`stack_problem` says why) for other policies, policies that differ in anything but their
+parameters, ``extra_attention``, ``derived_features``, ``actor_nodes: allowed``, graphs large enough
+for the chunked attention kernel or the estimator's row gathering, a map the dense kernel would not
+run, or an observation of the wrong size (the serial path then raises SB3's error).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import torch as th
+from torch import nn
+
+from sb3_pm.envs.mental_map import TARGET
+from sb3_pm.policies.attention import FUSED_MIN_SCORES, attention_bias, attention_probabilities, use_dense
+from sb3_pm.policies.estimator import GATHER_MIN_ROWS, StateEstimator
+from sb3_pm.policies.extractor import GATFeaturesExtractor
+from sb3_pm.policies.layers import GraphAttention
+from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
+
+#: Elements per map (a multiple of) that keep every element of a transcendental activation in its
+#: vectorized loop's body: two vectors of the widest instruction set torch uses (2 x 16 floats),
+#: with a margin of 2.
+TAIL_FREE = 64
+#: Constructor parameters that do not change what a policy computes when it acts.
+_NOT_ARCHITECTURE = ("lr_schedule", "optimizer_class", "optimizer_kwargs", "estimator_lr")
+_TRANSCENDENTAL = (nn.ELU, nn.Tanh, nn.Sigmoid, nn.GELU, nn.SiLU, nn.Softplus, nn.Mish, nn.CELU, nn.SELU)
+_EXACT = (nn.ReLU, nn.LeakyReLU, nn.Identity)
+
+
+def stack_problem(policies: Sequence[Any]) -> str | None:
+    """Why ``policies`` cannot act as one stacked pass, or ``None`` if they can."""
+    if not policies:
+        return "no policies"
+    first = policies[0]
+    if any(type(p) is not DCBFActorCriticPolicy for p in policies):
+        return "not every policy is a DCBFActorCriticPolicy"
+    if first.actor_nodes != "all":
+        return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
+    extractor = first.features_extractor
+    if extractor.derived_features:
+        return "derived_features search hop distances per map (data-dependent)"
+    if extractor.extra_gat is not None:
+        return "extra_attention is not stacked"
+    if len(first.actor_body) == 0 or not isinstance(first.actor_body[0], nn.Linear):
+        return "an actor without a hidden layer is not stacked"
+    layers = [*first.actor_body, *(first.estimator.net if first.estimator is not None else [])]
+    if any(not isinstance(layer, (nn.Linear, *_TRANSCENDENTAL, *_EXACT)) for layer in layers):
+        return "a head with a layer other than Linear and a plain activation is not stacked"
+    names = dict(first.named_parameters())
+    needed = ["actor_body.0.weight", "actor_body.0.bias"] + [
+        f"features_extractor.gat.{i}.conv.{name}"
+        for i in range(len(extractor.gat))
+        for name in ("lin.weight", "att_src", "att_dst", "bias")
+    ]
+    if any(name not in names for name in needed):
+        return "the GAT or actor parameters are not laid out as this pass expects"
+    n = first.n_nodes
+    heads = max(layer.heads for layer in extractor.gat)
+    if heads * n * n >= FUSED_MIN_SCORES or n >= GATHER_MIN_ROWS:
+        return f"{n} nodes take the chunked attention or the estimator's row gathering"
+    signature = _signature(first)
+    for policy in policies[1:]:
+        if _signature(policy) != signature:
+            return "the policies differ in more than their parameters"
+    return None
+
+
+def _signature(policy: DCBFActorCriticPolicy) -> tuple[Any, ...]:
+    """Everything but the parameters that decides what ``policy`` computes when it acts."""
+    data = policy._get_constructor_parameters()
+    kept = {key: value for key, value in data.items() if key not in _NOT_ARCHITECTURE}
+    return (
+        repr(policy),
+        sorted(kept.items(), key=lambda item: item[0]),
+        policy.dcbf_config,
+        policy.use_dcbf,
+        policy.u_max,
+        tuple((name, tuple(t.shape), t.dtype) for name, t in policy.state_dict().items()),
+    )
+
+
+class _Stack:
+    """The stacked parameters of ``K`` policies, ``(K, *shape)`` each, by parameter name."""
+
+    def __init__(self, policies: Sequence[DCBFActorCriticPolicy]) -> None:
+        self.policies = list(policies)
+        self.names = [name for name, _ in policies[0].named_parameters()]
+        self.sources = [[dict(p.named_parameters())[name] for name in self.names] for p in policies]
+        self._versions: tuple[int, ...] | None = None
+        self.weights: dict[str, th.Tensor] = {}
+
+    def refresh(self) -> None:
+        """Stack again if any parameter changed in place since (training steps and
+        ``load_state_dict`` bump torch's version counters)."""
+        versions = tuple(t._version for tensors in self.sources for t in tensors)
+        if versions != self._versions:
+            with th.no_grad():
+                self.weights = {name: th.stack(group) for name, group in zip(self.names, zip(*self.sources))}
+            self._versions = versions
+
+
+class StackedInference:
+    """Deterministic actions of several DCBF policies in one stacked forward pass.
+
+    Keeps the stack of the last policy list it served; a parameter changed in place (training,
+    ``load_state_dict``) is stacked again on the next call. A policy whose parameter objects are
+    replaced (not changed in place) needs a new ``StackedInference``; nothing in SB3 or this
+    package does that.
+    """
+
+    def __init__(self) -> None:
+        self._ids: tuple[int, ...] | None = None
+        self._problem: str | None = None
+        self._stack: _Stack | None = None
+
+    def problem(self, policies: Sequence[Any]) -> str | None:
+        """Why ``policies`` cannot act stacked now (:func:`stack_problem`, remembered for the same
+        policy objects; the filter settings, which deployment may change, on every call)."""
+        ids = tuple(id(p) for p in policies)
+        if ids != self._ids:
+            self._ids, self._problem = ids, stack_problem(policies)
+            self._stack = None if self._problem is not None else _Stack(policies)
+        if self._problem is None and any(p.dcbf_config != policies[0].dcbf_config for p in policies):
+            return "the policies' DCBF filter settings differ"
+        return self._problem
+
+    def actions(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+    ) -> np.ndarray | None:
+        """The most likely action of ``policies[k]`` on ``observations[k]`` for every ``k``, as the
+        serial ``policy.predict(obs, deterministic=True, action_masks=obs["action_mask"])`` gives
+        it; ``None`` where this step must run serially (see the module docstring).
+
+        Shapes:
+            - observations: ``K`` mental-map observations (numpy), one per policy
+            - output: ``(K,)`` int64
+        """
+        result = self.logits(policies, observations)
+        if result is None:
+            return None
+        logits, masks = result
+        return masked_mode(logits, masks).cpu().numpy()
+
+    def logits(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+    ) -> tuple[th.Tensor, th.Tensor] | None:
+        """Every policy's logits on its own observation and its DCBF mask, or ``None`` where this
+        step must run serially. Counts rule 8's decisions in each policy's ``filter_counts``.
+
+        Shapes:
+            - observations: ``K`` mental-map observations (numpy), one per policy
+            - output: logits ``(K, N)`` float, masks ``(K, N)`` bool
+        """
+        if len(policies) != len(observations) or self.problem(policies) is not None:
+            return None
+        stack = self._stack
+        assert stack is not None
+        first: DCBFActorCriticPolicy = policies[0]
+        space = first.observation_space
+        arrays = {}
+        for key in MAP_KEYS:
+            shape = space[key].shape  # type: ignore[index]
+            values = [np.asarray(obs[key]) for obs in observations]
+            if any(v.size != int(np.prod(shape, dtype=np.int64)) for v in values):
+                return None  # the serial path raises SB3's error for it
+            arrays[key] = th.as_tensor(np.stack([v.reshape(shape) for v in values])).to(first.device)
+        extractor: GATFeaturesExtractor = first.features_extractor  # type: ignore[assignment]
+        if not all(
+            use_dense(arrays["adjacency"][k : k + 1], extractor.backend) for k in range(len(policies))
+        ):
+            return None  # a map the serial path would run through the sparse kernel
+        for policy in policies:
+            policy.set_training_mode(False)  # as SB3's predict does
+        stack.refresh()
+        with th.no_grad():
+            pre = first._preprocess(arrays)
+            u_hat = self._estimate(stack, pre) if first.estimator is not None else first.uncertainty(pre)
+            # The filter has no parameters: one call on the K maps, each row its own.
+            masks, forced = first.filtered_masks(pre, u_hat, arrays["action_mask"])
+            if forced is not None:
+                for k, policy in enumerate(policies):
+                    policy.count_forced(forced[k : k + 1])
+            embeddings, own = first._with_estimate(self._embed(stack, pre), pre, u_hat)
+            return self._actor(stack, embeddings, own), masks
+
+    # -------------------------------------------------------------- the pass
+    @staticmethod
+    def _mlp(stack: _Stack, prefix: str, layers: nn.Sequential, x: th.Tensor, start: int = 0) -> th.Tensor:
+        """``layers[start:]`` on ``x`` ``(K, N, d)``, each map with its own policy's weights."""
+        n = x.shape[1]
+        for i, layer in enumerate(layers):
+            if i < start:
+                continue
+            if isinstance(layer, nn.Linear):
+                if layer.out_features == 1:
+                    x = _per_map(stack, f"{prefix}.{i}", x)
+                else:
+                    weight, bias = stack.weights[f"{prefix}.{i}.weight"], stack.weights[f"{prefix}.{i}.bias"]
+                    x = th.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+            else:
+                x = _activation(layer, x, n)
+        return x
+
+    def _estimate(self, stack: _Stack, pre: dict[str, th.Tensor]) -> th.Tensor:
+        """``û`` ``(K, N)``: :meth:`StateEstimator.forward <sb3_pm.policies.estimator.StateEstimator.forward>`
+        per map (a map's ``N`` rows are below the estimator's row-gathering size)."""
+        first = stack.policies[0]
+        estimator: StateEstimator | None = first.estimator  # type: ignore[assignment]
+        assert estimator is not None
+        nodes = pre["nodes"]  # the normalization is the observation space's, the same for every policy
+        out = self._mlp(stack, "estimator.net", estimator.net, nodes * estimator.inv_high).squeeze(-1)
+        out = out * nodes[..., TARGET]
+        return out.clamp(0.0, 1.0) * estimator.u_max
+
+    def _embed(self, stack: _Stack, pre: dict[str, th.Tensor]) -> th.Tensor:
+        """The GAT embeddings ``(K, N, h)``: ``GATFeaturesExtractor.node_embeddings`` on the dense
+        kernel, each map with its own policy's weights."""
+        extractor: GATFeaturesExtractor = stack.policies[0].features_extractor  # type: ignore[assignment]
+        adjacency = pre["adjacency"]
+        encoding = extractor.encoding(adjacency)  # (K, N, E) or None
+        bias = attention_bias(adjacency)  # (K, 1, N, N)
+        x = pre["nodes"] * extractor.inv_high  # (K, N, F): the observation space's scale
+        batch, n, _ = x.shape
+        for i, module in enumerate(extractor.gat):
+            layer: GraphAttention = module  # type: ignore[assignment]
+            prefix = f"features_extractor.gat.{i}.conv"
+            weight = stack.weights[f"{prefix}.lin.weight"]  # (K, heads * C, F [+ E])
+            heads, channels = int(layer.heads), int(layer.out_channels)
+            if i == 0 and encoding is not None:  # GraphAttention._project with the encoding
+                features = x.shape[-1]
+                h = th.bmm(x, weight[:, :, :features].transpose(1, 2)) + th.matmul(
+                    encoding, weight[:, :, features:].transpose(1, 2)
+                )
+            else:
+                h = th.bmm(x, weight.transpose(1, 2))
+            h = h.view(batch, n, heads, channels).transpose(1, 2).contiguous()  # (K, H, N, C)
+            att_src = stack.weights[f"{prefix}.att_src"].view(batch, heads, 1, channels)
+            att_dst = stack.weights[f"{prefix}.att_dst"].view(batch, heads, 1, channels)
+            alpha = attention_probabilities(
+                (h * att_dst).sum(-1), (h * att_src).sum(-1), bias, float(layer.conv.negative_slope)
+            )
+            out = th.matmul(alpha, h).mean(1) + stack.weights[f"{prefix}.bias"].unsqueeze(1)
+            x = _activation(extractor.activation, out, n)
+        return x
+
+    @staticmethod
+    def _actor(stack: _Stack, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
+        """``DCBFActorCriticPolicy._actor_logits`` (``actor_nodes: all``) per map: ``(K, N)``."""
+        policies = stack.policies
+        width = embeddings.shape[-1]
+        weight, bias = stack.weights["actor_body.0.weight"], stack.weights["actor_body.0.bias"]
+        per_node = th.baddbmm(bias.unsqueeze(1), embeddings, weight[:, :, :width].transpose(1, 2))
+        # The product with the own node's embedding has one row: map by map (see the module docstring).
+        per_map = th.stack(
+            [
+                nn.functional.linear(own[k : k + 1].clone(), _first_weight(p)[:, width:])
+                for k, p in enumerate(policies)
+            ]
+        )  # (K, 1, w)
+        hidden = StackedInference._mlp(
+            stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1
+        )
+        return _per_map(stack, "action_net", hidden).squeeze(-1)
+
+
+def _first_weight(policy: DCBFActorCriticPolicy) -> th.Tensor:
+    """The weight ``(w, d + h)`` of the actor body's first layer."""
+    first: nn.Linear = policy.actor_body[0]  # type: ignore[assignment]
+    return first.weight
+
+
+def _per_map(stack: _Stack, name: str, x: th.Tensor) -> th.Tensor:
+    """The linear layer ``name`` of each policy on its own map: ``(K, N, d) -> (K, N, out)``,
+    each on a fresh copy of the map's rows, as the serial path's input is."""
+    return th.cat([p.get_submodule(name)(x[k : k + 1].clone()) for k, p in enumerate(stack.policies)])
+
+
+def _activation(layer: nn.Module, x: th.Tensor, n: int) -> th.Tensor:
+    """``layer`` on ``x`` ``(K, N, d)``: batched where each map rounds as alone, else map by map."""
+    if isinstance(layer, _TRANSCENDENTAL) and (n * x.shape[-1]) % TAIL_FREE:
+        return th.cat([layer(x[k : k + 1].clone()) for k in range(x.shape[0])])
+    return layer(x)  # type: ignore[no-any-return]
+
+
+__all__ = ["TAIL_FREE", "StackedInference", "stack_problem"]

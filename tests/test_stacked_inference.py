@@ -1,0 +1,212 @@
+"""A team's deterministic actions through one stacked pass equal the serial passes, bit for bit."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_pm.agents.stacked_inference import StackedInference, stack_problem
+from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.envs import persistent_monitoring_v0
+from sb3_pm.graphs import erdos_renyi
+
+th.set_num_threads(1)
+GRAPH = erdos_renyi(14, 0.3, n_targets=4, seed=3)
+TINY = {"n_steps": 16, "batch_size": 16, "n_epochs": 1}
+
+
+def make_team(n_agents: int = 3, seed: int = 0, **policy_kwargs: Any) -> IndependentPPO:
+    """An untrained team: its learners are seeded apart, so every policy has its own weights."""
+    return IndependentPPO(
+        GRAPH,
+        n_agents=n_agents,
+        seed=seed,
+        env_kwargs={"max_cycles": 60},
+        hyperparams={**TINY, "policy_kwargs": {"hidden_dim": 8, **policy_kwargs}},
+    )
+
+
+def serial_logits(policy: Any, obs: dict[str, np.ndarray]) -> tuple[th.Tensor, th.Tensor]:
+    """What ``policy.predict(obs, deterministic=True, action_masks=...)`` computes before its argmax."""
+    tensors, _ = policy.obs_to_tensor(obs)
+    with th.no_grad():
+        pre = policy._preprocess(tensors)
+        u_hat = policy.uncertainty(pre)
+        masks = policy._masks(pre, u_hat, np.asarray(obs["action_mask"], dtype=bool))
+        return policy._logits(pre, u_hat, masks), masks
+
+
+def walk(team: Any, n_agents: int, steps: int = 40, env_kwargs: dict[str, Any] | None = None):
+    """Yield every step's observations of an episode driven by the team's serial actions."""
+    env = persistent_monitoring_v0.parallel_env(
+        graph=GRAPH, n_agents=n_agents, max_cycles=60, **(env_kwargs or {})
+    )
+    observations, _ = env.reset(seed=7)
+    team.reset(env, seed=7)
+    for _ in range(steps):
+        if not observations:
+            return
+        yield observations
+        team.stacked_inference = False
+        actions = team.predict(observations)
+        team.stacked_inference = True
+        observations, *_ = env.step(actions)
+
+
+def check_equal(
+    team: Any, observations: dict[str, Any], policies: list[Any], stacker: StackedInference
+) -> None:
+    agents = list(observations)
+    result = stacker.logits(policies, [observations[a] for a in agents])
+    assert result is not None, stack_problem(policies)
+    logits, masks = result
+    for k, agent in enumerate(agents):
+        expected_logits, expected_masks = serial_logits(policies[k], observations[agent])
+        assert th.equal(masks[k], expected_masks[0])
+        assert th.equal(logits[k], expected_logits[0]), (
+            f"{agent}: {(logits[k] - expected_logits[0]).abs().max()}"
+        )
+    team.stacked_inference = False
+    serial = team.predict(observations)
+    team.stacked_inference = True
+    assert team.predict(observations) == serial
+
+
+@pytest.mark.parametrize(
+    "policy_kwargs",
+    [
+        {},
+        {"laplacian": "none"},
+        {"laplacian": "eigen"},
+        {"gat_heads": 4},
+        {"use_estimator": False},
+        {"hidden_dim": 32},
+        {"dcbf_barrier": True, "freeze_steps": 10},
+        {"neglect_bound": 20},
+    ],
+    ids=[
+        "small",
+        "no-encoding",
+        "eigen",
+        "4-heads",
+        "no-estimator",
+        "batched-activations",
+        "barrier",
+        "bound",
+    ],
+)
+def test_stacked_logits_and_actions_equal_the_serial_ones_bit_for_bit(policy_kwargs: dict[str, Any]) -> None:
+    team = make_team(**policy_kwargs)
+    policies = [team.models[a].policy for a in team.agents]
+    stacker = StackedInference()
+    for observations in walk(team, 3):
+        check_equal(team, observations, policies, stacker)
+
+
+def test_rule_8_is_counted_per_learner_as_in_the_serial_path() -> None:
+    counts = []
+    for stacked in (False, True):
+        team = make_team(neglect_bound=12)
+        team.stacked_inference = stacked
+        env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=3, max_cycles=60)
+        observations, _ = env.reset(seed=7)
+        team.reset(env, seed=7)
+        for _ in range(60):
+            observations, *_ = env.step(team.predict(observations))
+        counts.append(
+            {a: {k: int(v) for k, v in team.models[a].policy.filter_counts.items()} for a in team.agents}
+        )
+    assert counts[0] == counts[1]
+    assert sum(c["forced"] for c in counts[0].values()) > 0  # the bound did force moves
+
+
+def test_more_agents_than_learners_and_failed_agents_stack_too() -> None:
+    team = make_team(n_agents=2)
+    stacker = StackedInference()
+    # 5 agents on 2 learners (agent_i acts with learner i mod 2); agent_1 fails after step 10.
+    for observations in walk(team, 5, env_kwargs={"failures": {"agent_1": 10}}):
+        policies = [team.models[team.learner_for(a)].policy for a in observations]
+        check_equal(team, observations, policies, stacker)
+
+
+def test_a_transferred_team_stacks_on_its_new_graph() -> None:
+    team = make_team(n_agents=2, laplacian="none").on_graph(erdos_renyi(20, 0.25, n_targets=5, seed=9))
+    env = persistent_monitoring_v0.parallel_env(graph=team.graph, n_agents=2, max_cycles=30)
+    observations, _ = env.reset(seed=1)
+    team.reset(env, seed=1)
+    for _ in range(30):
+        team.stacked_inference = False
+        serial = team.predict(observations)
+        team.stacked_inference = True
+        assert team.predict(observations) == serial
+        observations, *_ = env.step(serial)
+
+
+def test_parameters_changed_in_place_are_stacked_again() -> None:
+    team = make_team()
+    policies = [team.models[a].policy for a in team.agents]
+    stacker = StackedInference()
+    observations = next(walk(team, 3))
+    check_equal(team, observations, policies, stacker)
+    team.learn(32)  # optimizer steps change every parameter in place
+    check_equal(team, observations, policies, stacker)
+    with th.no_grad():
+        policies[1].action_net.bias.add_(5.0)
+    check_equal(team, observations, policies, stacker)
+
+
+def test_the_policies_modules_hold_their_own_tensors_after_a_stacked_pass() -> None:
+    team = make_team()
+    before = {a: dict(team.models[a].policy.state_dict(keep_vars=True)) for a in team.agents}
+    observations = next(walk(team, 3))
+    team.predict(observations)  # stacked
+    for a in team.agents:
+        after = team.models[a].policy.state_dict(keep_vars=True)
+        assert all(after[k] is before[a][k] for k in after)  # no tensor swapped in and left behind
+    team.stacked_inference = False
+    team.predict(observations)  # the serial path still runs on them
+
+
+def test_what_cannot_stack_says_why_and_runs_serially() -> None:
+    assert "allowed" in str(stack_problem([make_team(actor_nodes="allowed").models["agent_0"].policy]))
+    assert "derived" in str(stack_problem([make_team(derived_features=True).models["agent_0"].policy]))
+    assert "extra_attention" in str(stack_problem([make_team(extra_attention=True).models["agent_0"].policy]))
+    mixed = [
+        make_team(hidden_dim=8).models["agent_0"].policy,
+        make_team(hidden_dim=16).models["agent_0"].policy,
+    ]
+    assert "differ" in str(stack_problem(mixed))
+    # A filter changed on one learner after the stack was built: that step runs serially.
+    team = make_team()
+    stacker = StackedInference()
+    policies = [team.models[a].policy for a in team.agents]
+    observations = next(walk(team, 3))
+    assert stacker.logits(policies, [observations[a] for a in team.agents]) is not None
+    policies[1].dcbf_config = replace(policies[1].dcbf_config, neglect_bound=30.0)
+    assert stacker.logits(policies, [observations[a] for a in team.agents]) is None
+    assert "filter" in str(stacker.problem(policies))
+    team._stacked_inference_state = stacker
+    assert set(team.predict(observations)) == set(team.agents)  # one pass per agent instead
+    team.set_filter(neglect_bound=30.0)  # every learner alike again: stacked
+    assert stacker.logits(policies, [observations[a] for a in team.agents]) is not None
+
+
+def test_sampled_actions_keep_the_serial_path() -> None:
+    draws = []
+    for stacked in (False, True):
+        team = make_team()
+        team.stacked_inference = stacked
+        env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=3, max_cycles=60)
+        observations, _ = env.reset(seed=2)
+        team.reset(env, seed=2)
+        chosen = []
+        for _ in range(20):
+            step = team.predict(observations, deterministic=False)
+            chosen.append(step)
+            observations, *_ = env.step(step)
+        draws.append(chosen)
+    assert draws[0] == draws[1]
