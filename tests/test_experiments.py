@@ -529,3 +529,20 @@ def test_a_train_env_variant_trains_once_per_seed_and_deploys_on_every_graph(
         (Path(cell.folder) / "DONE").unlink()
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
     assert trained == []
+
+
+@pytest.mark.parametrize("path", sorted((ZOO / "experiments").glob("*.yml")), ids=lambda p: p.stem)
+def test_every_shipped_experiment_loads_and_plans(path: Path, tmp_path: Path) -> None:
+    assert plan_cells(load_experiment(path), tmp_path)
+
+
+def test_lr_schedule_and_budget_change_only_what_they_name(tmp_path: Path) -> None:
+    schedule = load_experiment(ZOO / "experiments" / "lr_schedule.yml")
+    variants = {v.key: v for v in schedule.variants}
+    assert variants["linear"].hyperparams == {"learning_rate": "lin_1e-3"}
+    assert variants["constant"].hyperparams == {"learning_rate": 0.001}
+    budget = load_experiment(ZOO / "experiments" / "budget.yml")
+    variants = {v.key: v for v in budget.variants}
+    assert budget.timesteps == 50000 and variants["budget_50k"].timesteps is None
+    assert variants["budget_100k"].timesteps == 100000
+    assert not variants["budget_100k"].hyperparams and not variants["budget_100k"].policy_kwargs

@@ -79,8 +79,10 @@ def stack_problem(policies: Sequence[Any]) -> str | None:
     if len(first.actor_body) == 0 or not isinstance(first.actor_body[0], nn.Linear):
         return "an actor without a hidden layer is not stacked"
     layers = [*first.actor_body, *(first.estimator.net if first.estimator is not None else [])]
-    if any(not isinstance(layer, (nn.Linear, *_TRANSCENDENTAL, *_EXACT)) for layer in layers):
-        return "a head with a layer other than Linear and a plain activation is not stacked"
+    if any(not isinstance(layer, (nn.Linear, *_TRANSCENDENTAL, *_EXACT)) for layer in layers) or any(
+        isinstance(layer, nn.Linear) and layer.bias is None for layer in layers
+    ):
+        return "a head with a layer other than Linear (with bias) and a plain activation is not stacked"
     names = dict(first.named_parameters())
     needed = ["actor_body.0.weight", "actor_body.0.bias"] + [
         f"features_extractor.gat.{i}.conv.{name}"
