@@ -85,6 +85,8 @@ def check_equal(
         {"gat_heads": 4},
         {"use_estimator": False},
         {"hidden_dim": 32},
+        {"net_arch": {"pi": [16, 16], "vf": [16, 16]}},
+        {"gat_layers": 3, "gat_heads": 2},
         {"dcbf_barrier": True, "freeze_steps": 10},
         {"neglect_bound": 20},
     ],
@@ -95,6 +97,8 @@ def check_equal(
         "4-heads",
         "no-estimator",
         "batched-activations",
+        "narrow-actor",
+        "3-layers",
         "barrier",
         "bound",
     ],
@@ -138,12 +142,53 @@ def test_a_transferred_team_stacks_on_its_new_graph() -> None:
     env = persistent_monitoring_v0.parallel_env(graph=team.graph, n_agents=2, max_cycles=30)
     observations, _ = env.reset(seed=1)
     team.reset(env, seed=1)
+    stacker = StackedInference()
     for _ in range(30):
-        team.stacked_inference = False
-        serial = team.predict(observations)
-        team.stacked_inference = True
-        assert team.predict(observations) == serial
-        observations, *_ = env.step(serial)
+        policies = [team.policies[team.learner_for(a)] for a in observations]
+        check_equal(team, observations, policies, stacker)  # the stacked pass ran, and it is exact
+        observations, *_ = env.step(team.predict(observations))
+
+
+def test_maps_for_the_sparse_kernel_run_serially() -> None:
+    team = make_team(gat_backend="sparse")
+    policies = [team.models[a].policy for a in team.agents]
+    observations = next(walk(team, 3))
+    assert StackedInference().logits(policies, [observations[a] for a in team.agents]) is None
+    serial = team.predict(observations)
+    assert team.predict(observations) == serial
+
+
+def test_a_pass_that_would_round_differently_is_refused_by_its_own_check(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import sb3_pm.agents.stacked_inference as stacked
+
+    def batched_heads(stack: Any, name: str, x: th.Tensor) -> th.Tensor:  # one-output layers, batched
+        weight, bias = stack.weights[f"{name}.weight"], stack.weights[f"{name}.bias"]
+        return th.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+
+    monkeypatch.setattr(stacked, "_per_map", batched_heads)  # a matrix-vector product rounds otherwise
+    team = make_team()
+    policies = [team.models[a].policy for a in team.agents]
+    stacker = StackedInference()
+    observations = next(walk(team, 3))
+    assert stacker.logits(policies, [observations[a] for a in team.agents]) is None
+    assert "round" in str(stacker.problem(policies))
+    team._stacker = stacker
+    team.stacked_inference = False
+    serial = team.predict(observations)
+    team.stacked_inference = True
+    assert team.predict(observations) == serial
+
+
+def test_observations_of_another_shape_are_left_to_the_serial_path() -> None:
+    team = make_team()
+    policies = [team.models[a].policy for a in team.agents]
+    observations = next(walk(team, 3))
+    flat = [
+        {**observations[a], "nodes": np.asarray(observations[a]["nodes"]).reshape(-1)} for a in team.agents
+    ]
+    assert StackedInference().logits(policies, flat) is None
 
 
 def test_parameters_changed_in_place_are_stacked_again() -> None:
@@ -156,6 +201,8 @@ def test_parameters_changed_in_place_are_stacked_again() -> None:
     check_equal(team, observations, policies, stacker)
     with th.no_grad():
         policies[1].action_net.bias.add_(5.0)
+    check_equal(team, observations, policies, stacker)
+    policies[2].action_net.weight.data.mul_(3.0)  # a write torch's version counter does not see
     check_equal(team, observations, policies, stacker)
 
 
@@ -189,7 +236,7 @@ def test_what_cannot_stack_says_why_and_runs_serially() -> None:
     policies[1].dcbf_config = replace(policies[1].dcbf_config, neglect_bound=30.0)
     assert stacker.logits(policies, [observations[a] for a in team.agents]) is None
     assert "filter" in str(stacker.problem(policies))
-    team._stacked_inference_state = stacker
+    team._stacker = stacker
     assert set(team.predict(observations)) == set(team.agents)  # one pass per agent instead
     team.set_filter(neglect_bound=30.0)  # every learner alike again: stacked
     assert stacker.logits(policies, [observations[a] for a in team.agents]) is not None

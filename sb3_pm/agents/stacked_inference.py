@@ -12,18 +12,23 @@ its own learner's parameters, as in the serial path. The parameter-free parts (S
 preprocessing, the DCBF filter, the positional encodings, the attention masks) run on the batch
 of ``K`` maps as they are.
 
-**Bit for bit.** The stacked pass computes the serial pass's logits exactly
-(``tests/test_stacked_inference.py`` compares them on every step of several episodes), so it is
-the default for deterministic acting. Three kinds of operation would round differently if batched,
-and run map by map on the serial path's own tensors instead:
+**Bit for bit.** The stacked pass computes the serial pass's logits exactly, and it checks that
+it does: when it first serves a set of policies (and again when torch's thread count changes), it
+computes logits for random maps both ways and, if any bit differs, says so and leaves that team to
+the serial path for good. Which batched kernels round as the single-map ones is a property of the
+CPU, the BLAS library and the sizes, so it is verified where it runs rather than assumed.
+``tests/test_stacked_inference.py`` also compares the two on every step of several episodes. To
+round as the serial path does, the pass:
 
-* a product with one output unit (the actor's logit, the estimator's prediction) or one input row
-  (the actor's product with the own node's embedding): the serial kernel is a matrix-vector
-  product, whose summation order no batched kernel reproduces;
-* a transcendental activation (ELU, Tanh) over a number of elements per map that is not a
-  multiple of :data:`TAIL_FREE`: its vectorized loop computes the leftover elements with scalar
-  code, so where an element falls in the loop depends on the tensor's size. With the default
-  sizes (32 and 64 units, an even number of nodes) every map fills whole blocks and stays batched.
+* runs map by map, on the learners' own tensors, every product with one output unit (the actor's
+  logit, the estimator's prediction) or one input row (the actor's product with the own node's
+  embedding): alone, they run as matrix-vector kernels whose summation order no batched kernel
+  reproduces;
+* batches a transcendental activation (ELU, Tanh) only when each map fills whole blocks of
+  :data:`TAIL_FREE` elements and one thread computes it: its vectorized loop computes leftover
+  elements with scalar code, and torch splits a large tensor between threads at other boundaries,
+  so where an element falls in the loop would otherwise depend on the batch. With the default
+  sizes (32 and 64 units, an even number of nodes) it stays batched.
 
 Sampled actions keep the serial path (their draws from torch's generator come in a fixed order).
 
@@ -31,9 +36,10 @@ This pass covers the configurations the package trains by default: the dense GAT
 estimator (or none), any positional encoding, one or more heads, and an actor with a hidden layer.
 A step runs serially instead (:meth:`StackedInference.actions` returns ``None``, and
 :func:`stack_problem` says why) for other policies, policies that differ in anything but their
-parameters, ``extra_attention``, ``derived_features``, ``actor_nodes: allowed``, graphs large enough
-for the chunked attention kernel or the estimator's row gathering, a map the dense kernel would not
-run, or an observation of the wrong size (the serial path then raises SB3's error).
+parameters, policies off the CPU (not verified there), ``extra_attention``, ``derived_features``,
+``actor_nodes: allowed``, graphs large enough for the chunked attention kernel or the estimator's
+row gathering, a map the dense kernel would not run, an observation of another shape (the serial
+path then raises SB3's error), or a failed check of the rounding.
 """
 
 from __future__ import annotations
@@ -56,6 +62,12 @@ from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
 #: vectorized loop's body: two vectors of the widest instruction set torch uses (2 x 16 floats),
 #: with a margin of 2.
 TAIL_FREE = 64
+#: Random draws of maps on which a new stack's rounding is checked (some roundings differ only
+#: for some values, as a transcendental function's vector and scalar code do).
+_CHECKS = 8
+#: Below this many elements torch runs an elementwise operation on one thread (its grain size is
+#: 32,768), so a batched activation is split between threads at no boundary of its own.
+_ONE_THREAD_ELEMENTS = 32_768
 #: Constructor parameters that do not change what a policy computes when it acts.
 _NOT_ARCHITECTURE = ("lr_schedule", "optimizer_class", "optimizer_kwargs", "estimator_lr")
 _TRANSCENDENTAL = (nn.ELU, nn.Tanh, nn.Sigmoid, nn.GELU, nn.SiLU, nn.Softplus, nn.Mish, nn.CELU, nn.SELU)
@@ -69,6 +81,8 @@ def stack_problem(policies: Sequence[Any]) -> str | None:
     first = policies[0]
     if any(type(p) is not DCBFActorCriticPolicy for p in policies):
         return "not every policy is a DCBFActorCriticPolicy"
+    if any(p.device.type != "cpu" for p in policies):
+        return "the stacked pass is verified on the CPU only"
     if first.actor_nodes != "all":
         return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
     extractor = first.features_extractor
@@ -112,7 +126,10 @@ def _signature(policy: DCBFActorCriticPolicy) -> tuple[Any, ...]:
         policy.dcbf_config,
         policy.use_dcbf,
         policy.u_max,
-        tuple((name, tuple(t.shape), t.dtype) for name, t in policy.state_dict().items()),
+        policy.device,
+        tuple((name, tuple(t.shape), t.dtype) for name, t in policy.named_parameters()),
+        # every map is scaled by the first policy's buffers (the observation space's highs)
+        tuple((name, t.detach().cpu().numpy().tobytes()) for name, t in policy.named_buffers()),
     )
 
 
@@ -122,27 +139,27 @@ class _Stack:
     def __init__(self, policies: Sequence[DCBFActorCriticPolicy]) -> None:
         self.policies = list(policies)
         self.names = [name for name, _ in policies[0].named_parameters()]
+        # The parameter objects, found once (walking the module tree each step cost more than the
+        # stacking); their values are read anew on every refresh.
         self.sources = [[dict(p.named_parameters())[name] for name in self.names] for p in policies]
-        self._versions: tuple[int, ...] | None = None
         self.weights: dict[str, th.Tensor] = {}
 
     def refresh(self) -> None:
-        """Stack again if any parameter changed in place since (training steps and
-        ``load_state_dict`` bump torch's version counters)."""
-        versions = tuple(t._version for tensors in self.sources for t in tensors)
-        if versions != self._versions:
-            with th.no_grad():
-                self.weights = {name: th.stack(group) for name, group in zip(self.names, zip(*self.sources))}
-            self._versions = versions
+        """Stack the policies' current values. Done on every call (a small fraction of a step): a
+        cache keyed on torch's version counters missed writes through ``.data``, which PyG's
+        initializers and ``Module.to`` make. A parameter object replaced outright
+        (``load_state_dict(assign=True)``) needs a new stack: :class:`StackedInference` builds one
+        for new policy objects, not for new parameters of the same ones."""
+        with th.no_grad():
+            self.weights = {name: th.stack(group) for name, group in zip(self.names, zip(*self.sources))}
 
 
 class StackedInference:
     """Deterministic actions of several DCBF policies in one stacked forward pass.
 
-    Keeps the stack of the last policy list it served; a parameter changed in place (training,
-    ``load_state_dict``) is stacked again on the next call. A policy whose parameter objects are
-    replaced (not changed in place) needs a new ``StackedInference``; nothing in SB3 or this
-    package does that.
+    Remembers, for the last policy list it served, whether they can act stacked (and whether the
+    stacked pass rounds as the serial one here, per torch thread count); the parameters themselves
+    are stacked anew on every call.
     """
 
     def __init__(self) -> None:
@@ -151,15 +168,58 @@ class StackedInference:
         self._stack: _Stack | None = None
 
     def problem(self, policies: Sequence[Any]) -> str | None:
-        """Why ``policies`` cannot act stacked now (:func:`stack_problem`, remembered for the same
-        policy objects; the filter settings, which deployment may change, on every call)."""
-        ids = tuple(id(p) for p in policies)
+        """Why ``policies`` cannot act stacked now: :func:`stack_problem`, or a failed check of the
+        rounding (remembered for the same policy objects and thread count; the filter settings,
+        which deployment may change, are compared on every call)."""
+        ids = (*(id(p) for p in policies), th.get_num_threads())
         if ids != self._ids:
             self._ids, self._problem = ids, stack_problem(policies)
             self._stack = None if self._problem is not None else _Stack(policies)
+            if self._stack is not None and not self._rounds_as_serial(self._stack):
+                self._problem = "on this machine the stacked pass does not round as the serial one"
+                self._stack = None
         if self._problem is None and any(p.dcbf_config != policies[0].dcbf_config for p in policies):
             return "the policies' DCBF filter settings differ"
         return self._problem
+
+    def _rounds_as_serial(self, stack: _Stack) -> bool:
+        """Whether the stacked logits equal each policy's own on random maps of its observation
+        space, to the last bit (drawn from a generator of their own: nothing else's state moves)."""
+        rng = np.random.default_rng(0)
+        return all(self._rounds_as_serial_on(stack, rng) for _ in range(_CHECKS))
+
+    def _rounds_as_serial_on(self, stack: _Stack, rng: np.random.Generator) -> bool:
+        """One draw of :meth:`_rounds_as_serial`."""
+        first = stack.policies[0]
+        space = first.observation_space
+        k, n = len(stack.policies), first.n_nodes
+        nodes_space = space["nodes"]  # type: ignore[index]
+        nodes = rng.uniform(0.0, 1.0, (k, *nodes_space.shape)) * nodes_space.high
+        nodes = np.round(nodes).astype(nodes_space.dtype)  # the env's counters are integers
+        upper = np.triu(rng.random((k, n, n)) < 0.3, 1)
+        adjacency = (upper | upper.transpose(0, 2, 1)).astype(space["adjacency"].dtype)  # type: ignore[index]
+        arrays = {
+            "nodes": th.as_tensor(nodes),
+            "adjacency": th.as_tensor(adjacency),
+            "position": th.as_tensor(rng.integers(0, n, k)),
+            "dwell": th.as_tensor(rng.integers(0, 5, (k, 1)).astype(np.float32)),
+            "action_mask": th.ones((k, n), dtype=th.int8),
+        }
+        extractor: GATFeaturesExtractor = first.features_extractor  # type: ignore[assignment]
+        if not all(use_dense(arrays["adjacency"][i : i + 1], extractor.backend) for i in range(k)):
+            return True  # such maps never take this pass
+        stack.refresh()
+        with th.no_grad():
+            pre = first._preprocess(arrays)
+            u_hat = self._estimate(stack, pre) if first.estimator is not None else first.uncertainty(pre)
+            masks = th.ones((k, n), dtype=th.bool)
+            stacked = self._actor(stack, *first._with_estimate(self._embed(stack, pre), pre, u_hat))
+            for i, policy in enumerate(stack.policies):
+                alone = {key: value[i : i + 1].clone() for key, value in pre.items()}
+                serial = policy._logits(alone, policy.uncertainty(alone), masks[i : i + 1])
+                if not th.equal(serial[0], stacked[i]):
+                    return False
+        return True
 
     def actions(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
@@ -198,9 +258,9 @@ class StackedInference:
         for key in MAP_KEYS:
             shape = space[key].shape  # type: ignore[index]
             values = [np.asarray(obs[key]) for obs in observations]
-            if any(v.size != int(np.prod(shape, dtype=np.int64)) for v in values):
+            if any(v.shape not in (shape, (1, *shape)) for v in values):
                 return None  # the serial path raises SB3's error for it
-            arrays[key] = th.as_tensor(np.stack([v.reshape(shape) for v in values])).to(first.device)
+            arrays[key] = th.as_tensor(np.stack([v.reshape(shape) for v in values]))  # CPU only
         extractor: GATFeaturesExtractor = first.features_extractor  # type: ignore[assignment]
         if not all(
             use_dense(arrays["adjacency"][k : k + 1], extractor.backend) for k in range(len(policies))
@@ -313,8 +373,11 @@ def _per_map(stack: _Stack, name: str, x: th.Tensor) -> th.Tensor:
 
 
 def _activation(layer: nn.Module, x: th.Tensor, n: int) -> th.Tensor:
-    """``layer`` on ``x`` ``(K, N, d)``: batched where each map rounds as alone, else map by map."""
-    if isinstance(layer, _TRANSCENDENTAL) and (n * x.shape[-1]) % TAIL_FREE:
+    """``layer`` on ``x`` ``(K, N, d)``: batched where each map rounds as alone, else map by map
+    (see the module docstring: whole blocks of :data:`TAIL_FREE`, and one thread at this size)."""
+    if isinstance(layer, _TRANSCENDENTAL) and (
+        (n * x.shape[-1]) % TAIL_FREE or (th.get_num_threads() > 1 and x.numel() > _ONE_THREAD_ELEMENTS)
+    ):
         return th.cat([layer(x[k : k + 1].clone()) for k in range(x.shape[0])])
     return layer(x)  # type: ignore[no-any-return]
 

