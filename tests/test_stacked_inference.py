@@ -111,16 +111,24 @@ def test_stacked_logits_and_actions_equal_the_serial_ones_bit_for_bit(policy_kwa
         check_equal(team, observations, policies, stacker)
 
 
+def play(team: Any, steps: int, seed: int, deterministic: bool = True) -> list[dict[str, int]]:
+    """The team's actions over ``steps`` steps of a 3-agent episode."""
+    env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=3, max_cycles=60)
+    observations, _ = env.reset(seed=seed)
+    team.reset(env, seed=seed)
+    chosen = []
+    for _ in range(steps):
+        chosen.append(team.predict(observations, deterministic=deterministic))
+        observations, *_ = env.step(chosen[-1])
+    return chosen
+
+
 def test_rule_8_is_counted_per_learner_as_in_the_serial_path() -> None:
     counts = []
     for stacked in (False, True):
         team = make_team(neglect_bound=12)
         team.stacked_inference = stacked
-        env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=3, max_cycles=60)
-        observations, _ = env.reset(seed=7)
-        team.reset(env, seed=7)
-        for _ in range(60):
-            observations, *_ = env.step(team.predict(observations))
+        play(team, 60, seed=7)
         counts.append(
             {a: {k: int(v) for k, v in team.models[a].policy.filter_counts.items()} for a in team.agents}
         )
@@ -247,13 +255,5 @@ def test_sampled_actions_keep_the_serial_path() -> None:
     for stacked in (False, True):
         team = make_team()
         team.stacked_inference = stacked
-        env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=3, max_cycles=60)
-        observations, _ = env.reset(seed=2)
-        team.reset(env, seed=2)
-        chosen = []
-        for _ in range(20):
-            step = team.predict(observations, deterministic=False)
-            chosen.append(step)
-            observations, *_ = env.step(step)
-        draws.append(chosen)
+        draws.append(play(team, 20, seed=2, deterministic=False))
     assert draws[0] == draws[1]
