@@ -165,6 +165,9 @@ class StackedInference:
     def __init__(self) -> None:
         self._ids: tuple[int, ...] | None = None
         self._problem: str | None = None
+        #: (adjacencies, encodings, attention masks) of the last call: an agent's known map changes
+        #: only when it discovers an edge, so most steps reuse them (as the serial path's extractor does)
+        self._graph_cache: tuple[th.Tensor, th.Tensor | None, th.Tensor] | None = None
         self._stack: _Stack | None = None
 
     def problem(self, policies: Sequence[Any]) -> str | None:
@@ -174,6 +177,7 @@ class StackedInference:
         ids = (*(id(p) for p in policies), th.get_num_threads())
         if ids != self._ids:
             self._ids, self._problem = ids, stack_problem(policies)
+            self._graph_cache = None  # other policies may encode the same maps differently
             self._stack = None if self._problem is not None else _Stack(policies)
             if self._stack is not None and not self._rounds_as_serial(self._stack):
                 self._problem = "on this machine the stacked pass does not round as the serial one"
@@ -309,13 +313,24 @@ class StackedInference:
         out = out * nodes[..., TARGET]
         return out.clamp(0.0, 1.0) * estimator.u_max
 
+    def _graph_inputs(
+        self, extractor: GATFeaturesExtractor, adjacency: th.Tensor
+    ) -> tuple[th.Tensor | None, th.Tensor]:
+        """Positional encodings ``(K, N, E)`` (or ``None``) and attention masks ``(K, 1, N, N)`` of
+        the maps' known adjacencies ``(K, N, N)``, reused while the adjacencies are unchanged."""
+        cached = self._graph_cache
+        if cached is not None and cached[0].shape == adjacency.shape and th.equal(cached[0], adjacency):
+            return cached[1], cached[2]
+        encoding, bias = extractor.encoding(adjacency), attention_bias(adjacency)
+        self._graph_cache = (adjacency.clone(), encoding, bias)
+        return encoding, bias
+
     def _embed(self, stack: _Stack, pre: dict[str, th.Tensor]) -> th.Tensor:
         """The GAT embeddings ``(K, N, h)``: ``GATFeaturesExtractor.node_embeddings`` on the dense
         kernel, each map with its own policy's weights."""
         extractor: GATFeaturesExtractor = stack.policies[0].features_extractor  # type: ignore[assignment]
         adjacency = pre["adjacency"]
-        encoding = extractor.encoding(adjacency)  # (K, N, E) or None
-        bias = attention_bias(adjacency)  # (K, 1, N, N)
+        encoding, bias = self._graph_inputs(extractor, adjacency)
         x = pre["nodes"] * extractor.inv_high  # (K, N, F): the observation space's scale
         batch, n, _ = x.shape
         for i, module in enumerate(extractor.gat):
