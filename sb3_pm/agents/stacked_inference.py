@@ -44,7 +44,7 @@ path then raises SB3's error), or a failed check of the rounding.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -209,15 +209,13 @@ class StackedInference:
             "dwell": th.as_tensor(rng.integers(0, 5, (k, 1)).astype(np.float32)),
             "action_mask": th.ones((k, n), dtype=th.int8),
         }
-        extractor: GATFeaturesExtractor = first.features_extractor  # type: ignore[assignment]
-        if not all(use_dense(arrays["adjacency"][i : i + 1], extractor.backend) for i in range(k)):
+        if not _all_dense(first, arrays["adjacency"]):
             return True  # such maps never take this pass
         stack.refresh()
         with th.no_grad():
             pre = first._preprocess(arrays)
-            u_hat = self._estimate(stack, pre) if first.estimator is not None else first.uncertainty(pre)
             masks = th.ones((k, n), dtype=th.bool)
-            stacked = self._actor(stack, *first._with_estimate(self._embed(stack, pre), pre, u_hat))
+            stacked = self._logits_given(stack, pre, self._uncertainty(stack, pre))
             for i, policy in enumerate(stack.policies):
                 alone = {key: value[i : i + 1].clone() for key, value in pre.items()}
                 serial = policy._logits(alone, policy.uncertainty(alone), masks[i : i + 1])
@@ -265,26 +263,43 @@ class StackedInference:
             if any(v.shape not in (shape, (1, *shape)) for v in values):
                 return None  # the serial path raises SB3's error for it
             arrays[key] = th.as_tensor(np.stack([v.reshape(shape) for v in values]))  # CPU only
-        extractor: GATFeaturesExtractor = first.features_extractor  # type: ignore[assignment]
-        if not all(
-            use_dense(arrays["adjacency"][k : k + 1], extractor.backend) for k in range(len(policies))
-        ):
+        if not _all_dense(first, arrays["adjacency"]):
             return None  # a map the serial path would run through the sparse kernel
         for policy in policies:
             policy.set_training_mode(False)  # as SB3's predict does
         stack.refresh()
         with th.no_grad():
             pre = first._preprocess(arrays)
-            u_hat = self._estimate(stack, pre) if first.estimator is not None else first.uncertainty(pre)
+            u_hat = self._uncertainty(stack, pre)
             # The filter has no parameters: one call on the K maps, each row its own.
             masks, forced = first.filtered_masks(pre, u_hat, arrays["action_mask"])
             if forced is not None:
                 for k, policy in enumerate(policies):
                     policy.count_forced(forced[k : k + 1])
-            embeddings, own = first._with_estimate(self._embed(stack, pre), pre, u_hat)
-            return self._actor(stack, embeddings, own), masks
+            return self._logits_given(stack, pre, u_hat), masks
+
+    def predict(
+        self, observations: Mapping[str, Mapping[str, Any]], policy_for: Callable[[str], Any]
+    ) -> dict[str, int] | None:
+        """A team's deterministic actions ``{agent: node}``, agent ``a`` acting with
+        ``policy_for(a)``; ``None`` where this step must run serially."""
+        agents = list(observations)
+        if not agents:
+            return None
+        actions = self.actions([policy_for(a) for a in agents], [observations[a] for a in agents])
+        return None if actions is None else {agent: int(action) for agent, action in zip(agents, actions)}
 
     # -------------------------------------------------------------- the pass
+    def _uncertainty(self, stack: _Stack, pre: dict[str, th.Tensor]) -> th.Tensor:
+        """``û`` ``(K, N)``: each policy's ``uncertainty`` on its own map."""
+        first = stack.policies[0]
+        return self._estimate(stack, pre) if first.estimator is not None else first.uncertainty(pre)
+
+    def _logits_given(self, stack: _Stack, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> th.Tensor:
+        """Each policy's logits ``(K, N)`` on its own map, given ``û`` ``(K, N)``."""
+        first = stack.policies[0]
+        return self._actor(stack, *first._with_estimate(self._embed(stack, pre), pre, u_hat))
+
     @staticmethod
     def _mlp(stack: _Stack, prefix: str, layers: nn.Sequential, x: th.Tensor, start: int = 0) -> th.Tensor:
         """``layers[start:]`` on ``x`` ``(K, N, d)``, each map with its own policy's weights."""
@@ -331,7 +346,7 @@ class StackedInference:
         extractor: GATFeaturesExtractor = stack.policies[0].features_extractor  # type: ignore[assignment]
         adjacency = pre["adjacency"]
         encoding, bias = self._graph_inputs(extractor, adjacency)
-        x = pre["nodes"] * extractor.inv_high  # (K, N, F): the observation space's scale
+        x = extractor.node_features(pre)  # (K, N, F): scaled by the observation space's highs
         batch, n, _ = x.shape
         for i, module in enumerate(extractor.gat):
             layer: GraphAttention = module  # type: ignore[assignment]
@@ -373,6 +388,13 @@ class StackedInference:
             stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1
         )
         return _per_map(stack, "action_net", hidden).squeeze(-1)
+
+
+def _all_dense(policy: DCBFActorCriticPolicy, adjacency: th.Tensor) -> bool:
+    """Whether the serial path would run every map of ``adjacency`` ``(K, N, N)`` through the dense
+    kernel (it decides per call, and a serial call holds one map)."""
+    extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
+    return all(use_dense(adjacency[k : k + 1], extractor.backend) for k in range(adjacency.shape[0]))
 
 
 def _first_weight(policy: DCBFActorCriticPolicy) -> th.Tensor:

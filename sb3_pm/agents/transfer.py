@@ -126,12 +126,10 @@ class TransferredTeam(Team):
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
         """Each agent's action from its learner's rebuilt policy; deterministic actions through one
         stacked pass where it applies, as in ``IndependentPPO.predict``."""
-        if deterministic and self.stacked_inference and observations:
-            agents = list(observations)
-            policies = [self.policies[self.learner_for(agent)] for agent in agents]
-            stacked = self._stacker.actions(policies, [observations[agent] for agent in agents])
+        if deterministic and self.stacked_inference:
+            stacked = self._stacker.predict(observations, lambda a: self.policies[self.learner_for(a)])
             if stacked is not None:
-                return {agent: int(action) for agent, action in zip(agents, stacked)}
+                return stacked
         actions: dict[str, int] = {}
         for agent, obs in observations.items():
             policy = self.policies[self.learner_for(agent)]
