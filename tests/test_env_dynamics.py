@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sb3_pm.envs import IllegalActionError, persistent_monitoring_v0
+from sb3_pm.graphs import GraphSpec
 from tests.conftest import path_graph
 
 
@@ -88,6 +89,21 @@ class TestIllegalActions:
             act(env, 7)
         with pytest.raises(ValueError, match="cannot move to node -1"):
             act(env, -1)
+
+    @pytest.mark.parametrize("destination", [-1, -2, 3, 4, 10**12, -(10**12)])
+    def test_out_of_range_from_every_node_of_a_complete_graph(self, destination: int) -> None:
+        # Every node reaches every node, so a legality check that let an out-of-range destination
+        # spill into a neighbouring row of the reachable matrix would call the move legal.
+        adjacency = ~np.eye(3, dtype=bool)
+        graph = GraphSpec(adjacency=adjacency, targets=np.array([True, False, False]), name="k3")
+        for node in range(3):
+            env = make(graph, 1, [node])
+            with pytest.raises(IllegalActionError, match=f"cannot move to node {destination}"):
+                act(env, destination)
+            stay = make(graph, 1, [node], illegal_action="stay")
+            *_, infos = act(stay, destination)
+            assert stay.unwrapped.positions.tolist() == [node]
+            assert infos["agent_0"]["illegal_action"] == destination
 
     def test_stay_mode_reports_in_infos(self) -> None:
         env = make(path_graph(4, [3]), 1, [0], illegal_action="stay")

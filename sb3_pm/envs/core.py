@@ -31,6 +31,8 @@ class StepOutcome:
     :ivar collided: ``(n_agents,)`` bool, the agent shares its node with another agent.
     :ivar illegal: ``(n_agents,)`` bool, the agent's request was illegal and replaced by staying.
     :ivar any_illegal: ``illegal.any()``, precomputed.
+    :ivar target_presence: ``(T,)`` bool, ``presence`` on the targets (``graph.target_indices`` order).
+    :ivar target_uncertainty: ``(T,)`` int, the targets' uncertainties after the update.
     """
 
     counts: np.ndarray
@@ -40,6 +42,8 @@ class StepOutcome:
     collided: np.ndarray
     illegal: np.ndarray
     any_illegal: bool
+    target_presence: np.ndarray
+    target_uncertainty: np.ndarray
 
 
 class MonitoringCore:
@@ -61,6 +65,14 @@ class MonitoringCore:
         self.n_agents = n_agents
         self.u_max = int(u_max)
         self._reachable = graph.reachable
+        n = graph.n_nodes
+        # The reachable matrix with a never-reachable column on each side, flattened: one lookup
+        # at ``row_start[position] + destination`` checks a move, and a destination outside
+        # 0..N-1, clipped to -1 or N first, lands in a padding column of the agent's own row.
+        legal_table = np.zeros((n, n + 2), dtype=bool)
+        legal_table[:, 1:-1] = graph.reachable
+        self._legal_table = legal_table.ravel()
+        self._row_start = np.arange(n, dtype=np.int64) * (n + 2) + 1
         self._target_idx = graph.target_indices
         self.positions = np.zeros(n_agents, dtype=np.int64)
         self.uncertainty = np.zeros(graph.n_nodes, dtype=np.int64)
@@ -107,9 +119,11 @@ class MonitoringCore:
         destinations = np.asarray(destinations, dtype=np.int64)
         if active is not None:
             destinations = np.where(active, destinations, self.positions)
-        clipped = np.minimum(np.maximum(destinations, 0), self.graph.n_nodes - 1)  # ufuncs: cheaper than clip
-        legal = self._reachable[self.positions, clipped] & (clipped == destinations)
-        all_legal = bool(legal.all())
+        n = self.graph.n_nodes
+        lookup = self._row_start[self.positions] + np.minimum(np.maximum(destinations, -1), n)
+        legal = self._legal_table[lookup]
+        # count_nonzero: a fraction of the cost of ndarray.all() on a few agents
+        all_legal = np.count_nonzero(legal) == self.n_agents
         if not all_legal:
             if illegal == "raise":
                 agent = int(np.flatnonzero(~legal)[0])
@@ -122,16 +136,16 @@ class MonitoringCore:
             destinations = np.where(legal, destinations, self.positions)
         self.positions = destinations
         present = destinations if active is None else destinations[active]
-        counts = np.bincount(present, minlength=self.graph.n_nodes)
+        counts = np.bincount(present, minlength=n)
         presence = counts > 0
         u_before = self.uncertainty[destinations]
         targets = self._target_idx
         u = self.uncertainty[targets]
+        target_presence = presence[targets]
         # eq. 1 with the cap: a visited target drops by one (u + 1 - 2p, u > 0) or stays at zero
         # (u + 1 - p, u == 0); an unvisited one grows by one up to u_max.
-        self.uncertainty[targets] = np.where(
-            presence[targets], np.maximum(u - 1, 0), np.minimum(u + 1, self.u_max)
-        )
+        u = np.where(target_presence, np.maximum(u - 1, 0), np.minimum(u + 1, self.u_max))
+        self.uncertainty[targets] = u
         return StepOutcome(
             counts=counts,
             presence=presence,
@@ -140,4 +154,6 @@ class MonitoringCore:
             collided=(counts[destinations] > 1) if active is None else (counts[destinations] > 1) & active,
             illegal=~legal,
             any_illegal=not all_legal,
+            target_presence=target_presence,
+            target_uncertainty=u,
         )

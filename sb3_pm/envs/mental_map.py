@@ -126,10 +126,14 @@ class MentalMaps:
         if not self._targets_staged:
             staged[TARGET] = targets
             self._targets_staged = True
-        np.greater(counts, self_onehot, out=staged[OCCUPIED])  # others there: count minus self > 0
+        # Others there: count minus self > 0, i.e. count > 0 off the agent's own node and count > 1
+        # on it (cheaper than comparing the int counts with the float one-hot row by row).
+        occupied = staged[OCCUPIED]
+        np.greater(counts, 0, out=occupied)
+        occupied[self._rows, positions] = counts[positions] > 1
         c[: OCCUPIED + 1] = np.where(observed, staged, c[: OCCUPIED + 1])  # faster than a masked copyto here
         if self.track_uncertainty_sum:
-            self.episode_uncertainty_sum += c[U].sum(axis=1)
+            self.episode_uncertainty_sum += np.add.reduce(c[U], axis=1)  # = .sum(axis=1), no wrapper
         if not self._all_explored:
             self._discover_edges(edge_nodes)
 
@@ -157,3 +161,10 @@ class MentalMaps:
             cached.setflags(write=False)
             self._adjacency_int8[agent] = cached
         return cached
+
+    def adjacency_observations(self) -> list[np.ndarray]:
+        """Every map's :meth:`adjacency_observation`, in agent order."""
+        cached = self._adjacency_int8
+        if all(array is not None for array in cached):  # the common case: no map gained an edge
+            return list(cached)  # type: ignore[arg-type]
+        return [self.adjacency_observation(i) for i in range(self.n_agents)]

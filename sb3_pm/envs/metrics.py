@@ -69,26 +69,29 @@ class EpisodeMetrics:
 
     def update(
         self,
-        uncertainty: np.ndarray,
-        presence: np.ndarray,
+        target_uncertainty: np.ndarray,
+        target_presence: np.ndarray,
         n_collided: int,
         n_idle: int,
         n_live: int | None = None,
     ) -> None:
-        """Record step ``k``: ``(N,)`` uncertainties and ``(N,)`` bool presence after the move,
-        ``n_collided`` agents sharing a node, ``n_idle`` agents alone on a target at u = 0 and
-        ``n_live`` agents that acted (all of them unless some failed)."""
+        """Record step ``k``: the targets' ``(T,)`` uncertainties and ``(T,)`` bool presence after
+        the move (in ``target_indices`` order), ``n_collided`` agents sharing a node, ``n_idle``
+        agents alone on a target at u = 0 and ``n_live`` agents that acted (all of them unless some
+        failed)."""
         self.live_agent_steps += self.n_agents if n_live is None else int(n_live)
-        u = uncertainty[self.target_indices]
+        u = target_uncertainty
         self._run += 1
-        self._run[presence[self.target_indices]] = 0
+        self._run[target_presence] = 0
         np.maximum(self._longest, self._run, out=self._longest)
+        # The ufuncs' own reductions: ndarray.sum()/max() add a Python wrapper that costs more
+        # than the arithmetic on a few dozen targets. Integer sums, so the order does not matter.
         if self.steps < len(self.trace):
-            self.trace[self.steps] = u.sum()
+            self.trace[self.steps] = np.add.reduce(u)
         self.steps += 1
         self.collisions += int(n_collided)
         self.idle_agent_steps += int(n_idle)
-        highest = int(u.max())
+        highest = int(np.maximum.reduce(u)) if len(u) else 0
         self.peak = max(self.peak, highest)
         self.saturated_steps += highest >= self.u_max
 

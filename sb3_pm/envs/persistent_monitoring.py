@@ -376,35 +376,37 @@ class PersistentMonitoringEnv(ParallelEnv):
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
             raise RuntimeError("step() called on a finished episode; call reset() first")
-        missing = [agent for agent in self.agents if agent not in actions]
-        if missing:
-            raise InputError(f"no action given for {missing}")
-        acting = list(self.agents)
         failures_on = self.metrics.track_failures
+        acting = list(self.agents)
         if failures_on:  # a failed agent gives no action (-1 here); the core keeps it where it is
-            destinations = np.array(
-                [actions[agent] if agent in actions else -1 for agent in self.possible_agents], dtype=np.int64
-            )
-        else:
-            destinations = np.array([actions[agent] for agent in self.possible_agents], dtype=np.int64)
+            self._check_actions(actions)
+            requested = [actions.get(agent, -1) for agent in self.possible_agents]
+        else:  # every agent acts: one pass reads the actions, and a missing one raises there
+            try:
+                requested = [actions[agent] for agent in self.possible_agents]
+            except KeyError:
+                self._check_actions(actions)
+                raise
+        destinations = np.array(requested, dtype=np.int64)
         previous = self.core.positions
         outcome = self.core.step(
             destinations, self.illegal_action, self.possible_agents, self._active if failures_on else None
         )
         self._step_count += 1
+        positions = self.core.positions
         self._dwell += 1
-        self._dwell[self.core.positions != previous] = 0
+        self._dwell[positions != previous] = 0
         self._observe(outcome.counts, advance_age=True)
-        alone_on_target = self._targets[self.core.positions] & ~outcome.collided
+        alone_on_target = self._targets[positions] & ~outcome.collided
         if failures_on:
             alone_on_target &= self._active  # a failed agent is on no node
         idle = alone_on_target & (outcome.u_before == 0)  # guarding a target that is already clean
         self.metrics.update(
-            self.core.uncertainty,
-            outcome.presence,
-            int(outcome.collided.sum()),
-            int(idle.sum()),
-            int(self._active.sum()) if failures_on else self.n_agents,
+            outcome.target_uncertainty,
+            outcome.target_presence,
+            np.count_nonzero(outcome.collided),
+            np.count_nonzero(idle),
+            np.count_nonzero(self._active) if failures_on else self.n_agents,
         )
         last = self._step_count >= self.max_cycles
         reward_values, _ = self.rewards_computer.step(
@@ -417,9 +419,9 @@ class PersistentMonitoringEnv(ParallelEnv):
 
         failed = self._draw_failures(last) if failures_on else []
         observations = self._observations()
-        rewards = {agent: float(reward_values[i]) for i, agent in enumerate(self.possible_agents)}
+        rewards = dict(zip(self.possible_agents, reward_values.tolist()))
         terminations = {agent: agent in failed for agent in self.possible_agents}
-        truncations = {agent: last for agent in self.possible_agents}
+        truncations = dict.fromkeys(self.possible_agents, last)
         infos: dict[str, dict] = {agent: {} for agent in self.possible_agents}
         if outcome.any_illegal:
             for i in np.flatnonzero(outcome.illegal):
@@ -442,6 +444,12 @@ class PersistentMonitoringEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
+
+    def _check_actions(self, actions: Mapping[str, Any]) -> None:
+        """Raise a one-line error naming the live agents that ``actions`` leaves out."""
+        missing = [agent for agent in self.agents if agent not in actions]
+        if missing:
+            raise InputError(f"no action given for {missing}")
 
     def _draw_failures(self, last: bool) -> list[str]:
         """The agents that fail after this step (scheduled, then drawn at ``failure_rate``)."""
@@ -474,7 +482,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._observed = self._observes[positions]  # (n_agents, N) bool
         self._last_outcome_counts = counts
         edge_nodes = self._edge_nodes[positions]
-        if not self._active.all():  # a failed agent senses nothing (nor feeds a shared map)
+        if (
+            np.count_nonzero(self._active) < self.n_agents
+        ):  # a failed agent senses nothing (nor feeds a shared map)
             self._observed = self._observed & self._active[:, None]
             edge_nodes = edge_nodes & self._active[:, None]
         map_observed = self._observed
@@ -502,16 +512,16 @@ class PersistentMonitoringEnv(ParallelEnv):
             if self.space_nodes > self.graph.n_nodes:
                 nodes, adjacency, masks = self._padded(nodes, masks)
             else:
-                adjacency = [self.maps.adjacency_observation(i) for i in range(self.n_agents)]
+                adjacency = self.maps.adjacency_observations()
             return {
                 agent: {
                     "nodes": nodes[i],
                     "adjacency": adjacency[i],
-                    "position": int(positions[i]),
+                    "position": position,
                     "dwell": dwell[i],
                     "action_mask": masks[i],
                 }
-                for i, agent in enumerate(self.possible_agents)
+                for i, (agent, position) in enumerate(zip(self.possible_agents, positions.tolist()))
             }
         return {agent: self._local_observation(i, masks[i]) for i, agent in enumerate(self.possible_agents)}
 
