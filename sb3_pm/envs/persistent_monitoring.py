@@ -404,9 +404,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.metrics.update(
             outcome.target_uncertainty,
             outcome.target_presence,
-            np.count_nonzero(outcome.collided),
-            np.count_nonzero(idle),
-            np.count_nonzero(self._active) if failures_on else self.n_agents,
+            int(np.count_nonzero(outcome.collided)),
+            int(np.count_nonzero(idle)),
+            int(np.count_nonzero(self._active)) if failures_on else self.n_agents,
         )
         last = self._step_count >= self.max_cycles
         reward_values, _ = self.rewards_computer.step(
