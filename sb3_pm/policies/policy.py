@@ -460,7 +460,13 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         per_node = nn.functional.linear(embeddings, first.weight[:, :width], first.bias)  # (..., w)
         per_map = nn.functional.linear(own, first.weight[:, width:])  # (B, w)
         per_map = per_map[rows] if rows is not None else per_map.unsqueeze(1)
-        return self.actor_body[1:](per_node + per_map)
+        hidden = per_node + per_map
+        # The remaining layers one by one: slicing the Sequential (actor_body[1:]) would build a new
+        # module on every call, a tenth of a millisecond per rollout step.
+        for index, layer in enumerate(self.actor_body):
+            if index:
+                hidden = layer(hidden)
+        return hidden
 
     def _distribution(self, logits: th.Tensor, masks: th.Tensor) -> MaskableDistribution:
         distribution = self.action_dist.proba_distribution(action_logits=logits)
