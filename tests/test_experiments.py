@@ -546,3 +546,7 @@ def test_lr_schedule_and_budget_change_only_what_they_name(tmp_path: Path) -> No
     assert budget.timesteps == 50000 and variants["budget_50k"].timesteps is None
     assert variants["budget_100k"].timesteps == 100000
     assert not variants["budget_100k"].hyperparams and not variants["budget_100k"].policy_kwargs
+    discount = {v.key: v for v in load_experiment(ZOO / "experiments" / "discount.yml").variants}
+    assert discount["gamma_099"].hyperparams == {"gamma": 0.99}  # the default's own value
+    assert discount["gamma_0995"].hyperparams == {"gamma": 0.995}
+    assert not discount["gamma_0995"].policy_kwargs and discount["gamma_0995"].timesteps is None
