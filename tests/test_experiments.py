@@ -550,3 +550,6 @@ def test_lr_schedule_and_budget_change_only_what_they_name(tmp_path: Path) -> No
     assert discount["gamma_099"].hyperparams == {"gamma": 0.99}  # the default's own value
     assert discount["gamma_0995"].hyperparams == {"gamma": 0.995}
     assert not discount["gamma_0995"].policy_kwargs and discount["gamma_0995"].timesteps is None
+    rate = {v.key: v for v in load_experiment(ZOO / "experiments" / "learning_rate.yml").variants}
+    assert rate["lr_1e3"].hyperparams == {"learning_rate": 0.001}  # the default's own value
+    assert rate["lr_2e3"].hyperparams == {"learning_rate": 0.002}
