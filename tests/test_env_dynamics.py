@@ -90,7 +90,7 @@ class TestIllegalActions:
         with pytest.raises(ValueError, match="cannot move to node -1"):
             act(env, -1)
 
-    @pytest.mark.parametrize("destination", [-1, -2, 3, 4, 10**12, -(10**12)])
+    @pytest.mark.parametrize("destination", [-1, -2, -3, 3, 4, 5, 10**12, -(10**12)])
     def test_out_of_range_from_every_node_of_a_complete_graph(self, destination: int) -> None:
         # Every node reaches every node, so a legality check that let an out-of-range destination
         # spill into a neighbouring row of the reachable matrix would call the move legal.
@@ -104,6 +104,35 @@ class TestIllegalActions:
             *_, infos = act(stay, destination)
             assert stay.unwrapped.positions.tolist() == [node]
             assert infos["agent_0"]["illegal_action"] == destination
+
+    def test_a_core_pickled_before_the_legality_table_still_steps(self) -> None:
+        # Checkpoints pickle the env copies; a core written by an earlier version lacks the table.
+        import pickle
+
+        env = make(path_graph(4, [3]), 1, [0])
+        core = env.unwrapped.core
+        state = {k: v for k, v in core.__dict__.items() if k not in ("_legal_table", "_row_start")}
+        old = object.__new__(type(core))
+        old.__dict__.update(state)
+        env.unwrapped.core = pickle.loads(pickle.dumps(old))
+        act(env, 1)
+        assert env.unwrapped.positions.tolist() == [1]
+        with pytest.raises(IllegalActionError, match="cannot move to node 3"):
+            act(env, 3)
+
+    def test_an_action_that_is_not_one_node_is_refused(self) -> None:
+        env = make(path_graph(4, [3]), 2, [0, 3])
+        with pytest.raises(ValueError, match="every action must be one node index"):
+            env.step({"agent_0": np.array([1]), "agent_1": np.array([3])})
+
+    def test_a_defaultdict_does_not_fill_in_a_missing_action(self) -> None:
+        from collections import defaultdict
+
+        env = make(path_graph(4, [3]), 2, [0, 3], illegal_action="stay")
+        actions = defaultdict(int, {"agent_0": 1})
+        with pytest.raises(ValueError, match=r"no action given for \['agent_1'\]"):
+            env.step(actions)
+        assert "agent_1" not in actions
 
     def test_stay_mode_reports_in_infos(self) -> None:
         env = make(path_graph(4, [3]), 1, [0], illegal_action="stay")

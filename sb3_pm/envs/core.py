@@ -65,17 +65,28 @@ class MonitoringCore:
         self.n_agents = n_agents
         self.u_max = int(u_max)
         self._reachable = graph.reachable
-        n = graph.n_nodes
-        # The reachable matrix with a never-reachable column on each side, flattened: one lookup
-        # at ``row_start[position] + destination`` checks a move, and a destination outside
-        # 0..N-1, clipped to -1 or N first, lands in a padding column of the agent's own row.
-        legal_table = np.zeros((n, n + 2), dtype=bool)
-        legal_table[:, 1:-1] = graph.reachable
-        self._legal_table = legal_table.ravel()
-        self._row_start = np.arange(n, dtype=np.int64) * (n + 2) + 1
+        self._build_legal_table()
         self._target_idx = graph.target_indices
         self.positions = np.zeros(n_agents, dtype=np.int64)
         self.uncertainty = np.zeros(graph.n_nodes, dtype=np.int64)
+
+    def _build_legal_table(self) -> None:
+        """The reachable matrix with a never-reachable column on each side, flattened: one lookup
+        at ``row_start[position] + destination`` checks a move, and a destination outside
+        ``0..N-1``, clipped to -1 or N first, lands in a padding column of the agent's own row
+        (``(N * (N + 2),)`` bool and ``(N,)`` int64)."""
+        n = self.graph.n_nodes
+        legal_table = np.zeros((n, n + 2), dtype=bool)
+        legal_table[:, 1:-1] = self.graph.reachable
+        self._legal_table = legal_table.ravel()
+        self._row_start = np.arange(n, dtype=np.int64) * (n + 2) + 1
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (a checkpoint's env copy), rebuilding the legality table that cores pickled by
+        earlier versions lack."""
+        self.__dict__.update(state)
+        if "_legal_table" not in state:
+            self._build_legal_table()
 
     def reset(self, positions: np.ndarray, uncertainty: np.ndarray | None = None) -> None:
         """Place the agents and set the initial uncertainties (zeros by default; non-targets stay 0)."""

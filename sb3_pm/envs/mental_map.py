@@ -23,6 +23,8 @@ discovered edges persist for the map's lifetime, since the graph is static.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from sb3_pm.errors import InputError
@@ -163,8 +165,9 @@ class MentalMaps:
         return cached
 
     def adjacency_observations(self) -> list[np.ndarray]:
-        """Every map's :meth:`adjacency_observation`, in agent order."""
+        """Every map's :meth:`adjacency_observation` (``n_agents`` read-only ``(N, N)`` int8
+        arrays), in agent order."""
         cached = self._adjacency_int8
         if all(array is not None for array in cached):  # the common case: no map gained an edge
-            return list(cached)  # type: ignore[arg-type]
+            return cast(list[np.ndarray], list(cached))
         return [self.adjacency_observation(i) for i in range(self.n_agents)]

@@ -378,16 +378,16 @@ class PersistentMonitoringEnv(ParallelEnv):
             raise RuntimeError("step() called on a finished episode; call reset() first")
         failures_on = self.metrics.track_failures
         acting = list(self.agents)
+        missing = [agent for agent in acting if agent not in actions]
+        if missing:
+            raise InputError(f"no action given for {missing}")
         if failures_on:  # a failed agent gives no action (-1 here); the core keeps it where it is
-            self._check_actions(actions)
-            requested = [actions.get(agent, -1) for agent in self.possible_agents]
-        else:  # every agent acts: one pass reads the actions, and a missing one raises there
-            try:
-                requested = [actions[agent] for agent in self.possible_agents]
-            except KeyError:
-                self._check_actions(actions)
-                raise
+            requested = [actions[agent] if agent in actions else -1 for agent in self.possible_agents]
+        else:
+            requested = [actions[agent] for agent in self.possible_agents]
         destinations = np.array(requested, dtype=np.int64)
+        if destinations.shape != (self.n_agents,):
+            raise InputError(f"every action must be one node index; got {requested}")
         previous = self.core.positions
         outcome = self.core.step(
             destinations, self.illegal_action, self.possible_agents, self._active if failures_on else None
@@ -444,12 +444,6 @@ class PersistentMonitoringEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
-
-    def _check_actions(self, actions: Mapping[str, Any]) -> None:
-        """Raise a one-line error naming the live agents that ``actions`` leaves out."""
-        missing = [agent for agent in self.agents if agent not in actions]
-        if missing:
-            raise InputError(f"no action given for {missing}")
 
     def _draw_failures(self, last: bool) -> list[str]:
         """The agents that fail after this step (scheduled, then drawn at ``failure_rate``)."""

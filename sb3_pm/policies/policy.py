@@ -23,6 +23,7 @@ filtered exactly like training; a mask given by the caller is intersected with i
 from __future__ import annotations
 
 from functools import partial
+from itertools import islice
 from typing import Any
 
 import numpy as np
@@ -463,9 +464,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         hidden = per_node + per_map
         # The remaining layers one by one: slicing the Sequential (actor_body[1:]) would build a new
         # module on every call, a tenth of a millisecond per rollout step.
-        for index, layer in enumerate(self.actor_body):
-            if index:
-                hidden = layer(hidden)
+        for layer in islice(self.actor_body, 1, None):
+            hidden = layer(hidden)
         return hidden
 
     def _distribution(self, logits: th.Tensor, masks: th.Tensor) -> MaskableDistribution:
