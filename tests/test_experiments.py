@@ -536,7 +536,7 @@ def test_every_shipped_experiment_loads_and_plans(path: Path, tmp_path: Path) ->
     assert plan_cells(load_experiment(path), tmp_path)
 
 
-def test_lr_schedule_and_budget_change_only_what_they_name(tmp_path: Path) -> None:
+def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     schedule = load_experiment(ZOO / "experiments" / "lr_schedule.yml")
     variants = {v.key: v for v in schedule.variants}
     assert variants["linear"].hyperparams == {"learning_rate": "lin_1e-3"}

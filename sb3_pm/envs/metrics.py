@@ -91,7 +91,7 @@ class EpisodeMetrics:
         self.steps += 1
         self.collisions += int(n_collided)
         self.idle_agent_steps += int(n_idle)
-        highest = int(np.maximum.reduce(u)) if len(u) else 0
+        highest = int(np.maximum.reduce(u))  # a graph has at least one target (GraphSpec)
         self.peak = max(self.peak, highest)
         self.saturated_steps += highest >= self.u_max
 

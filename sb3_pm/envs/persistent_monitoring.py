@@ -476,9 +476,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._observed = self._observes[positions]  # (n_agents, N) bool
         self._last_outcome_counts = counts
         edge_nodes = self._edge_nodes[positions]
-        if (
-            np.count_nonzero(self._active) < self.n_agents
-        ):  # a failed agent senses nothing (nor feeds a shared map)
+        # A failed agent senses nothing (nor feeds a shared map).
+        if np.count_nonzero(self._active) < self.n_agents:
             self._observed = self._observed & self._active[:, None]
             edge_nodes = edge_nodes & self._active[:, None]
         map_observed = self._observed
