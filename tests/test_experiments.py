@@ -553,3 +553,21 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     rate = {v.key: v for v in load_experiment(ZOO / "experiments" / "learning_rate.yml").variants}
     assert rate["lr_1e3"].hyperparams == {"learning_rate": 0.001}  # the default's own value
     assert rate["lr_2e3"].hyperparams == {"learning_rate": 0.002}
+    derived = {v.key: v for v in load_experiment(ZOO / "experiments" / "derived_features.yml").variants}
+    assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
+    assert derived["derived"].policy_kwargs == {"derived_features": True}
+    assert not derived["derived"].hyperparams and derived["derived"].timesteps is None
+
+
+def test_transfer_features_trains_the_transfer_config_with_one_flag(tmp_path: Path) -> None:
+    """The transfer_features team is zoo/ippo_transfer.yml plus derived features, trained once per
+    seed on paper-50 and deployed on its own graph and the held-out suite of zero_shot.yml."""
+    experiment = load_experiment(ZOO / "experiments" / "transfer_features.yml")
+    zero_shot = load_experiment(ZOO / "experiments" / "zero_shot.yml")
+    assert set(zero_shot.graphs) < set(experiment.graphs) and "paper-50" in experiment.graphs
+    derived = {v.key: v for v in experiment.variants}["derived"]
+    assert derived.train_env == "paper-50" and derived.policy_kwargs == {"derived_features": True}
+    learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline"]
+    assert {c.graph for c in learned} == set(experiment.graphs)
+    for cell in learned:
+        assert cell.team_folder is not None  # one team per seed, deployed zero-shot on every graph
