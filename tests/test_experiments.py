@@ -553,6 +553,11 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     rate = {v.key: v for v in load_experiment(ZOO / "experiments" / "learning_rate.yml").variants}
     assert rate["lr_1e3"].hyperparams == {"learning_rate": 0.001}  # the default's own value
     assert rate["lr_2e3"].hyperparams == {"learning_rate": 0.002}
+    assert rate["lr_5e4"].hyperparams == {"learning_rate": 0.0005}
+    updates = {v.key: v for v in load_experiment(ZOO / "experiments" / "updates.yml").variants}
+    assert not updates["default"].hyperparams and not updates["default"].policy_kwargs
+    assert updates["rollout_250"].hyperparams == {"n_steps": 125, "batch_size": 125}
+    assert updates["minibatch_125"].hyperparams == {"batch_size": 125}
     derived = {v.key: v for v in load_experiment(ZOO / "experiments" / "derived_features.yml").variants}
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}
