@@ -558,6 +558,7 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert not updates["default"].hyperparams and not updates["default"].policy_kwargs
     assert updates["rollout_250"].hyperparams == {"n_steps": 125, "batch_size": 125}
     assert updates["minibatch_125"].hyperparams == {"batch_size": 125}
+    assert updates["epochs_5"].hyperparams == {"n_epochs": 5}
     derived = {v.key: v for v in load_experiment(ZOO / "experiments" / "derived_features.yml").variants}
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}
