@@ -559,6 +559,10 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert updates["rollout_250"].hyperparams == {"n_steps": 125, "batch_size": 125}
     assert updates["minibatch_125"].hyperparams == {"batch_size": 125}
     assert updates["epochs_5"].hyperparams == {"n_epochs": 5}
+    radius = {v.key: v for v in load_experiment(ZOO / "experiments" / "radius.yml").variants}
+    assert radius["radius_1"].env_kwargs == {"obs_radius": 1}  # the default's own value
+    assert radius["radius_2"].env_kwargs == {"obs_radius": 2}
+    assert not radius["radius_2"].hyperparams and not radius["radius_2"].policy_kwargs
     derived = {v.key: v for v in load_experiment(ZOO / "experiments" / "derived_features.yml").variants}
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}
