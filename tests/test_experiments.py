@@ -536,34 +536,38 @@ def test_every_shipped_experiment_loads_and_plans(path: Path, tmp_path: Path) ->
     assert plan_cells(load_experiment(path), tmp_path)
 
 
+def _variants(name: str) -> dict:
+    """The variants of the shipped experiment ``name``, by key."""
+    return {v.key: v for v in load_experiment(ZOO / "experiments" / f"{name}.yml").variants}
+
+
 def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
-    schedule = load_experiment(ZOO / "experiments" / "lr_schedule.yml")
-    variants = {v.key: v for v in schedule.variants}
+    variants = _variants("lr_schedule")
     assert variants["linear"].hyperparams == {"learning_rate": "lin_1e-3"}
     assert variants["constant"].hyperparams == {"learning_rate": 0.001}
     budget = load_experiment(ZOO / "experiments" / "budget.yml")
-    variants = {v.key: v for v in budget.variants}
+    variants = _variants("budget")
     assert budget.timesteps == 50000 and variants["budget_50k"].timesteps is None
     assert variants["budget_100k"].timesteps == 100000
     assert not variants["budget_100k"].hyperparams and not variants["budget_100k"].policy_kwargs
-    discount = {v.key: v for v in load_experiment(ZOO / "experiments" / "discount.yml").variants}
+    discount = _variants("discount")
     assert discount["gamma_099"].hyperparams == {"gamma": 0.99}  # the default's own value
     assert discount["gamma_0995"].hyperparams == {"gamma": 0.995}
     assert not discount["gamma_0995"].policy_kwargs and discount["gamma_0995"].timesteps is None
-    rate = {v.key: v for v in load_experiment(ZOO / "experiments" / "learning_rate.yml").variants}
+    rate = _variants("learning_rate")
     assert rate["lr_1e3"].hyperparams == {"learning_rate": 0.001}  # the default's own value
     assert rate["lr_2e3"].hyperparams == {"learning_rate": 0.002}
     assert rate["lr_5e4"].hyperparams == {"learning_rate": 0.0005}
-    updates = {v.key: v for v in load_experiment(ZOO / "experiments" / "updates.yml").variants}
+    updates = _variants("updates")
     assert not updates["default"].hyperparams and not updates["default"].policy_kwargs
     assert updates["rollout_250"].hyperparams == {"n_steps": 125, "batch_size": 125}
     assert updates["minibatch_125"].hyperparams == {"batch_size": 125}
     assert updates["epochs_5"].hyperparams == {"n_epochs": 5}
-    radius = {v.key: v for v in load_experiment(ZOO / "experiments" / "radius.yml").variants}
+    radius = _variants("radius")
     assert radius["radius_1"].env_kwargs == {"obs_radius": 1}  # the default's own value
     assert radius["radius_2"].env_kwargs == {"obs_radius": 2}
     assert not radius["radius_2"].hyperparams and not radius["radius_2"].policy_kwargs
-    derived = {v.key: v for v in load_experiment(ZOO / "experiments" / "derived_features.yml").variants}
+    derived = _variants("derived_features")
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}
     assert not derived["derived"].hyperparams and derived["derived"].timesteps is None
