@@ -563,6 +563,10 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert updates["rollout_250"].hyperparams == {"n_steps": 125, "batch_size": 125}
     assert updates["minibatch_125"].hyperparams == {"batch_size": 125}
     assert updates["epochs_5"].hyperparams == {"n_epochs": 5}
+    assert updates["envs_4"].hyperparams == {"n_envs": 4, "n_steps": 125}  # rollout 4 x 125 = 2 x 250
+    entropy = _variants("entropy")
+    assert entropy["ent_001"].hyperparams == {"ent_coef": 0.01}  # the default's own value
+    assert entropy["ent_0"].hyperparams == {"ent_coef": 0.0}
     radius = _variants("radius")
     assert radius["radius_1"].env_kwargs == {"obs_radius": 1}  # the default's own value
     assert radius["radius_2"].env_kwargs == {"obs_radius": 2}
