@@ -112,3 +112,33 @@ def test_neglect_penalizes_the_worst_known_target_projection() -> None:
     env = make({"neglect": 1.0}, [2], max_cycles=5, n_nodes=5, targets=(0,))
     _, rewards, *_ = env.step({"agent_0": 2})
     assert rewards["agent_0"] == 0.0
+
+
+def test_crowding_counts_the_teammates_each_agent_observes() -> None:
+    # Path 0-1-2-3-4-5-6 with radius-1 sensing. Agents at 0, 1 and 5: agents 0 and 1 see each other,
+    # agent 2 sees nobody; after the moves 0->1 (a collision) and 5->4, agent 2 still sees nobody.
+    env = make({"crowding": 0.5}, [0, 1, 5], max_cycles=10, n_nodes=7, targets=(6,))
+    _, rewards, *_ = env.step({"agent_0": 0, "agent_1": 1, "agent_2": 5})
+    assert [rewards[f"agent_{i}"] for i in range(3)] == [-0.5, -0.5, 0.0]
+    _, rewards, *_ = env.step({"agent_0": 1, "agent_1": 2, "agent_2": 4})
+    # agent_0 at 1 sees 2 (agent_1); agent_1 at 2 sees 1 (agent_0); agent_2 at 4 sees 3, 5: nobody.
+    assert [rewards[f"agent_{i}"] for i in range(3)] == [-0.5, -0.5, 0.0]
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 3, "agent_2": 4})
+    # 2, 3, 4 in a row: the middle agent sees both others, each end agent sees one.
+    assert [rewards[f"agent_{i}"] for i in range(3)] == [-0.5, -1.0, -0.5]
+
+
+def test_crowding_ignores_a_failed_teammate() -> None:
+    env = persistent_monitoring_v0.parallel_env(
+        graph=path_graph(4, [3]),
+        n_agents=2,
+        initial_positions=[0, 1],
+        reward={"crowding": 1.0},
+        max_cycles=10,
+        failures={"agent_1": 1},
+    )
+    env.reset(seed=0)
+    _, rewards, *_ = env.step({"agent_0": 0, "agent_1": 1})  # agent_1 fails after this step
+    assert rewards["agent_0"] == -1.0
+    _, rewards, *_ = env.step({"agent_0": 0})
+    assert rewards["agent_0"] == 0.0  # the failed agent is on no node

@@ -571,6 +571,11 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert radius["radius_1"].env_kwargs == {"obs_radius": 1}  # the default's own value
     assert radius["radius_2"].env_kwargs == {"obs_radius": 2}
     assert not radius["radius_2"].hyperparams and not radius["radius_2"].policy_kwargs
+    crowding = _variants("crowding_reward")
+    default_reward = {"clearing": 0.04, "collision": 0.001}
+    for key, weight in (("crowding_0002", 0.002), ("crowding_0008", 0.008)):
+        assert crowding[key].env_kwargs == {"reward": {**default_reward, "crowding": weight}}
+        assert not crowding[key].hyperparams and not crowding[key].policy_kwargs
     derived = _variants("derived_features")
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}

@@ -415,6 +415,7 @@ class PersistentMonitoringEnv(ParallelEnv):
             last,
             self.maps.episode_uncertainty_sum,
             self.maps.worst_known_projection(self.u_max) if "neglect" in self.reward_weights else None,
+            self._teammates_seen() if "crowding" in self.reward_weights else None,
         )
 
         failed = self._draw_failures(last) if failures_on else []
@@ -444,6 +445,13 @@ class PersistentMonitoringEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
+
+    def _teammates_seen(self) -> np.ndarray:
+        """``(n_agents,)`` how many live teammates each agent observes now (a failed agent observes
+        nothing and is on no node)."""
+        seen = self._observed[:, self.core.positions] & self._active[None, :]  # (observer, teammate)
+        np.fill_diagonal(seen, False)
+        return np.count_nonzero(seen, axis=1)
 
     def _draw_failures(self, last: bool) -> list[str]:
         """The agents that fail after this step (scheduled, then drawn at ``failure_rate``)."""

@@ -21,6 +21,10 @@ local: no agent's reward depends on another agent's observations or map. Terms:
 ``neglect``    minus the worst projected uncertainty among the targets the agent's own map knows,
                ``max_m min(u_max, u_m + age_m) / u_max`` (0 while it knows none): a dense penalty on
                leaving a known target unvisited, whatever the teammates do (not in the paper).
+``crowding``   minus the number of teammates the agent itself observes (in its observation ball,
+               its own node included): a dense push to spread out, from the agent's own sensing
+               only. Aimed at teams whose agents settle near the same targets and leave others
+               unvisited (not in the paper).
 
 Presets: ``paper`` = 0.05 x (collision + change + momentum), as in the paper; ``reduction`` =
 1.0 x reduction + 0.05 x collision.
@@ -36,7 +40,7 @@ import numpy as np
 from sb3_pm.envs.core import StepOutcome
 from sb3_pm.errors import InputError
 
-TERMS = ("collision", "momentum", "change", "reduction", "clearing", "neglect")
+TERMS = ("collision", "momentum", "change", "reduction", "clearing", "neglect", "crowding")
 REWARD_PRESETS: dict[str, dict[str, float]] = {
     "paper": {"collision": 0.05, "change": 0.05, "momentum": 0.05},
     "reduction": {"reduction": 1.0, "collision": 0.05},
@@ -91,6 +95,7 @@ class RewardComputer:
         last_step: bool,
         map_sums: np.ndarray,
         worst_known: np.ndarray | None = None,
+        teammates_seen: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Rewards for one step.
 
@@ -101,6 +106,8 @@ class RewardComputer:
         :param map_sums: ``(n_agents,)`` this episode's U_i so far, including this step.
         :param worst_known: ``(n_agents,)`` the worst projected uncertainty among the targets each
             agent's map knows (needed by ``neglect`` only).
+        :param teammates_seen: ``(n_agents,)`` how many teammates each agent observes now (needed
+            by ``crowding`` only).
         :return: ``(n_agents,)`` float rewards and each weighted term's ``(n_agents,)`` values.
         """
         terms: dict[str, np.ndarray] = {}
@@ -121,6 +128,10 @@ class RewardComputer:
             if worst_known is None:
                 raise InputError("the neglect reward term needs each agent's worst known projection")
             terms["neglect"] = -w["neglect"] * np.asarray(worst_known, dtype=np.float64) / self.u_max
+        if "crowding" in w:
+            if teammates_seen is None:
+                raise InputError("the crowding reward term needs each agent's count of teammates in view")
+            terms["crowding"] = -w["crowding"] * np.asarray(teammates_seen, dtype=np.float64)
         if "change" in w:
             change = np.zeros(self.n_agents)
             if last_step:
