@@ -116,7 +116,7 @@ def test_neglect_penalizes_the_worst_known_target_projection() -> None:
 
 def test_crowding_counts_the_teammates_each_agent_observes() -> None:
     # Path 0-1-2-3-4-5-6 with radius-1 sensing. Agents at 0, 1 and 5: agents 0 and 1 see each other,
-    # agent 2 sees nobody; after the moves 0->1 (a collision) and 5->4, agent 2 still sees nobody.
+    # agent 2 sees nobody.
     env = make({"crowding": 0.5}, [0, 1, 5], max_cycles=10, n_nodes=7, targets=(6,))
     _, rewards, *_ = env.step({"agent_0": 0, "agent_1": 1, "agent_2": 5})
     assert [rewards[f"agent_{i}"] for i in range(3)] == [-0.5, -0.5, 0.0]
@@ -126,6 +126,9 @@ def test_crowding_counts_the_teammates_each_agent_observes() -> None:
     _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 3, "agent_2": 4})
     # 2, 3, 4 in a row: the middle agent sees both others, each end agent sees one.
     assert [rewards[f"agent_{i}"] for i in range(3)] == [-0.5, -1.0, -0.5]
+    _, rewards, *_ = env.step({"agent_0": 3, "agent_1": 3, "agent_2": 5})
+    # Two agents on node 3 (a collision) count each other; agent_2 at 5 sees 4 and 6: nobody.
+    assert [rewards[f"agent_{i}"] for i in range(3)] == [-0.5, -0.5, 0.0]
 
 
 def test_crowding_ignores_a_failed_teammate() -> None:

@@ -11,6 +11,7 @@ import pytest
 from sb3_pm.cli import main
 from sb3_pm.experiments import ExperimentError, load_experiment, plan_cells, reproduce
 from sb3_pm.experiments import runner as runner_module
+from sb3_pm.zoo import load_config
 
 ZOO = Path(__file__).resolve().parents[1] / "zoo"
 EXPECTED_FILES = {
@@ -572,7 +573,7 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert radius["radius_2"].env_kwargs == {"obs_radius": 2}
     assert not radius["radius_2"].hyperparams and not radius["radius_2"].policy_kwargs
     crowding = _variants("crowding_reward")
-    default_reward = {"clearing": 0.04, "collision": 0.001}
+    default_reward = load_config("ippo", "paper-50").env_kwargs["reward"]
     for key, weight in (("crowding_0002", 0.002), ("crowding_0008", 0.008)):
         assert crowding[key].env_kwargs == {"reward": {**default_reward, "crowding": weight}}
         assert not crowding[key].hyperparams and not crowding[key].policy_kwargs

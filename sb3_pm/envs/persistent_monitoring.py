@@ -40,8 +40,8 @@ initial_uncertainty (``"zero"``)
     ``"zero"`` or ``"random"`` (uniform integers in ``[0, u_max]`` on targets, from the seed).
 reward (``"paper"``)
     A preset (``"paper"``: eq. 5-8; ``"reduction"``) or a ``{term: weight}`` mapping over the
-    terms ``collision``, ``momentum``, ``change``, ``reduction``, ``clearing`` (see
-    :mod:`sb3_pm.envs.rewards`).
+    terms ``collision``, ``momentum``, ``change``, ``reduction``, ``clearing``, ``neglect``,
+    ``crowding`` (see :mod:`sb3_pm.envs.rewards`).
 observation (``"map"``)
     ``"map"``: each agent's mental map (what learners and decentralized baselines use);
     ``"local"``: only this step's raw local observation.

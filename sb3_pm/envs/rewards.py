@@ -22,9 +22,9 @@ local: no agent's reward depends on another agent's observations or map. Terms:
                ``max_m min(u_max, u_m + age_m) / u_max`` (0 while it knows none): a dense penalty on
                leaving a known target unvisited, whatever the teammates do (not in the paper).
 ``crowding``   minus the number of teammates the agent itself observes (in its observation ball,
-               its own node included): a dense push to spread out, from the agent's own sensing
-               only. Aimed at teams whose agents settle near the same targets and leave others
-               unvisited (not in the paper).
+               its own node included; a failed teammate is on no node and counts for nothing): a
+               dense push to spread out, from the agent's own sensing only. Aimed at teams whose
+               agents settle near the same targets and leave others unvisited (not in the paper).
 
 Presets: ``paper`` = 0.05 x (collision + change + momentum), as in the paper; ``reduction`` =
 1.0 x reduction + 0.05 x collision.
