@@ -78,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
         e = effect(policy, reference, graph, args.metric, names=names)
         ours, theirs = tail(policy, graph, args.metric), tail(reference, graph, args.metric)
         pairing = "paired by episode seed" if e.paired else "not the same episodes: Welch's test"
-        print(f"{args.metric} on {graph} ({pairing}; {e.n_runs or len(ours.run_means)} runs)")
+        n_runs = e.n_runs or len(ours.run_means)
+        print(f"{args.metric} on {graph} ({pairing}; {n_runs} run{'' if n_runs == 1 else 's'})")
         print(_side("policy", names[0], ours, e.mean))
         print(_side("reference", names[1], theirs, e.reference_mean))
         print(
