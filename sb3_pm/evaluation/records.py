@@ -18,6 +18,7 @@ import numpy as np
 
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import EvaluationResult
+from sb3_pm.evaluation.statistics import pooled_values
 
 
 def load_record(path: Path | str) -> EvaluationResult:
@@ -65,15 +66,11 @@ class Tail:
 def tail(results: Sequence[EvaluationResult], graph: str, metric: str) -> Tail:
     """:class:`Tail` of the runs of ``results`` on ``graph`` for ``metric``."""
     runs = [result for result in results if result.graph == graph and result.episodes]
-    values = np.concatenate([result.values(metric) for result in runs])
     names = set(runs[0].metric_names)
-    neglect = (
-        float(np.mean(np.concatenate([r.values("max_neglect") for r in runs])))
-        if "max_neglect" in names
-        else float("nan")
-    )
+    values = pooled_values(runs, metric)
+    neglect = float(pooled_values(runs, "max_neglect").mean()) if "max_neglect" in names else float("nan")
     at_cap = (
-        int(sum(np.count_nonzero(r.values("saturated_fraction") > 0) for r in runs))
+        int(np.count_nonzero(pooled_values(runs, "saturated_fraction") > 0))
         if "saturated_fraction" in names
         else 0
     )
