@@ -477,6 +477,22 @@ def test_eval_env_kwargs_reach_every_evaluation_and_no_training(tmp_path: Path) 
     assert "avg_uncertainty_after_failure" in (out / "by_graph.md").read_text()
 
 
+def test_a_baseline_variant_is_evaluated_under_its_own_env_kwargs(tmp_path: Path) -> None:
+    # known_map.yml runs local_greedy with the default maps and with known targets, on the same
+    # episodes; the recorded config says which, and known targets change what the greedy agents do.
+    out = tmp_path / "known_map"
+    argv = ["reproduce", "known_map", "--quick", "--out", str(out), "--jobs", "1", "--no-progress"]
+    assert main([*argv, "--variants", "local_greedy", "local_greedy_known_targets"]) == 0
+    payloads = {
+        variant: json.loads((out / "cells" / variant / "paper-50" / "seed0" / "evaluation.json").read_text())
+        for variant in ("local_greedy", "local_greedy_known_targets")
+    }
+    assert "target_knowledge" not in payloads["local_greedy"]["config"]["env_kwargs"]
+    assert payloads["local_greedy_known_targets"]["config"]["env_kwargs"]["target_knowledge"] == "known"
+    scores = {k: [e["avg_uncertainty"] for e in p["episodes"]] for k, p in payloads.items()}
+    assert scores["local_greedy"] != scores["local_greedy_known_targets"]
+
+
 def test_eval_env_kwargs_may_not_redefine_the_experiment(tmp_path: Path) -> None:
     path = tmp_path / "bad.yml"
     path.write_text(
@@ -577,6 +593,10 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     for key, weight in (("crowding_0002", 0.002), ("crowding_0008", 0.008)):
         assert crowding[key].env_kwargs == {"reward": {**default_reward, "crowding": weight}}
         assert not crowding[key].hyperparams and not crowding[key].policy_kwargs
+    known = _variants("known_map")
+    assert known["known_targets"].env_kwargs == {"target_knowledge": "known"}
+    assert known["known_map"].env_kwargs == {"target_knowledge": "known", "graph_knowledge": "known"}
+    assert not known["known_map"].hyperparams and not known["known_map"].policy_kwargs
     derived = _variants("derived_features")
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.envs.mental_map import AGE, FEATURES, OCCUPIED, SELF, TARGET, MentalMaps, U
+from sb3_pm.errors import InputError
 from tests.conftest import path_graph
 
 
@@ -75,6 +77,29 @@ def test_known_mode_gives_the_whole_topology() -> None:
     graph = path_graph(5, [0, 4])
     env, obs = env_on_path([0], graph_knowledge="known")
     np.testing.assert_array_equal(obs["agent_0"]["adjacency"], graph.adjacency.astype(np.int8))
+
+
+def test_known_targets_are_flagged_from_the_start_of_every_episode() -> None:
+    env, obs = env_on_path([1], target_knowledge="known")
+    nodes = obs["agent_0"]["nodes"]
+    assert nodes[:, TARGET].tolist() == [1, 0, 0, 0, 1]  # target 4 flagged though never seen
+    assert nodes[4, U] == 0 and nodes[4, AGE] == 0  # its uncertainty and age are still only observed
+    for _ in range(3):
+        obs, *_ = env.step({"agent_0": 1})
+    nodes = obs["agent_0"]["nodes"]
+    assert nodes[4, U] == 0 and nodes[4, AGE] == 3 and env.unwrapped.uncertainty[4] == 3
+    obs, _ = env.reset(seed=1, options={"initial_positions": [2]})
+    assert obs["agent_0"]["nodes"][:, TARGET].tolist() == [1, 0, 0, 0, 1]  # again after the reset
+    assert obs["agent_0"]["adjacency"].sum() == 6  # the topology is still discovered: 0-1, 1-2, 2-3
+
+
+def test_discovered_targets_are_the_default_and_known_needs_the_flags() -> None:
+    env, obs = env_on_path([1])
+    assert env.unwrapped.target_knowledge == "discovered"
+    with pytest.raises(InputError, match="target_knowledge must be one of"):
+        env_on_path([1], target_knowledge="psychic")
+    with pytest.raises(InputError, match="needs the graph's target flags"):
+        MentalMaps(1, path_graph(3, [0]).adjacency, target_knowledge="known")
 
 
 def test_radius_two_sees_further_and_learns_edges_inside_the_ball() -> None:

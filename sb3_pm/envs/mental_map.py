@@ -19,6 +19,11 @@ time it is observed. An agent observes the edges incident to the nodes strictly 
 observation ball (within ``obs_radius - 1`` hops), so with radius 1 it learns the edges at its own
 node. With ``"known"`` the whole topology is given up front. Node features reset every episode;
 discovered edges persist for the map's lifetime, since the graph is static.
+
+Known targets: with ``target_knowledge="discovered"`` (the paper's), the target flag of a node is 0
+until the agent observes the node, every episode. With ``"known"`` every map starts each episode
+with the true target flags, as a monitoring mission's map would list its sites; the uncertainty
+and age of a target are still only what the agent itself has observed.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from sb3_pm.errors import InputError
 FEATURES = ("u", "age", "target", "occupied", "self")
 U, AGE, TARGET, OCCUPIED, SELF = range(len(FEATURES))
 GRAPH_KNOWLEDGE = ("discovered", "known")
+TARGET_KNOWLEDGE = ("discovered", "known")
 
 
 class MentalMaps:
@@ -41,14 +47,32 @@ class MentalMaps:
     :param adjacency: ``(N, N)`` bool true adjacency; the maps read from it only rows that their
         agent observes (or all of it with ``graph_knowledge="known"``).
     :param graph_knowledge: ``"discovered"`` or ``"known"``.
+    :param target_knowledge: ``"discovered"`` or ``"known"`` (then ``targets`` is required).
+    :param targets: ``(N,)`` bool true target flags, read only with ``target_knowledge="known"``.
     """
 
-    def __init__(self, n_agents: int, adjacency: np.ndarray, graph_knowledge: str = "discovered") -> None:
+    def __init__(
+        self,
+        n_agents: int,
+        adjacency: np.ndarray,
+        graph_knowledge: str = "discovered",
+        target_knowledge: str = "discovered",
+        targets: np.ndarray | None = None,
+    ) -> None:
         if graph_knowledge not in GRAPH_KNOWLEDGE:
             raise InputError(f"graph_knowledge must be one of {GRAPH_KNOWLEDGE}, got {graph_knowledge!r}")
+        if target_knowledge not in TARGET_KNOWLEDGE:
+            raise InputError(f"target_knowledge must be one of {TARGET_KNOWLEDGE}, got {target_knowledge!r}")
+        if target_knowledge == "known" and targets is None:
+            raise InputError("target_knowledge='known' needs the graph's target flags (targets=...)")
         self.n_agents = n_agents
         self.n_nodes = adjacency.shape[0]
         self.graph_knowledge = graph_knowledge
+        self.target_knowledge = target_knowledge
+        #: ``(N,)`` float32 target flags every map starts an episode with (``None``: none known).
+        self._known_targets = (
+            np.asarray(targets, dtype=np.float32).reshape(-1) if target_knowledge == "known" else None
+        )
         self._true_adjacency = np.asarray(adjacency, dtype=bool)
         # One contiguous ``(n_agents, N)`` float32 array per feature: the per-step updates run on
         # contiguous memory, and :attr:`features` stacks them only when an observation is made.
@@ -93,8 +117,10 @@ class MentalMaps:
         return np.where(self.channels[TARGET] > 0.5, projected, 0.0).max(axis=1)
 
     def reset_features(self) -> None:
-        """Start a new episode: clear node features (edges are kept)."""
+        """Start a new episode: clear node features (edges are kept; known targets stay flagged)."""
         self.channels[:] = 0.0
+        if self._known_targets is not None:
+            self.channels[TARGET] = self._known_targets  # broadcast over the agents
         self.episode_uncertainty_sum[:] = 0.0
 
     def update(

@@ -48,6 +48,10 @@ observation (``"map"``)
 graph_knowledge (``"discovered"``)
     ``"discovered"``: a map's adjacency gains edges as its agent observes them and keeps them for
     the environment's lifetime; ``"known"``: the whole topology is known from the start.
+target_knowledge (``"discovered"``)
+    ``"discovered"``: a map flags a node as a target once its agent observes it, every episode;
+    ``"known"``: every map starts each episode with the true target flags (a mission that knows its
+    sites). Uncertainties and ages stay what the agent itself has observed.
 illegal_action (``"raise"``)
     ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
     and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``
@@ -148,6 +152,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         reward: str | Mapping[str, float] = "paper",
         observation: str = "map",
         graph_knowledge: str = "discovered",
+        target_knowledge: str = "discovered",
         illegal_action: str = "raise",
         shared_map: bool = False,
         failures: Mapping[str, int] | None = None,
@@ -205,6 +210,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.reward_weights = resolve_reward(reward)
         self.observation_mode = observation
         self.graph_knowledge = graph_knowledge
+        self.target_knowledge = target_knowledge
         self.illegal_action = illegal_action
         self.shared_map = bool(shared_map)
         self.render_mode = render_mode
@@ -241,7 +247,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._edge_nodes = hops <= self.obs_radius - 1  # incident edges of these are seen
         self._reachable_i8 = graph.reachable.astype(np.int8)
         self._targets = graph.targets
-        self.maps = MentalMaps(self.n_agents, graph.adjacency, self.graph_knowledge)
+        self.maps = MentalMaps(
+            self.n_agents, graph.adjacency, self.graph_knowledge, self.target_knowledge, graph.targets
+        )
         self.maps.track_uncertainty_sum = "change" in self.reward_weights
         self.metrics = EpisodeMetrics(graph.target_indices, self.u_max, self.max_cycles, self.n_agents)
         self.metrics.track_failures = bool(self.failures) or self.failure_rate > 0
@@ -261,6 +269,9 @@ class PersistentMonitoringEnv(ParallelEnv):
             self.failures, self.failure_rate = {}, 0.0
             self._fail_at = np.full(self.n_agents, self.max_cycles + 1, dtype=np.int64)
             self._active = np.ones(self.n_agents, dtype=bool)
+        if "target_knowledge" not in state:  # written before known targets existed
+            self.target_knowledge = "discovered"
+            self.maps.target_knowledge, self.maps._known_targets = "discovered", None
 
     def _check_failures(
         self, failures: Mapping[str, int] | None, rate: float

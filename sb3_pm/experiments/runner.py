@@ -275,7 +275,9 @@ def run_cell(cell: Cell) -> dict[str, Any]:
 
         assert variant.policy is not None
         team = make_team(variant.policy)
-        env_kwargs = dict(cell.env_kwargs)
+        # A baseline variant's env_kwargs set its environment (a baseline under a learned
+        # variant's setting, e.g. target_knowledge: known), over the experiment's.
+        env_kwargs = {**cell.env_kwargs, **variant.env_kwargs}
     env_kwargs.update(cell.eval_env_kwargs)
     result = evaluate(
         team,

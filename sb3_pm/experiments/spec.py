@@ -23,7 +23,8 @@ evaluated for a number of episodes. One file describes it::
 
 Variant keys: ``kind`` (``independent``, ``centralized`` or ``baseline``), ``policy`` (baselines:
 a baseline name), ``policy_kwargs`` / ``hyperparams`` / ``env_kwargs`` (learned variants:
-overrides merged over the base config), ``train`` (learned variants, default true; ``false``
+overrides merged over the base config; a baseline's ``env_kwargs`` set its evaluation env over the
+experiment's, e.g. the same ``target_knowledge`` as a learned variant), ``train`` (learned variants, default true; ``false``
 builds the team and evaluates its *initial* policy without training it: the control that tells how
 much of a learned row comes from training rather than from the DCBF filter around an untrained
 actor), ``config`` (learned variants: another team config to start from, relative to this file,
