@@ -21,18 +21,18 @@ evaluated for a number of episodes. One file describes it::
       centralized: {kind: centralized}                  # one shared map + network, same model code
       grazing: {kind: baseline, policy: grazing}
 
-Variant keys: ``kind`` (``independent``, ``centralized`` or ``baseline``), ``policy`` (baselines:
-a baseline name), ``policy_kwargs`` / ``hyperparams`` / ``env_kwargs`` (learned variants:
-overrides merged over the base config; a baseline's ``env_kwargs`` set its evaluation env over the
-experiment's, e.g. the same ``target_knowledge`` as a learned variant), ``train`` (learned variants, default true; ``false``
-builds the team and evaluates its *initial* policy without training it: the control that tells how
-much of a learned row comes from training rather than from the DCBF filter around an untrained
-actor), ``config`` (learned variants: another team config to start from, relative to this file,
-instead of the experiment's; the variant's overrides then merge over that one), ``label`` (the name
-in tables; defaults to the key), ``train_env`` (independent variants: train once per seed on this
-graph or graph family, e.g. ``family:er``, and evaluate that one team zero-shot on every graph of the
-experiment, instead of training on each graph), ``timesteps`` (learned variants: this variant's
-budget per learner, instead of the experiment's).
+Variant keys: ``kind`` (``independent``, ``centralized`` or ``baseline``), ``policy`` (baselines: a
+baseline name), ``policy_kwargs`` / ``hyperparams`` / ``env_kwargs`` (learned variants: overrides
+merged over the base config; a baseline's ``env_kwargs`` set its evaluation env over the
+experiment's, e.g. the same ``target_knowledge`` as a learned variant), ``train`` (learned variants,
+default true; ``false`` builds the team and evaluates its *initial* policy without training it: the
+control that tells how much of a learned row comes from training rather than from the DCBF filter
+around an untrained actor), ``config`` (learned variants: another team config to start from,
+relative to this file, instead of the experiment's; the variant's overrides then merge over that
+one), ``label`` (the name in tables; defaults to the key), ``train_env`` (independent variants:
+train once per seed on this graph or graph family, e.g. ``family:er``, and evaluate that one team
+zero-shot on every graph of the experiment, instead of training on each graph), ``timesteps``
+(learned variants: this variant's budget per learner, instead of the experiment's).
 """
 
 from __future__ import annotations
