@@ -597,6 +597,9 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert known["known_targets"].env_kwargs == {"target_knowledge": "known"}
     assert known["known_map"].env_kwargs == {"target_knowledge": "known", "graph_knowledge": "known"}
     assert not known["known_map"].hyperparams and not known["known_map"].policy_kwargs
+    transfer_known = _variants("transfer_known_map")
+    assert transfer_known["known_map"].env_kwargs == known["known_map"].env_kwargs
+    assert transfer_known["known_map"].config is None and not transfer_known["known_map"].policy_kwargs
     derived = _variants("derived_features")
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}
