@@ -170,3 +170,4 @@ def test_saved_team_type_comes_from_the_manifest_format(monkeypatch, tmp_path, m
     (tmp_path / "team").mkdir()
     (tmp_path / "team" / "manifest.json").write_text(json.dumps(manifest))
     assert load_trained_team(tmp_path) == expected  # a run folder: the team is in team/
+    assert load_trained_team(str(tmp_path)) == expected  # a path given as a string works too

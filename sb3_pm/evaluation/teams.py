@@ -43,9 +43,10 @@ def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **k
     )
 
 
-def load_trained_team(path: Path, graph: Any = None, device: str = "cpu") -> Team:
+def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") -> Team:
     """``IndependentPPO.load(path)`` (or ``CentralizedPPO.load`` for a centralized team's folder),
     imported lazily so that baselines never need torch."""
+    path = Path(path)
     try:
         from sb3_pm.agents.team import IndependentPPO
         from sb3_pm.sharing.centralized import MANIFEST_FORMAT as CENTRALIZED
