@@ -1,0 +1,353 @@
+"""A team's deterministic actions from the logits of the allowed nodes only, with the same actions.
+
+An agent may move only to the nodes its DCBF mask allows (its own node and a few neighbours), yet
+the stacked pass (:mod:`sb3_pm.agents.stacked_inference`) computes the actor's logit on every node
+of the graph, and the last attention layer's output on every node too. On the published 200-node
+graph the actor alone was a fifth of a deployed team's time. This pass computes, per map:
+
+* the last GAT layer only on the allowed nodes and the agent's own node (the actor reads nothing
+  else), each earlier layer only on the nodes the next one attends to (its rows' known neighbours
+  and themselves), with every tensor that is summed over nodes kept at its full width ``N``, so a
+  row's products run in the same kernels and orders as in the full pass;
+* the actor on those rows only.
+
+**Same logits on the rows it computes.** The rows are the full pass's rows bit for bit. Torch's
+CPU kernels take another summation order for products with fewer than four rows, so a pass keeps
+at least :data:`MIN_ROWS`; the one-output layer runs on a full-width copy with the other rows
+zeroed. :class:`PrunedInference` checks this where it runs, on random maps and masks, and keeps
+the full stacked pass for good if any bit differs.
+
+**Same actions.** The full pass's action is sb3-contrib's masked mode, which normalizes by a
+log-sum-exp over *every* node's logit; this pass does not have those. Every step of that
+computation is monotone in each logit (subtracting a common constant, the softmax, rounding), so
+it returns the best allowed node, unless rounding ties or swaps two of them: that needs two allowed
+logits within a few units in the last place of the largest normalized value. The actor's last
+hidden layer is a ``Tanh`` (``|h| <= 1``), so every logit is at most ``L = |b| + sum |w|`` of the
+output layer in magnitude and every normalized value at most ``B = 2 L + log N`` (the
+log-sum-exp of ``N`` logits is below ``L + log N``). This pass decides only when its best allowed
+logit leads the next by more than ``B * 2**-16`` (about 500 units in the last place of ``B``) and
+otherwise runs the full pass for that step. ``tests/test_stacked_inference.py`` compares the
+actions with the serial path's on every step of several episodes, and the near-tie fallback on
+built logits.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import torch as th
+from torch import nn
+
+from sb3_pm.agents.stacked_inference import (
+    _TRANSCENDENTAL,
+    TAIL_FREE,
+    StackedInference,
+    _activation,
+    _first_weight,
+    _Stack,
+)
+from sb3_pm.policies.attention import attention_probabilities
+from sb3_pm.policies.extractor import GATFeaturesExtractor
+from sb3_pm.policies.layers import GraphAttention
+from sb3_pm.policies.policy import DCBFActorCriticPolicy, masked_mode
+
+#: Fewest rows a pruned product runs on: with fewer, torch's CPU matrix products take a
+#: matrix-vector path that sums in another order than the full pass's.
+MIN_ROWS = 4
+#: The decision margin, as a fraction of the bound ``B`` on the normalized logits (module
+#: docstring): a float32's unit in the last place is 2**-23 to 2**-24 of its magnitude, so this is
+#: 128 to 256 of them.
+MARGIN = 2.0**-16
+#: Random draws of maps and masks on which a new stack's pruned rows are checked.
+_CHECKS = 8
+
+
+def prune_problem(policies: Sequence[DCBFActorCriticPolicy]) -> str | None:
+    """Why ``policies`` (already able to act stacked) cannot act pruned, or ``None``."""
+    first = policies[0]
+    body = list(first.actor_body)
+    if not body or not isinstance(body[-1], nn.Tanh):
+        return "the actor's last hidden layer is not a Tanh, so its logits have no bound"
+    if any(isinstance(layer, nn.Linear) and layer.out_features == 1 for layer in body):
+        return "a one-unit hidden layer runs as a matrix-vector product, which rounds by its length"
+    n = first.n_nodes
+    if any((n * width) % TAIL_FREE for width in _transcendental_widths(first)):
+        return (
+            f"{n} nodes leave a transcendental activation's last elements outside its vector loop, "
+            "where they round by their position"
+        )
+    return None
+
+
+def _transcendental_widths(policy: DCBFActorCriticPolicy) -> list[int]:
+    """The widths of the per-node tensors that a transcendental activation runs on."""
+    extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
+    widths = []
+    if isinstance(extractor.activation, _TRANSCENDENTAL):
+        widths += [int(layer.out_channels) for layer in extractor.gat]  # type: ignore[union-attr]
+    width = 0
+    for layer in policy.actor_body:
+        if isinstance(layer, nn.Linear):
+            width = layer.out_features
+        elif isinstance(layer, _TRANSCENDENTAL):
+            widths.append(width)
+    return widths
+
+
+def row_multiple(policy: DCBFActorCriticPolicy) -> int:
+    """The row counts a pruned pass pads to a multiple of, so that every transcendental activation
+    runs on whole blocks of :data:`~sb3_pm.agents.stacked_inference.TAIL_FREE` elements, as the
+    full pass does (see :func:`prune_problem`)."""
+    multiple = 1
+    for width in _transcendental_widths(policy):
+        multiple = math.lcm(multiple, TAIL_FREE // math.gcd(width, TAIL_FREE))
+    return multiple
+
+
+def logit_bound(policy: DCBFActorCriticPolicy) -> float:
+    """``L``: no logit of ``policy`` exceeds it in magnitude (its last hidden layer is a Tanh)."""
+    head: nn.Linear = policy.action_net  # type: ignore[assignment]
+    with th.no_grad():
+        return float(head.weight.abs().sum() + head.bias.abs().sum())
+
+
+class PrunedInference(StackedInference):
+    """:class:`~sb3_pm.agents.stacked_inference.StackedInference` whose deterministic actions are
+    decided from the allowed nodes' logits where that gives the same action (module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._prune_ids: tuple[int, ...] | None = None
+        self._prune_problem: str | None = None
+        #: Decide from the pruned rows where possible (``False``: always the full stacked pass).
+        self.prune = True
+        #: How many steps were decided from the pruned rows, and how many ran the full pass.
+        self.counts = {"pruned": 0, "full": 0}
+
+    def prune_problem(self, policies: Sequence[Any]) -> str | None:
+        """Why ``policies`` act through the full stacked pass rather than the pruned one (``None``:
+        they act pruned), remembered per policy objects and thread count."""
+        problem = self.problem(policies)
+        if problem is not None:
+            return problem
+        ids = (*(id(p) for p in policies), th.get_num_threads())
+        if ids != self._prune_ids:
+            self._prune_ids, self._prune_problem = ids, prune_problem(policies)
+            if self._prune_problem is None:
+                assert self._stack is not None
+                if not self._pruned_rows_match(self._stack):
+                    self._prune_problem = "on this machine the pruned rows do not round as the full pass"
+        return self._prune_problem
+
+    def actions(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+    ) -> np.ndarray | None:
+        """As :meth:`StackedInference.actions`, deciding from the allowed nodes' logits where the
+        margin allows it.
+
+        Shapes:
+            - observations: ``K`` mental-map observations (numpy), one per policy
+            - output: ``(K,)`` int64
+        """
+        prepared = self.prepare(policies, observations)
+        if prepared is None:
+            return None
+        pre, u_hat, masks = prepared
+        stack = self._stack
+        assert stack is not None
+        if self.prune and self.prune_problem(policies) is None:
+            with th.no_grad():
+                rows, candidate = allowed_rows(masks, positions(pre), row_multiple(stack.policies[0]))
+                logits = self._pruned_logits(stack, pre, u_hat, rows)
+                chosen = decide(logits, rows, candidate, self._margins(stack, masks.shape[1]))
+            if chosen is not None:
+                self.counts["pruned"] += 1
+                return chosen
+        self.counts["full"] += 1
+        with th.no_grad():
+            return masked_mode(self._logits_given(stack, pre, u_hat), masks).cpu().numpy()
+
+    # ----------------------------------------------------------------- checks
+    def _pruned_rows_match(self, stack: _Stack) -> bool:
+        """Whether the pruned logits equal the full pass's on their rows, to the last bit, on random
+        maps and masks (drawn from a generator of their own)."""
+        rng = np.random.default_rng(1)
+        for _ in range(_CHECKS):
+            pre = self._random_maps(stack, rng)
+            if pre is None:
+                return True  # such maps never take the stacked pass
+            k, n = pre["nodes"].shape[:2]
+            masks = th.zeros((k, n), dtype=th.bool)
+            for row in range(k):  # 1 to 6 allowed nodes per map, as a DCBF mask leaves
+                masks[row, rng.choice(n, size=int(rng.integers(1, min(n, 6) + 1)), replace=False)] = True
+            with th.no_grad():
+                u_hat = self._uncertainty(stack, pre)
+                full = self._logits_given(stack, pre, u_hat)
+                rows, _ = allowed_rows(masks, positions(pre), row_multiple(stack.policies[0]))
+                if not th.equal(self._pruned_logits(stack, pre, u_hat, rows), full.gather(1, rows)):
+                    return False
+        return True
+
+    def _margins(self, stack: _Stack, n_nodes: int) -> th.Tensor:
+        """``(K,)`` the decision margin of each policy (module docstring), from its current weights."""
+        return th.tensor(
+            [(2.0 * logit_bound(p) + math.log(n_nodes)) * MARGIN for p in stack.policies],
+            dtype=th.float64,
+        )
+
+    # -------------------------------------------------------------- the pass
+    def _pruned_logits(
+        self, stack: _Stack, pre: dict[str, th.Tensor], u_hat: th.Tensor, rows: th.Tensor
+    ) -> th.Tensor:
+        """The logits ``(K, S)`` of the nodes ``rows`` ``(K, S)`` (the full pass's, bit for bit)."""
+        first = stack.policies[0]
+        embeddings = self._pruned_embed(stack, pre, rows)  # (K, S, h)
+        own_column = (rows == positions(pre).unsqueeze(1)).int().argmax(1)  # where each map's node is
+        own = embeddings[th.arange(rows.shape[0]), own_column]  # (K, h)
+        if first.use_estimator:
+            scaled = (u_hat / first.u_max).gather(1, rows)
+            embeddings = th.cat((embeddings, scaled.unsqueeze(-1)), dim=-1)
+        return self._pruned_actor(stack, embeddings, own, rows, pre["nodes"].shape[1])
+
+    def _pruned_embed(self, stack: _Stack, pre: dict[str, th.Tensor], rows: th.Tensor) -> th.Tensor:
+        """The last GAT layer's embeddings ``(K, S, h)`` of ``rows``; each earlier layer only on the
+        rows the next attends to. Inputs of products stay ``N`` wide (other rows zero)."""
+        extractor: GATFeaturesExtractor = stack.policies[0].features_extractor  # type: ignore[assignment]
+        encoding, bias = self._graph_inputs(extractor, pre["adjacency"])
+        attends = bias[:, 0] == 0  # (K, N, N): row i attends to column j (edges and self loops)
+        needed = [rows]
+        for _ in range(len(extractor.gat) - 1):
+            needed.insert(0, neighbour_rows(attends, needed[0], row_multiple(stack.policies[0])))
+        x = extractor.node_features(pre)  # (K, N, F)
+        batch, n, _ = x.shape
+        for i, module in enumerate(extractor.gat):
+            layer: GraphAttention = module  # type: ignore[assignment]
+            prefix = f"features_extractor.gat.{i}.conv"
+            weight = stack.weights[f"{prefix}.lin.weight"]
+            heads, channels = int(layer.heads), int(layer.out_channels)
+            if i == 0 and encoding is not None:
+                features = x.shape[-1]
+                h = th.bmm(x, weight[:, :, :features].transpose(1, 2)) + th.matmul(
+                    encoding, weight[:, :, features:].transpose(1, 2)
+                )
+            else:
+                h = th.bmm(x, weight.transpose(1, 2))
+            h = h.view(batch, n, heads, channels).transpose(1, 2).contiguous()  # (K, H, N, C)
+            att_src = stack.weights[f"{prefix}.att_src"].view(batch, heads, 1, channels)
+            att_dst = stack.weights[f"{prefix}.att_dst"].view(batch, heads, 1, channels)
+            a_dst, a_src = (h * att_dst).sum(-1), (h * att_src).sum(-1)  # (K, H, N)
+            wanted = needed[i]  # (K, R)
+            r = wanted.shape[1]
+            alpha = attention_probabilities(
+                a_dst.gather(2, wanted.unsqueeze(1).expand(batch, heads, r)),
+                a_src,
+                bias.gather(2, wanted[:, None, :, None].expand(batch, 1, r, n)),
+                float(layer.conv.negative_slope),
+            )  # (K, H, R, N)
+            out = th.matmul(alpha, h).mean(1) + stack.weights[f"{prefix}.bias"].unsqueeze(1)  # (K, R, C)
+            out = _activation(extractor.activation, out, r)
+            if i == len(extractor.gat) - 1:
+                return out
+            x = th.zeros((batch, n, out.shape[-1]), dtype=out.dtype)
+            x.scatter_(1, wanted.unsqueeze(-1).expand(-1, -1, out.shape[-1]), out)
+        raise AssertionError("a GAT has at least one layer")
+
+    @staticmethod
+    def _pruned_actor(
+        stack: _Stack, embeddings: th.Tensor, own: th.Tensor, rows: th.Tensor, n_nodes: int
+    ) -> th.Tensor:
+        """:meth:`StackedInference._actor` on the rows only: ``(K, S, d)`` -> ``(K, S)``."""
+        policies = stack.policies
+        width = embeddings.shape[-1]
+        weight, bias = stack.weights["actor_body.0.weight"], stack.weights["actor_body.0.bias"]
+        per_node = th.baddbmm(bias.unsqueeze(1), embeddings, weight[:, :, :width].transpose(1, 2))
+        per_map = th.stack(
+            [
+                nn.functional.linear(own[k : k + 1].clone(), _first_weight(p)[:, width:])
+                for k, p in enumerate(policies)
+            ]
+        )  # (K, 1, w)
+        hidden = StackedInference._mlp(
+            stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1
+        )  # (K, S, w)
+        # The one-output layer on a full-width copy: a matrix-vector product rounds by its length.
+        wide = th.zeros((hidden.shape[0], n_nodes, hidden.shape[-1]), dtype=hidden.dtype)
+        wide.scatter_(1, rows.unsqueeze(-1).expand(-1, -1, hidden.shape[-1]), hidden)
+        logits = th.cat([p.action_net(wide[k : k + 1]) for k, p in enumerate(policies)]).squeeze(-1)
+        return logits.gather(1, rows)
+
+
+def positions(pre: dict[str, th.Tensor]) -> th.Tensor:
+    """``(K,)`` each map's own node, as :meth:`DCBFActorCriticPolicy._with_estimate` reads it."""
+    return pre["position_index"] if "position_index" in pre else pre["position"].argmax(-1)
+
+
+def padded_width(longest: int, multiple: int) -> int:
+    """The rows a pruned product runs on: at least ``longest`` and :data:`MIN_ROWS`, a multiple of
+    ``multiple`` (:func:`row_multiple`)."""
+    width = max(MIN_ROWS, longest)
+    return -(-width // multiple) * multiple
+
+
+def allowed_rows(masks: th.Tensor, own: th.Tensor, multiple: int) -> tuple[th.Tensor, th.Tensor]:
+    """Per map, its allowed nodes in increasing order and then its own node if not allowed, padded
+    by repeating the first to a common :func:`padded_width`.
+
+    Shapes:
+        - masks: ``(K, N)`` bool; own: ``(K,)`` long
+        - output: rows ``(K, S)`` long; candidate ``(K, S)`` bool, True on each allowed node's
+          first (only) occurrence
+    """
+    lists, flags = [], []
+    for mask, node in zip(masks, own.tolist()):
+        allowed = np.flatnonzero(mask.numpy()).tolist()
+        extra = [] if mask[node] else [node]
+        lists.append(allowed + extra)
+        flags.append([True] * len(allowed) + [False] * len(extra))
+    width = padded_width(max(len(r) for r in lists), multiple)
+    rows = th.tensor([r + [r[0]] * (width - len(r)) for r in lists], dtype=th.long)
+    candidate = th.tensor([f + [False] * (width - len(f)) for f in flags], dtype=th.bool)
+    return rows, candidate
+
+
+def neighbour_rows(attends: th.Tensor, rows: th.Tensor, multiple: int) -> th.Tensor:
+    """The nodes ``rows`` ``(K, R)`` attend to (their known neighbours and themselves), per map,
+    padded as :func:`allowed_rows` pads: ``(K, R')`` long."""
+    reached = attends.gather(1, rows.unsqueeze(-1).expand(-1, -1, attends.shape[-1])).any(1)  # (K, N)
+    lists = [np.flatnonzero(row).tolist() for row in reached.numpy()]
+    width = padded_width(max(len(r) for r in lists), multiple)
+    return th.tensor([r + [r[0]] * (width - len(r)) for r in lists], dtype=th.long)
+
+
+def decide(
+    logits: th.Tensor, rows: th.Tensor, candidate: th.Tensor, margins: th.Tensor
+) -> np.ndarray | None:
+    """Each map's best allowed node, or ``None`` if any map's best two allowed logits are within its
+    margin (or any logit is not finite): the full pass must decide that step.
+
+    Shapes:
+        - logits, rows, candidate: ``(K, S)``; margins: ``(K,)``
+        - output: ``(K,)`` int64
+    """
+    if not bool(th.isfinite(logits).all()):
+        return None
+    values = logits.double().masked_fill(~candidate, -math.inf)
+    top = values.topk(2, dim=1).values  # (K, 2); the second is -inf where one node is allowed
+    if not bool((top[:, 0] - top[:, 1] > margins).all()):
+        return None
+    best = values.argmax(1, keepdim=True)
+    return rows.gather(1, best).squeeze(1).numpy()
+
+
+__all__ = [
+    "MIN_ROWS",
+    "PrunedInference",
+    "allowed_rows",
+    "decide",
+    "logit_bound",
+    "prune_problem",
+    "row_multiple",
+]
