@@ -322,9 +322,7 @@ def neighbour_rows(attends: th.Tensor, rows: th.Tensor, multiple: int) -> th.Ten
     return th.tensor([r + [r[0]] * (width - len(r)) for r in lists], dtype=th.long)
 
 
-def decide(
-    logits: th.Tensor, rows: th.Tensor, candidate: th.Tensor, margins: th.Tensor
-) -> np.ndarray | None:
+def decide(logits: th.Tensor, rows: th.Tensor, candidate: th.Tensor, margins: th.Tensor) -> np.ndarray | None:
     """Each map's best allowed node, or ``None`` if any map's best two allowed logits are within its
     margin (or any logit is not finite): the full pass must decide that step.
 
