@@ -39,6 +39,7 @@ CONFIGS: dict[str, dict[str, Any]] = {
     },
     "local_r2": {"graph": "paper-50", "observation": "local", "obs_radius": 2},
     "known_8_agents": {"graph": "paper-100", "graph_knowledge": "known", "n_agents": 8},
+    "known_targets": {"graph": "paper-50", "target_knowledge": "known"},
     "shared_map": {"graph": "paper-50", "shared_map": True},
     "failures": {
         "graph": "paper-50",

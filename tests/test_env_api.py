@@ -20,6 +20,13 @@ def test_parallel_api(observation: str) -> None:
     )
 
 
+def test_parallel_api_with_a_known_map() -> None:
+    env = persistent_monitoring_v0.parallel_env(
+        graph=SMALL, max_cycles=40, target_knowledge="known", graph_knowledge="known"
+    )
+    parallel_api_test(env, num_cycles=100)
+
+
 @pytest.mark.parametrize("observation", ["map", "local"])
 def test_aec_api(observation: str) -> None:
     api_test(
