@@ -3,7 +3,7 @@
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
                                     [--arithmetic default csr allowed fast]
-                                    [--inference serial stacked]
+                                    [--inference serial full stacked] [--team DIR]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
@@ -11,9 +11,15 @@ trained team's do) and times ``evaluate`` with each torch thread count, in episo
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
 ``--arithmetic`` runs the policy with other kernels (``csr``, ``allowed``, ``fast``; see
 ``benchmarks/train_speed.py``), for before/after ratios in one run. ``--inference`` times the
-team acting one forward pass per agent (``serial``, the earlier releases' path) and one stacked
-pass for the whole team (``stacked``, the default; the same actions, bit for bit,
-:mod:`sb3_pm.agents.stacked_inference`), and prints their ratio. Then renders and writes a GIF
+team acting one forward pass per agent (``serial``, the earlier releases' path), one stacked
+pass for the whole team computing every node's logit (``full``,
+:mod:`sb3_pm.agents.stacked_inference`), and that pass deciding from the allowed nodes' logits
+where the margin allows (``stacked``, the default, :mod:`sb3_pm.agents.pruned_inference`; the
+same actions, bit for bit), and prints their ratios to ``serial`` with the share of steps the
+pruned pass decided. An untrained team's logits are all within about 1e-4 of each other, below the
+pruned pass's margin, so its steps fall back to the full pass: ``--team DIR`` times a trained team
+instead (on each graph of ``--graphs``; one trained elsewhere is deployed there if it transfers,
+with its own team size). Then renders and writes a GIF
 of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). The load
 average is printed: on a shared CPU the figures are lower.
 
@@ -41,26 +47,44 @@ def evaluation_speed(
     repeats: int,
     arithmetic: str = "default",
     inference: str = "stacked",
-) -> float:
-    """Episodes per second of a 4-agent learned team on ``graph`` with ``threads`` torch threads
-    (the median of ``repeats`` timed runs)."""
+    team_path: str | None = None,
+) -> tuple[float, float | None]:
+    """Episodes per second of a learned team on ``graph`` with ``threads`` torch threads (the
+    median of ``repeats`` timed runs): a 4-agent team built from ``config``, or the saved team
+    ``team_path``. Also the share of steps the pruned pass decided (``None`` for other passes)."""
     import statistics
 
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.evaluation import evaluate
     from sb3_pm.zoo import load_config
 
-    overrides = {"policy_kwargs": ARITHMETIC[arithmetic]}
-    team = IndependentPPO.from_config(load_config(config, graph, overrides=overrides), graph, seed=0)
-    team.stacked_inference = inference == "stacked"
-    evaluate(team, graph, episodes=1, max_cycles=steps, threads=threads)  # warm-up
+    if team_path is not None:
+        from sb3_pm.evaluation.teams import load_trained_team
+
+        team = load_trained_team(team_path, graph=graph)
+        env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}  # type: ignore[attr-defined]
+    else:
+        overrides = {"policy_kwargs": ARITHMETIC[arithmetic]}
+        team = IndependentPPO.from_config(load_config(config, graph, overrides=overrides), graph, seed=0)
+        env_kwargs = {}
+    team.stacked_inference = inference != "serial"  # type: ignore[attr-defined]
+    team.pruned_inference = inference == "stacked"  # type: ignore[attr-defined]
+    n_agents = team.n_agents  # type: ignore[attr-defined]
+    run = dict(n_agents=n_agents, max_cycles=steps, threads=threads, env_kwargs=env_kwargs)
+    evaluate(team, graph, episodes=1, **run)  # warm-up
+    stacker = team._stacker  # type: ignore[attr-defined]
+    stacker.counts = {"pruned": 0, "full": 0}
     rates = []
     for _ in range(repeats):
         start = time.perf_counter()
-        evaluate(team, graph, episodes=episodes, seed=1, max_cycles=steps, threads=threads)
+        evaluate(team, graph, episodes=episodes, seed=1, **run)
         rates.append(episodes / (time.perf_counter() - start))
-    team.close()
-    return statistics.median(rates)
+    close = getattr(team, "close", None)
+    if close is not None:
+        close()
+    decided = sum(stacker.counts.values())
+    share = stacker.counts["pruned"] / decided if inference == "stacked" and decided else None
+    return statistics.median(rates), share
 
 
 def gif_speed(graph: str, frames: int) -> tuple[float, float]:
@@ -97,20 +121,26 @@ def main() -> None:
     parser.add_argument("--gif-frames", type=int, default=500)
     parser.add_argument("--arithmetic", nargs="+", choices=list(ARITHMETIC), default=["default"])
     parser.add_argument(
-        "--inference", nargs="+", choices=["serial", "stacked"], default=["serial", "stacked"]
+        "--inference", nargs="+", choices=["serial", "full", "stacked"], default=["serial", "full", "stacked"]
     )
+    parser.add_argument("--team", default=None, help="time this saved team instead of an untrained one")
     args = parser.parse_args()
     import torch
 
     print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
-    print("| graph | arithmetic | inference | torch threads | episodes/s | seconds per episode | × serial |")
-    print("|---|---|---|---:|---:|---:|---:|")
+    team = f"the saved team {args.team}" if args.team else f"an untrained 4-agent team ({args.config})"
+    print(f"{team}, {args.episodes} episodes of {args.steps} steps per timed run")
+    print(
+        "| graph | arithmetic | inference | torch threads | episodes/s | seconds per episode | × serial "
+        "| steps decided pruned |"
+    )
+    print("|---|---|---|---:|---:|---:|---:|---:|")
     for graph in args.graphs:
         for arithmetic in args.arithmetic:
             for threads in args.threads:
                 serial = None
                 for inference in args.inference:
-                    rate = evaluation_speed(
+                    rate, share = evaluation_speed(
                         graph,
                         args.config,
                         args.episodes,
@@ -119,11 +149,13 @@ def main() -> None:
                         args.repeats,
                         arithmetic,
                         inference,
+                        args.team,
                     )
                     serial = rate if inference == "serial" else serial
                     ratio = f"{rate / serial:.2f}" if serial else "—"
-                    row = f"| {graph} | {arithmetic} | {inference} | {threads} | {rate:.3f} | {1 / rate:.1f}"
-                    print(f"{row} | {ratio} |", flush=True)
+                    pruned = f"{share:.1%}" if share is not None else "—"
+                    row = f"| {graph} | {arithmetic} | {inference} | {threads} | {rate:.3f} | {1 / rate:.2f}"
+                    print(f"{row} | {ratio} | {pruned} |", flush=True)
     if args.gif_frames > 0:
         draw, write = gif_speed(args.graphs[0], args.gif_frames)
         print(

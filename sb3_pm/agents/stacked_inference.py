@@ -194,6 +194,23 @@ class StackedInference:
 
     def _rounds_as_serial_on(self, stack: _Stack, rng: np.random.Generator) -> bool:
         """One draw of :meth:`_rounds_as_serial`."""
+        pre = self._random_maps(stack, rng)
+        if pre is None:
+            return True  # such maps never take this pass
+        k, n = pre["nodes"].shape[:2]
+        with th.no_grad():
+            masks = th.ones((k, n), dtype=th.bool)
+            stacked = self._logits_given(stack, pre, self._uncertainty(stack, pre))
+            for i, policy in enumerate(stack.policies):
+                alone = {key: value[i : i + 1].clone() for key, value in pre.items()}
+                serial = policy._logits(alone, policy.uncertainty(alone), masks[i : i + 1])
+                if not th.equal(serial[0], stacked[i]):
+                    return False
+        return True
+
+    def _random_maps(self, stack: _Stack, rng: np.random.Generator) -> dict[str, th.Tensor] | None:
+        """Preprocessed random maps of the policies' observation space, one per policy, with the
+        stack refreshed (``None`` if they would not take the dense kernel, hence not this pass)."""
         first = stack.policies[0]
         space = first.observation_space
         k, n = len(stack.policies), first.n_nodes
@@ -210,18 +227,10 @@ class StackedInference:
             "action_mask": th.ones((k, n), dtype=th.int8),
         }
         if not _all_dense(first, arrays["adjacency"]):
-            return True  # such maps never take this pass
+            return None
         stack.refresh()
         with th.no_grad():
-            pre = first._preprocess(arrays)
-            masks = th.ones((k, n), dtype=th.bool)
-            stacked = self._logits_given(stack, pre, self._uncertainty(stack, pre))
-            for i, policy in enumerate(stack.policies):
-                alone = {key: value[i : i + 1].clone() for key, value in pre.items()}
-                serial = policy._logits(alone, policy.uncertainty(alone), masks[i : i + 1])
-                if not th.equal(serial[0], stacked[i]):
-                    return False
-        return True
+            return first._preprocess(arrays)  # type: ignore[no-any-return]
 
     def actions(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
@@ -250,6 +259,25 @@ class StackedInference:
             - observations: ``K`` mental-map observations (numpy), one per policy
             - output: logits ``(K, N)`` float, masks ``(K, N)`` bool
         """
+        prepared = self.prepare(policies, observations)
+        if prepared is None:
+            return None
+        pre, u_hat, masks = prepared
+        assert self._stack is not None
+        with th.no_grad():
+            return self._logits_given(self._stack, pre, u_hat), masks
+
+    def prepare(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+    ) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor] | None:
+        """The stacked pass up to the actor: the preprocessed maps, every policy's ``û`` on its own
+        map and its DCBF mask (counting rule 8's decisions), with the parameters stacked anew;
+        ``None`` where this step must run serially.
+
+        Shapes:
+            - observations: ``K`` mental-map observations (numpy), one per policy
+            - output: the maps (``(K, ...)`` each), ``û`` ``(K, N)``, masks ``(K, N)`` bool
+        """
         if len(policies) != len(observations) or self.problem(policies) is not None:
             return None
         stack = self._stack
@@ -276,7 +304,7 @@ class StackedInference:
             if forced is not None:
                 for k, policy in enumerate(policies):
                     policy.count_forced(forced[k : k + 1])
-            return self._logits_given(stack, pre, u_hat), masks
+            return pre, u_hat, masks
 
     def predict(
         self, observations: Mapping[str, Mapping[str, Any]], policy_for: Callable[[str], Any]

@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from sb3_pm.agents.pruned_inference import PrunedInference
 from sb3_pm.agents.saved_teams import check_same_graph
-from sb3_pm.agents.stacked_inference import StackedInference
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.team_interface import Observation, Team
@@ -88,9 +88,11 @@ class TransferredTeam(Team):
     omniscient = False
     #: as :attr:`IndependentPPO.stacked_inference <sb3_pm.agents.team.IndependentPPO.stacked_inference>`
     stacked_inference: bool = True
+    #: as :attr:`IndependentPPO.pruned_inference <sb3_pm.agents.team.IndependentPPO.pruned_inference>`
+    pruned_inference: bool = True
 
     def __init__(self, source: Any, graph: GraphSpec) -> None:
-        self._stacker = StackedInference()
+        self._stacker = PrunedInference()
         from sb3_pm.envs import persistent_monitoring_v0
 
         self.source, self.graph = source, graph
@@ -127,6 +129,7 @@ class TransferredTeam(Team):
         """Each agent's action from its learner's rebuilt policy; deterministic actions through one
         stacked pass where it applies, as in ``IndependentPPO.predict``."""
         if deterministic and self.stacked_inference:
+            self._stacker.prune = self.pruned_inference
             stacked = self._stacker.predict(observations, lambda a: self.policies[self.learner_for(a)])
             if stacked is not None:
                 return stacked

@@ -19,16 +19,22 @@ the full stacked pass for good if any bit differs.
 
 **Same actions.** The full pass's action is sb3-contrib's masked mode, which normalizes by a
 log-sum-exp over *every* node's logit; this pass does not have those. Every step of that
-computation is monotone in each logit (subtracting a common constant, the softmax, rounding), so
-it returns the best allowed node, unless rounding ties or swaps two of them: that needs two allowed
-logits within a few units in the last place of the largest normalized value. The actor's last
-hidden layer is a ``Tanh`` (``|h| <= 1``), so every logit is at most ``L = |b| + sum |w|`` of the
-output layer in magnitude and every normalized value at most ``B = 2 L + log N`` (the
-log-sum-exp of ``N`` logits is below ``L + log N``). This pass decides only when its best allowed
-logit leads the next by more than ``B * 2**-16`` (about 500 units in the last place of ``B``) and
-otherwise runs the full pass for that step. ``tests/test_stacked_inference.py`` compares the
-actions with the serial path's on every step of several episodes, and the near-tie fallback on
-built logits.
+computation is monotone in each logit up to rounding (subtracting a common constant, masking, the
+softmax), so it returns the best allowed node unless rounding ties or swaps two of them, which
+needs two allowed logits within a few units in the last place of the largest normalized value.
+The actor's last hidden layer is a ``Tanh`` (``|h| <= 1``), so every logit is at most
+``L = |b| + sum |w|`` of the output layer in magnitude and every normalized value at most
+``B = 2 L + log N`` (the log-sum-exp of ``N`` logits is below ``L + log N``). This pass decides
+only when its best allowed logit leads the next by more than ``B * 2**-16`` (128 to 256 units in
+the last place of ``B``) and otherwise runs the full pass for that step. A trained team's logits
+are far apart on almost every step; an untrained team's all lie within about 1e-4, so it always
+falls back. :attr:`PrunedInference.counts` says how many steps each pass decided.
+
+**Where it runs.** On graphs of at least :data:`MIN_NODES` nodes, where the stacked pass runs
+(:func:`~sb3_pm.agents.stacked_inference.stack_problem`) and :func:`prune_problem` finds nothing
+against it. ``tests/test_pruned_inference.py`` compares the actions with the serial path's on every
+step of several episodes, checks the margin's fallback on built logits, and checks that a pass
+that would round differently is refused.
 """
 
 from __future__ import annotations
@@ -57,6 +63,11 @@ from sb3_pm.policies.policy import DCBFActorCriticPolicy, masked_mode
 #: Fewest rows a pruned product runs on: with fewer, torch's CPU matrix products take a
 #: matrix-vector path that sums in another order than the full pass's.
 MIN_ROWS = 4
+#: Graphs smaller than this act through the full stacked pass: the pruned pass adds dozens of
+#: small operations, and on 50 nodes they cost more than the arithmetic they save (300 steps of a
+#: trained team: 0.67 s pruned against 0.48 s full on ``paper-50``, 0.64 against 0.71 s on
+#: ``paper-100``, 0.78 against 1.28 s on ``paper-200``; docs/RESULTS.md §3i).
+MIN_NODES = 100
 #: The decision margin, as a fraction of the bound ``B`` on the normalized logits (module
 #: docstring): a float32's unit in the last place is 2**-23 to 2**-24 of its magnitude, so this is
 #: 128 to 256 of them.
@@ -68,6 +79,8 @@ _CHECKS = 8
 def prune_problem(policies: Sequence[DCBFActorCriticPolicy]) -> str | None:
     """Why ``policies`` (already able to act stacked) cannot act pruned, or ``None``."""
     first = policies[0]
+    if first.n_nodes < MIN_NODES:
+        return f"{first.n_nodes} nodes: below {MIN_NODES}, the full pass is faster"
     body = list(first.actor_body)
     if not body or not isinstance(body[-1], nn.Tanh):
         return "the actor's last hidden layer is not a Tanh, so its logits have no bound"
@@ -85,9 +98,10 @@ def prune_problem(policies: Sequence[DCBFActorCriticPolicy]) -> str | None:
 def _transcendental_widths(policy: DCBFActorCriticPolicy) -> list[int]:
     """The widths of the per-node tensors that a transcendental activation runs on."""
     extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
-    widths = []
+    widths: list[int] = []
     if isinstance(extractor.activation, _TRANSCENDENTAL):
-        widths += [int(layer.out_channels) for layer in extractor.gat]  # type: ignore[union-attr]
+        layers: list[GraphAttention] = list(extractor.gat)  # type: ignore[arg-type]
+        widths += [int(layer.out_channels) for layer in layers]
     width = 0
     for layer in policy.actor_body:
         if isinstance(layer, nn.Linear):
@@ -192,11 +206,14 @@ class PrunedInference(StackedInference):
         return True
 
     def _margins(self, stack: _Stack, n_nodes: int) -> th.Tensor:
-        """``(K,)`` the decision margin of each policy (module docstring), from its current weights."""
-        return th.tensor(
-            [(2.0 * logit_bound(p) + math.log(n_nodes)) * MARGIN for p in stack.policies],
-            dtype=th.float64,
-        )
+        """``(K,)`` the decision margin of each policy (module docstring), from the stacked current
+        weights: :func:`logit_bound` for every policy at once."""
+        weight, bias = (
+            stack.weights["action_net.weight"],
+            stack.weights["action_net.bias"],
+        )  # (K, 1, w), (K, 1)
+        bound = weight.double().abs().sum((1, 2)) + bias.double().abs().sum(1)
+        return (2.0 * bound + math.log(n_nodes)) * MARGIN
 
     # -------------------------------------------------------------- the pass
     def _pruned_logits(
@@ -273,11 +290,18 @@ class PrunedInference(StackedInference):
         hidden = StackedInference._mlp(
             stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1
         )  # (K, S, w)
-        # The one-output layer on a full-width copy: a matrix-vector product rounds by its length.
-        wide = th.zeros((hidden.shape[0], n_nodes, hidden.shape[-1]), dtype=hidden.dtype)
-        wide.scatter_(1, rows.unsqueeze(-1).expand(-1, -1, hidden.shape[-1]), hidden)
-        logits = th.cat([p.action_net(wide[k : k + 1]) for k, p in enumerate(policies)]).squeeze(-1)
-        return logits.gather(1, rows)
+        return _output_layer(policies, hidden, rows, n_nodes)
+
+
+def _output_layer(
+    policies: Sequence[DCBFActorCriticPolicy], hidden: th.Tensor, rows: th.Tensor, n_nodes: int
+) -> th.Tensor:
+    """Each policy's one-output layer on its map's rows: ``(K, S, w)`` -> ``(K, S)``. It runs on a
+    full-width copy with the other rows zeroed, since a matrix-vector product rounds by its length."""
+    wide = th.zeros((hidden.shape[0], n_nodes, hidden.shape[-1]), dtype=hidden.dtype)
+    wide.scatter_(1, rows.unsqueeze(-1).expand(-1, -1, hidden.shape[-1]), hidden)
+    logits = th.cat([p.action_net(wide[k : k + 1]) for k, p in enumerate(policies)]).squeeze(-1)
+    return logits.gather(1, rows)
 
 
 def positions(pre: dict[str, th.Tensor]) -> th.Tensor:
