@@ -501,6 +501,12 @@ def test_eval_env_kwargs_may_not_redefine_the_experiment(tmp_path: Path) -> None
     )
     with pytest.raises(ExperimentError, match=r"eval_env_kwargs must not set \['max_cycles'\]"):
         load_experiment(path)
+    path.write_text(
+        "graphs: [paper-50]\nseeds: [0]\n"
+        "variants: {a: {kind: baseline, policy: random, env_kwargs: {n_agents: 2}}}\n"
+    )
+    with pytest.raises(ExperimentError, match=r"a baseline's env_kwargs must not set \['n_agents'\]"):
+        load_experiment(path)
 
 
 def test_a_train_env_variant_trains_once_per_seed_and_deploys_on_every_graph(

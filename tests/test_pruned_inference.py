@@ -79,6 +79,36 @@ def test_pruned_actions_equal_the_serial_ones(policy_kwargs: dict[str, Any]) -> 
     assert team._stacker.counts["pruned"] >= 0.9 * checked  # the pruned pass decided nearly every step
 
 
+def test_pruned_actions_on_a_sparse_graph_of_the_default_size_threshold(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """128 nodes of mean degree about 5 with one attention head (the default configuration's), above
+    the real size threshold: earlier layers run on tens of rows and the allowed sets vary, as on
+    the published 200-node graph."""
+    monkeypatch.setattr(pruned_inference, "MIN_NODES", 100)
+    graph = erdos_renyi(128, 0.04, n_targets=12, seed=5)
+    team = IndependentPPO(
+        graph,
+        n_agents=3,
+        seed=1,
+        env_kwargs={"max_cycles": 30},
+        hyperparams={**TINY, "policy_kwargs": {"gat_heads": 1}},
+    )
+    with th.no_grad():
+        for agent in team.agents:
+            team.models[agent].policy.action_net.weight.mul_(300.0)
+    env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=3, max_cycles=30)
+    observations, _ = env.reset(seed=3)
+    team.reset(env, seed=3)
+    while env.agents:
+        team.stacked_inference = False
+        serial = team.predict(observations)
+        team.stacked_inference = True
+        assert team.predict(observations) == serial
+        observations, *_ = env.step(serial)
+    assert team._stacker.counts["pruned"] >= 27  # of 30 steps
+
+
 def test_an_untrained_team_falls_back_to_the_full_pass() -> None:
     team = make_team(scale=1.0)
     checked = play_both_ways(team, steps=20)

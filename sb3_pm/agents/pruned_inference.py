@@ -24,11 +24,16 @@ softmax), so it returns the best allowed node unless rounding ties or swaps two 
 needs two allowed logits within a few units in the last place of the largest normalized value.
 The actor's last hidden layer is a ``Tanh`` (``|h| <= 1``), so every logit is at most
 ``L = |b| + sum |w|`` of the output layer in magnitude and every normalized value at most
-``B = 2 L + log N`` (the log-sum-exp of ``N`` logits is below ``L + log N``). This pass decides
+``B = 2 L + log N`` (the log-sum-exp of ``N`` logits is below ``L + log N``; the second
+normalization, over the allowed ones, adds at most ``log N`` more, well inside the margin's
+slack). This pass decides
 only when its best allowed logit leads the next by more than ``B * 2**-16`` (128 to 256 units in
 the last place of ``B``) and otherwise runs the full pass for that step. A trained team's logits
 are far apart on almost every step; an untrained team's all lie within about 1e-4, so it always
-falls back. :attr:`PrunedInference.counts` says how many steps each pass decided.
+falls back. All of this holds for finite inputs: a step with a non-finite logit among the rows
+falls back, but a non-finite value on a node the rows never reach would make the full pass's
+mode differ (it then returns that node) where this pass does not see it.
+:attr:`PrunedInference.counts` says how many steps each pass decided.
 
 **Where it runs.** On graphs of at least :data:`MIN_NODES` nodes, where the stacked pass runs
 (:func:`~sb3_pm.agents.stacked_inference.stack_problem`) and :func:`prune_problem` finds nothing
@@ -72,8 +77,13 @@ MIN_NODES = 100
 #: docstring): a float32's unit in the last place is 2**-23 to 2**-24 of its magnitude, so this is
 #: 128 to 256 of them.
 MARGIN = 2.0**-16
-#: Random draws of maps and masks on which a new stack's pruned rows are checked.
+#: Random draws of maps and masks on which a new stack's pruned rows are checked, and the mean
+#: degrees of their known graphs: sparse maps give earlier layers tens of rows, as a real map does,
+#: dense ones nearly all of them.
 _CHECKS = 8
+_CHECK_DEGREES = (2.0, 4.0, 8.0, 16.0)
+#: The most allowed nodes a check draws per map (a high-degree node with its neighbours).
+_CHECK_ALLOWED = 16
 
 
 def prune_problem(policies: Sequence[DCBFActorCriticPolicy]) -> str | None:
@@ -134,7 +144,9 @@ class PrunedInference(StackedInference):
 
     def __init__(self) -> None:
         super().__init__()
-        self._prune_ids: tuple[int, ...] | None = None
+        #: The stack (and thread count) :attr:`_prune_problem` was found for: a new stack is built
+        #: for new policy objects, and holding it keeps those objects (and their ids) alive.
+        self._prune_key: tuple[Any, int] | None = None
         self._prune_problem: str | None = None
         #: Decide from the pruned rows where possible (``False``: always the full stacked pass).
         self.prune = True
@@ -147,9 +159,9 @@ class PrunedInference(StackedInference):
         problem = self.problem(policies)
         if problem is not None:
             return problem
-        ids = (*(id(p) for p in policies), th.get_num_threads())
-        if ids != self._prune_ids:
-            self._prune_ids, self._prune_problem = ids, prune_problem(policies)
+        key = (self._stack, th.get_num_threads())
+        if self._prune_key is None or key[0] is not self._prune_key[0] or key[1] != self._prune_key[1]:
+            self._prune_key, self._prune_problem = key, prune_problem(policies)
             if self._prune_problem is None:
                 assert self._stack is not None
                 if not self._pruned_rows_match(self._stack):
@@ -189,14 +201,17 @@ class PrunedInference(StackedInference):
         """Whether the pruned logits equal the full pass's on their rows, to the last bit, on random
         maps and masks (drawn from a generator of their own)."""
         rng = np.random.default_rng(1)
-        for _ in range(_CHECKS):
-            pre = self._random_maps(stack, rng)
+        n_nodes = stack.policies[0].n_nodes
+        for draw in range(_CHECKS):
+            degree = _CHECK_DEGREES[draw % len(_CHECK_DEGREES)]
+            pre = self._random_maps(stack, rng, density=min(1.0, degree / max(n_nodes - 1, 1)))
             if pre is None:
-                return True  # such maps never take the stacked pass
+                continue  # such maps never take the stacked pass
             k, n = pre["nodes"].shape[:2]
             masks = th.zeros((k, n), dtype=th.bool)
-            for row in range(k):  # 1 to 6 allowed nodes per map, as a DCBF mask leaves
-                masks[row, rng.choice(n, size=int(rng.integers(1, min(n, 6) + 1)), replace=False)] = True
+            for row in range(k):  # 1 to 16 allowed nodes per map
+                count = int(rng.integers(1, min(n, _CHECK_ALLOWED) + 1))
+                masks[row, rng.choice(n, size=count, replace=False)] = True
             with th.no_grad():
                 u_hat = self._uncertainty(stack, pre)
                 full = self._logits_given(stack, pre, u_hat)
@@ -300,7 +315,7 @@ def _output_layer(
     full-width copy with the other rows zeroed, since a matrix-vector product rounds by its length."""
     wide = th.zeros((hidden.shape[0], n_nodes, hidden.shape[-1]), dtype=hidden.dtype)
     wide.scatter_(1, rows.unsqueeze(-1).expand(-1, -1, hidden.shape[-1]), hidden)
-    logits = th.cat([p.action_net(wide[k : k + 1]) for k, p in enumerate(policies)]).squeeze(-1)
+    logits = th.cat([p.action_net(wide[k : k + 1].clone()) for k, p in enumerate(policies)]).squeeze(-1)
     return logits.gather(1, rows)
 
 

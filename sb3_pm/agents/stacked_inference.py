@@ -208,16 +208,19 @@ class StackedInference:
                     return False
         return True
 
-    def _random_maps(self, stack: _Stack, rng: np.random.Generator) -> dict[str, th.Tensor] | None:
-        """Preprocessed random maps of the policies' observation space, one per policy, with the
-        stack refreshed (``None`` if they would not take the dense kernel, hence not this pass)."""
+    def _random_maps(
+        self, stack: _Stack, rng: np.random.Generator, density: float = 0.3
+    ) -> dict[str, th.Tensor] | None:
+        """Preprocessed random maps of the policies' observation space, one per policy, each edge
+        known with probability ``density``, with the stack refreshed (``None`` if they would not
+        take the dense kernel, hence not this pass)."""
         first = stack.policies[0]
         space = first.observation_space
         k, n = len(stack.policies), first.n_nodes
         nodes_space = space["nodes"]  # type: ignore[index]
         nodes = rng.uniform(0.0, 1.0, (k, *nodes_space.shape)) * nodes_space.high
         nodes = np.round(nodes).astype(nodes_space.dtype)  # the env's counters are integers
-        upper = np.triu(rng.random((k, n, n)) < 0.3, 1)
+        upper = np.triu(rng.random((k, n, n)) < density, 1)
         adjacency = (upper | upper.transpose(0, 2, 1)).astype(space["adjacency"].dtype)  # type: ignore[index]
         arrays = {
             "nodes": th.as_tensor(nodes),

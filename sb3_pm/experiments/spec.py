@@ -195,6 +195,13 @@ def load_experiment(path: str | Path) -> Experiment:
         for mapping in ("policy_kwargs", "hyperparams", "env_kwargs"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
+        clash = sorted({"graph", "n_agents", "max_cycles"} & set(settings.get("env_kwargs", {})))
+        if kind == "baseline" and clash:
+            raise _fail(
+                path,
+                f"variant {key!r}: a baseline's env_kwargs must not set {clash}: "
+                "use the experiment's graphs, n_agents and max_cycles",
+            )
         train = settings.get("train", True)
         if not isinstance(train, bool):
             raise _fail(path, f"variant {key!r}: 'train' must be true or false, got {train!r}")
