@@ -57,7 +57,7 @@ from sb3_pm.agents.stacked_inference import (
     TAIL_FREE,
     StackedInference,
     _activation,
-    _first_weight,
+    _project,
     _Stack,
 )
 from sb3_pm.policies.attention import attention_probabilities
@@ -257,20 +257,8 @@ class PrunedInference(StackedInference):
         batch, n, _ = x.shape
         for i, module in enumerate(extractor.gat):
             layer: GraphAttention = module  # type: ignore[assignment]
-            prefix = f"features_extractor.gat.{i}.conv"
-            weight = stack.weights[f"{prefix}.lin.weight"]
-            heads, channels = int(layer.heads), int(layer.out_channels)
-            if i == 0 and encoding is not None:
-                features = x.shape[-1]
-                h = th.bmm(x, weight[:, :, :features].transpose(1, 2)) + th.matmul(
-                    encoding, weight[:, :, features:].transpose(1, 2)
-                )
-            else:
-                h = th.bmm(x, weight.transpose(1, 2))
-            h = h.view(batch, n, heads, channels).transpose(1, 2).contiguous()  # (K, H, N, C)
-            att_src = stack.weights[f"{prefix}.att_src"].view(batch, heads, 1, channels)
-            att_dst = stack.weights[f"{prefix}.att_dst"].view(batch, heads, 1, channels)
-            a_dst, a_src = (h * att_dst).sum(-1), (h * att_src).sum(-1)  # (K, H, N)
+            h, a_dst, a_src = _project(stack, i, layer, x, encoding if i == 0 else None)
+            heads = h.shape[1]
             wanted = needed[i]  # (K, R)
             r = wanted.shape[1]
             alpha = attention_probabilities(
@@ -279,7 +267,8 @@ class PrunedInference(StackedInference):
                 bias.gather(2, wanted[:, None, :, None].expand(batch, 1, r, n)),
                 float(layer.conv.negative_slope),
             )  # (K, H, R, N)
-            out = th.matmul(alpha, h).mean(1) + stack.weights[f"{prefix}.bias"].unsqueeze(1)  # (K, R, C)
+            layer_bias = stack.weights[f"features_extractor.gat.{i}.conv.bias"].unsqueeze(1)
+            out = th.matmul(alpha, h).mean(1) + layer_bias  # (K, R, C)
             out = _activation(extractor.activation, out, r)
             if i == len(extractor.gat) - 1:
                 return out
@@ -292,20 +281,8 @@ class PrunedInference(StackedInference):
         stack: _Stack, embeddings: th.Tensor, own: th.Tensor, rows: th.Tensor, n_nodes: int
     ) -> th.Tensor:
         """:meth:`StackedInference._actor` on the rows only: ``(K, S, d)`` -> ``(K, S)``."""
-        policies = stack.policies
-        width = embeddings.shape[-1]
-        weight, bias = stack.weights["actor_body.0.weight"], stack.weights["actor_body.0.bias"]
-        per_node = th.baddbmm(bias.unsqueeze(1), embeddings, weight[:, :, :width].transpose(1, 2))
-        per_map = th.stack(
-            [
-                nn.functional.linear(own[k : k + 1].clone(), _first_weight(p)[:, width:])
-                for k, p in enumerate(policies)
-            ]
-        )  # (K, 1, w)
-        hidden = StackedInference._mlp(
-            stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1
-        )  # (K, S, w)
-        return _output_layer(policies, hidden, rows, n_nodes)
+        hidden = StackedInference._actor_hidden(stack, embeddings, own)  # (K, S, w)
+        return _output_layer(stack.policies, hidden, rows, n_nodes)
 
 
 def _output_layer(

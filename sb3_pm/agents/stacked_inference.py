@@ -378,32 +378,27 @@ class StackedInference:
         adjacency = pre["adjacency"]
         encoding, bias = self._graph_inputs(extractor, adjacency)
         x = extractor.node_features(pre)  # (K, N, F): scaled by the observation space's highs
-        batch, n, _ = x.shape
+        n = x.shape[1]
         for i, module in enumerate(extractor.gat):
             layer: GraphAttention = module  # type: ignore[assignment]
-            prefix = f"features_extractor.gat.{i}.conv"
-            weight = stack.weights[f"{prefix}.lin.weight"]  # (K, heads * C, F [+ E])
-            heads, channels = int(layer.heads), int(layer.out_channels)
-            if i == 0 and encoding is not None:  # GraphAttention._project with the encoding
-                features = x.shape[-1]
-                h = th.bmm(x, weight[:, :, :features].transpose(1, 2)) + th.matmul(
-                    encoding, weight[:, :, features:].transpose(1, 2)
-                )
-            else:
-                h = th.bmm(x, weight.transpose(1, 2))
-            h = h.view(batch, n, heads, channels).transpose(1, 2).contiguous()  # (K, H, N, C)
-            att_src = stack.weights[f"{prefix}.att_src"].view(batch, heads, 1, channels)
-            att_dst = stack.weights[f"{prefix}.att_dst"].view(batch, heads, 1, channels)
-            alpha = attention_probabilities(
-                (h * att_dst).sum(-1), (h * att_src).sum(-1), bias, float(layer.conv.negative_slope)
-            )
-            out = th.matmul(alpha, h).mean(1) + stack.weights[f"{prefix}.bias"].unsqueeze(1)
+            h, a_dst, a_src = _project(stack, i, layer, x, encoding if i == 0 else None)
+            alpha = attention_probabilities(a_dst, a_src, bias, float(layer.conv.negative_slope))
+            out = th.matmul(alpha, h).mean(1) + stack.weights[
+                f"features_extractor.gat.{i}.conv.bias"
+            ].unsqueeze(1)
             x = _activation(extractor.activation, out, n)
         return x
 
     @staticmethod
     def _actor(stack: _Stack, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
         """``DCBFActorCriticPolicy._actor_logits`` (``actor_nodes: all``) per map: ``(K, N)``."""
+        return _per_map(stack, "action_net", StackedInference._actor_hidden(stack, embeddings, own)).squeeze(
+            -1
+        )
+
+    @staticmethod
+    def _actor_hidden(stack: _Stack, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
+        """The actor body per map, on every row given: ``(K, R, d)``, own ``(K, h)`` -> ``(K, R, w)``."""
         policies = stack.policies
         width = embeddings.shape[-1]
         weight, bias = stack.weights["actor_body.0.weight"], stack.weights["actor_body.0.bias"]
@@ -415,10 +410,29 @@ class StackedInference:
                 for k, p in enumerate(policies)
             ]
         )  # (K, 1, w)
-        hidden = StackedInference._mlp(
-            stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1
+        return StackedInference._mlp(stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1)
+
+
+def _project(
+    stack: _Stack, index: int, layer: GraphAttention, x: th.Tensor, encoding: th.Tensor | None
+) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """GAT layer ``index``'s projection of every node, each map with its own policy's weights:
+    ``h`` ``(K, H, N, C)`` and the attention terms ``a_dst``, ``a_src`` ``(K, H, N)``
+    (``GraphAttention._project``, with the first layer's positional ``encoding`` ``(K, N, E)``)."""
+    prefix = f"features_extractor.gat.{index}.conv"
+    weight = stack.weights[f"{prefix}.lin.weight"]  # (K, heads * C, F [+ E])
+    batch, n, features = x.shape
+    heads, channels = int(layer.heads), int(layer.out_channels)
+    if encoding is not None:
+        h = th.bmm(x, weight[:, :, :features].transpose(1, 2)) + th.matmul(
+            encoding, weight[:, :, features:].transpose(1, 2)
         )
-        return _per_map(stack, "action_net", hidden).squeeze(-1)
+    else:
+        h = th.bmm(x, weight.transpose(1, 2))
+    h = h.view(batch, n, heads, channels).transpose(1, 2).contiguous()  # (K, H, N, C)
+    att_src = stack.weights[f"{prefix}.att_src"].view(batch, heads, 1, channels)
+    att_dst = stack.weights[f"{prefix}.att_dst"].view(batch, heads, 1, channels)
+    return h, (h * att_dst).sum(-1), (h * att_src).sum(-1)
 
 
 def _all_dense(policy: DCBFActorCriticPolicy, adjacency: th.Tensor) -> bool:
