@@ -63,7 +63,7 @@ from sb3_pm.agents.stacked_inference import (
 from sb3_pm.policies.attention import attention_probabilities
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.layers import GraphAttention
-from sb3_pm.policies.policy import DCBFActorCriticPolicy, masked_mode
+from sb3_pm.policies.policy import DCBFActorCriticPolicy, masked_mode, own_positions
 
 #: Fewest rows a pruned product runs on: with fewer, torch's CPU matrix products take a
 #: matrix-vector path that sums in another order than the full pass's.
@@ -148,6 +148,8 @@ class PrunedInference(StackedInference):
         #: for new policy objects, and holding it keeps those objects (and their ids) alive.
         self._prune_key: tuple[Any, int] | None = None
         self._prune_problem: str | None = None
+        #: :func:`row_multiple` of the checked stack's architecture (fixed with the key).
+        self._row_multiple = 1
         #: Decide from the pruned rows where possible (``False``: always the full stacked pass).
         self.prune = True
         #: How many steps were decided from the pruned rows, and how many ran the full pass.
@@ -162,6 +164,7 @@ class PrunedInference(StackedInference):
         key = (self._stack, th.get_num_threads())
         if self._prune_key is None or key[0] is not self._prune_key[0] or key[1] != self._prune_key[1]:
             self._prune_key, self._prune_problem = key, prune_problem(policies)
+            self._row_multiple = row_multiple(policies[0])
             if self._prune_problem is None:
                 assert self._stack is not None
                 if not self._pruned_rows_match(self._stack):
@@ -186,7 +189,7 @@ class PrunedInference(StackedInference):
         assert stack is not None
         if self.prune and self.prune_problem(policies) is None:
             with th.no_grad():
-                rows, candidate = allowed_rows(masks, positions(pre), row_multiple(stack.policies[0]))
+                rows, candidate = allowed_rows(masks, own_positions(pre), self._row_multiple)
                 logits = self._pruned_logits(stack, pre, u_hat, rows)
                 chosen = decide(logits, rows, candidate, self._margins(stack, masks.shape[1]))
             if chosen is not None:
@@ -215,7 +218,7 @@ class PrunedInference(StackedInference):
             with th.no_grad():
                 u_hat = self._uncertainty(stack, pre)
                 full = self._logits_given(stack, pre, u_hat)
-                rows, _ = allowed_rows(masks, positions(pre), row_multiple(stack.policies[0]))
+                rows, _ = allowed_rows(masks, own_positions(pre), self._row_multiple)
                 if not th.equal(self._pruned_logits(stack, pre, u_hat, rows), full.gather(1, rows)):
                     return False
         return True
@@ -237,7 +240,7 @@ class PrunedInference(StackedInference):
         """The logits ``(K, S)`` of the nodes ``rows`` ``(K, S)`` (the full pass's, bit for bit)."""
         first = stack.policies[0]
         embeddings = self._pruned_embed(stack, pre, rows)  # (K, S, h)
-        own_column = (rows == positions(pre).unsqueeze(1)).int().argmax(1)  # where each map's node is
+        own_column = (rows == own_positions(pre).unsqueeze(1)).int().argmax(1)  # where each map's node is
         own = embeddings[th.arange(rows.shape[0]), own_column]  # (K, h)
         if first.use_estimator:
             scaled = (u_hat / first.u_max).gather(1, rows)
@@ -252,7 +255,7 @@ class PrunedInference(StackedInference):
         attends = bias[:, 0] == 0  # (K, N, N): row i attends to column j (edges and self loops)
         needed = [rows]
         for _ in range(len(extractor.gat) - 1):
-            needed.insert(0, neighbour_rows(attends, needed[0], row_multiple(stack.policies[0])))
+            needed.insert(0, neighbour_rows(attends, needed[0], self._row_multiple))
         x = extractor.node_features(pre)  # (K, N, F)
         batch, n, _ = x.shape
         for i, module in enumerate(extractor.gat):
@@ -296,21 +299,18 @@ def _output_layer(
     return logits.gather(1, rows)
 
 
-def positions(pre: dict[str, th.Tensor]) -> th.Tensor:
-    """``(K,)`` each map's own node, as :meth:`DCBFActorCriticPolicy._with_estimate` reads it."""
-    return pre["position_index"] if "position_index" in pre else pre["position"].argmax(-1)
-
-
-def padded_width(longest: int, multiple: int) -> int:
-    """The rows a pruned product runs on: at least ``longest`` and :data:`MIN_ROWS`, a multiple of
-    ``multiple`` (:func:`row_multiple`)."""
-    width = max(MIN_ROWS, longest)
-    return -(-width // multiple) * multiple
+def padded_rows(lists: list[list[int]], multiple: int) -> th.Tensor:
+    """Each map's row list padded by repeating its first row to a common width: at least the
+    longest list and :data:`MIN_ROWS`, a multiple of ``multiple`` (:func:`row_multiple`).
+    ``(K, S)`` long."""
+    width = max(MIN_ROWS, max(len(rows) for rows in lists))
+    width = -(-width // multiple) * multiple
+    return th.tensor([rows + [rows[0]] * (width - len(rows)) for rows in lists], dtype=th.long)
 
 
 def allowed_rows(masks: th.Tensor, own: th.Tensor, multiple: int) -> tuple[th.Tensor, th.Tensor]:
     """Per map, its allowed nodes in increasing order and then its own node if not allowed, padded
-    by repeating the first to a common :func:`padded_width`.
+    by repeating the first (:func:`padded_rows`).
 
     Shapes:
         - masks: ``(K, N)`` bool; own: ``(K,)`` long
@@ -323,9 +323,8 @@ def allowed_rows(masks: th.Tensor, own: th.Tensor, multiple: int) -> tuple[th.Te
         extra = [] if mask[node] else [node]
         lists.append(allowed + extra)
         flags.append([True] * len(allowed) + [False] * len(extra))
-    width = padded_width(max(len(r) for r in lists), multiple)
-    rows = th.tensor([r + [r[0]] * (width - len(r)) for r in lists], dtype=th.long)
-    candidate = th.tensor([f + [False] * (width - len(f)) for f in flags], dtype=th.bool)
+    rows = padded_rows(lists, multiple)
+    candidate = th.tensor([f + [False] * (rows.shape[1] - len(f)) for f in flags], dtype=th.bool)
     return rows, candidate
 
 
@@ -333,9 +332,7 @@ def neighbour_rows(attends: th.Tensor, rows: th.Tensor, multiple: int) -> th.Ten
     """The nodes ``rows`` ``(K, R)`` attend to (their known neighbours and themselves), per map,
     padded as :func:`allowed_rows` pads: ``(K, R')`` long."""
     reached = attends.gather(1, rows.unsqueeze(-1).expand(-1, -1, attends.shape[-1])).any(1)  # (K, N)
-    lists = [np.flatnonzero(row).tolist() for row in reached.numpy()]
-    width = padded_width(max(len(r) for r in lists), multiple)
-    return th.tensor([r + [r[0]] * (width - len(r)) for r in lists], dtype=th.long)
+    return padded_rows([np.flatnonzero(row).tolist() for row in reached.numpy()], multiple)
 
 
 def decide(logits: th.Tensor, rows: th.Tensor, candidate: th.Tensor, margins: th.Tensor) -> np.ndarray | None:

@@ -46,6 +46,8 @@ import yaml
 from sb3_pm.errors import InputError
 
 VARIANT_KINDS = ("independent", "centralized", "baseline")
+#: Env arguments the experiment itself sets; an evaluation's or a baseline's env_kwargs may not.
+_EXPERIMENT_ENV_KEYS = frozenset({"graph", "n_agents", "max_cycles"})
 _TOP_KEYS = {
     "name",
     "graphs",
@@ -195,7 +197,7 @@ def load_experiment(path: str | Path) -> Experiment:
         for mapping in ("policy_kwargs", "hyperparams", "env_kwargs"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
-        clash = sorted({"graph", "n_agents", "max_cycles"} & set(settings.get("env_kwargs", {})))
+        clash = sorted(_EXPERIMENT_ENV_KEYS & set(settings.get("env_kwargs", {})))
         if kind == "baseline" and clash:
             raise _fail(
                 path,
@@ -279,7 +281,7 @@ def load_experiment(path: str | Path) -> Experiment:
         raise _fail(path, str(error)) from error
     if experiment.episodes < 1:
         raise _fail(path, "'episodes' must be at least 1")
-    clash = sorted({"graph", "n_agents", "max_cycles"} & set(experiment.eval_env_kwargs))
+    clash = sorted(_EXPERIMENT_ENV_KEYS & set(experiment.eval_env_kwargs))
     if clash:
         raise _fail(
             path,

@@ -55,6 +55,11 @@ def _mlp(in_dim: int, hidden: list[int], activation: type[nn.Module]) -> tuple[n
     return nn.Sequential(*layers), in_dim
 
 
+def own_positions(pre: dict[str, th.Tensor]) -> th.Tensor:
+    """``(B,)`` each preprocessed map's own node (its index, or the argmax of its one-hot)."""
+    return pre["position_index"] if "position_index" in pre else pre["position"].argmax(-1)
+
+
 def masked_mode(logits: th.Tensor, masks: th.Tensor) -> th.Tensor:
     """The mode of sb3-contrib's masked categorical distribution, computed the way it computes it.
 
@@ -397,7 +402,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         """``[H_m, û_m / u_max]`` ``(B, N, d)`` and the own node's ``H_φ`` ``(B, h)`` from the
         embeddings ``H`` ``(B, N, h)``."""
         batch = embeddings.shape[0]
-        position = pre["position_index"] if "position_index" in pre else pre["position"].argmax(-1)
+        position = own_positions(pre)
         own = embeddings[th.arange(batch, device=embeddings.device), position]  # (B, h)
         if self.use_estimator:
             embeddings = th.cat((embeddings, (u_hat / self.u_max).unsqueeze(-1)), dim=-1)
