@@ -206,13 +206,17 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
     assert model.num_timesteps == 128
 
 
-def test_ippo_transfer_is_the_default_without_the_rows_encoding() -> None:
+def test_ippo_transfer_is_the_default_without_the_rows_encoding_with_a_known_map() -> None:
     transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo", "paper-50")
     t_kwargs, d_kwargs = transfer.team_kwargs(), default.team_kwargs()
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
     d_policy = dict(d_kwargs["hyperparams"].pop("policy_kwargs"))
     assert t_policy.pop("laplacian") == "none" and "laplacian" not in d_policy
-    assert t_policy == d_policy and t_kwargs == d_kwargs
+    # A known static map: each agent's map lists the targets and edges from the first step.
+    t_env, d_env = dict(t_kwargs.pop("env_kwargs")), dict(d_kwargs.pop("env_kwargs"))
+    assert (t_env.pop("target_knowledge"), t_env.pop("graph_knowledge")) == ("known", "known")
+    assert "target_knowledge" not in d_env and "graph_knowledge" not in d_env
+    assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
     # It names the graph it trains on without --env; the default trains on the command line's.
     assert (transfer.env, default.env) == ("paper-50", None)
 
