@@ -9,6 +9,7 @@ team folder (:mod:`sb3_pm.agents.saved_teams`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
@@ -150,6 +151,16 @@ class LearnedTeam(Team):
             kwargs = {_POLICY_KWARG.get(key, key): value for key, value in changes.items()}
             model.policy_kwargs = {**model.policy_kwargs, **kwargs}
 
+    def set_sampling_temperature(self, temperature: float) -> None:
+        """Sampled actions (``predict(..., deterministic=False)``) of every learner come from
+        ``softmax(logits / temperature)`` over its allowed nodes, for deployment; deterministic
+        actions are unchanged. Not saved with the team.
+
+        :raises InputError: a temperature that is not a positive finite number, or a learner
+            without the DCBF policy.
+        """
+        set_sampling_temperature({name: m.policy for name, m in self.model_files().items()}, temperature)
+
     def filter_activity(self) -> dict[str, int]:
         """Summed over learners since they were built: masks computed with the neglect bound on
         (``masks``) and masks it forced (``forced``); see
@@ -215,3 +226,17 @@ class LearnedTeam(Team):
 
 
 __all__ = ["LearnedTeam"]
+
+
+def set_sampling_temperature(policies: dict[str, Any], temperature: float) -> None:
+    """Set ``sampling_temperature`` on each policy of ``{name: policy}`` (see
+    :meth:`LearnedTeam.set_sampling_temperature`)."""
+    if isinstance(temperature, bool) or not isinstance(temperature, (int, float)):
+        raise InputError(f"the sampling temperature must be a number, got {temperature!r}")
+    if not math.isfinite(temperature) or temperature <= 0:
+        raise InputError(f"the sampling temperature must be positive and finite, got {temperature}")
+    for name, policy in policies.items():
+        if not hasattr(policy, "sampling_temperature"):
+            raise InputError(f"{name} has no DCBF policy whose sampling temperature could be set")
+    for policy in policies.values():
+        policy.sampling_temperature = float(temperature)

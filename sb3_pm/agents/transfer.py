@@ -109,6 +109,13 @@ class TransferredTeam(Team):
             agent: rebuild_policy(source.models[agent].policy, space, action) for agent in self.agents
         }
 
+    def set_sampling_temperature(self, temperature: float) -> None:
+        """As :meth:`~sb3_pm.agents.learned_team.LearnedTeam.set_sampling_temperature`, on the
+        rebuilt policies."""
+        from sb3_pm.agents.learned_team import set_sampling_temperature
+
+        set_sampling_temperature(self.policies, temperature)
+
     def learner_for(self, agent: str) -> str:
         """The learner acting for ``agent`` (see :meth:`IndependentPPO.learner_for`)."""
         return str(self.source.learner_for(agent))

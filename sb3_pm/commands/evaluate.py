@@ -41,6 +41,13 @@ def register(subparsers: Any) -> None:
         help="sample a learned team's actions instead of taking the most likely (seeded, reproducible)",
     )
     parser.add_argument(
+        "--temperature",
+        type=float,
+        metavar="T",
+        help="sample a learned team's actions from softmax(logits / T) over the allowed nodes "
+        "(implies --stochastic; T < 1 is closer to the most likely action)",
+    )
+    parser.add_argument(
         "--neglect-bound",
         type=float,
         metavar="B",
@@ -117,6 +124,17 @@ def apply_neglect_bound(team: Any, bound: float | None, scope: str | None = None
     team.set_filter(neglect_bound=bound, **({} if scope is None else {"neglect_scope": scope}))
 
 
+def apply_temperature(team: Any, temperature: float | None) -> None:
+    """``--temperature``: the sampling temperature of a trained DCBF team; a baseline has none."""
+    from sb3_pm.errors import UsageError
+
+    if temperature is None:
+        return
+    if not hasattr(team, "set_sampling_temperature"):
+        raise UsageError(f"--temperature needs a trained team; {team.name!r} is not one")
+    team.set_sampling_temperature(temperature)
+
+
 def print_summary(result: Any, stream: Any = None) -> None:
     """The aggregate table: one row per metric, mean and SD over the episodes."""
     stream = stream or sys.stdout
@@ -156,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--neglect-scope needs --neglect-bound")
     team = resolve_team(args.policy, graph=graph, device=args.device)
     apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
+    apply_temperature(team, args.temperature)
     label = policy_label(args.policy, team)
     trained_agents = getattr(team, "n_agents", None)
     if trained_agents is not None and trained_agents != args.agents:
@@ -181,10 +200,12 @@ def run(args: argparse.Namespace) -> int:
         env_kwargs=env_kwargs,
         progress=None if long_run and not args.no_progress else False,
         policy_name=label,
-        deterministic=not args.stochastic,
+        deterministic=not (args.stochastic or args.temperature is not None),
         threads=args.threads,
     )
     result.config["graph"] = str(args.graph)
+    if args.temperature is not None:
+        result.config["temperature"] = args.temperature
     if args.neglect_bound is not None:
         activity = team.filter_activity()  # type: ignore[attr-defined]  # apply_neglect_bound checked
         result.config["neglect_bound"] = args.neglect_bound

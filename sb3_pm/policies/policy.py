@@ -203,6 +203,11 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         #: diagnostic read by ``LearnedTeam.filter_activity()``, never saved. ``forced`` is summed
         #: as a tensor, so counting costs no device synchronisation per forward pass.
         self.filter_counts: dict[str, Any] = {"masks": 0, "forced": 0}
+        #: Sampled (non-deterministic) predictions draw from softmax(logits / T) over the allowed
+        #: nodes: T < 1 sharpens towards the most likely action, T > 1 flattens. Deployment only:
+        #: training's rollouts and PPO's ratio use T = 1 (forward_with_masks, evaluate_actions),
+        #: and it is not saved with the policy.
+        self.sampling_temperature: float = 1.0
         self.estimator_hidden = [int(w) for w in estimator_hidden]
         self.estimator_lr, self.estimator_epochs = float(estimator_lr), int(estimator_epochs)
         self.estimator_batch_size = int(estimator_batch_size)
@@ -550,7 +555,13 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self, observation: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None
     ) -> th.Tensor:
         if not deterministic:
-            return self.get_distribution(observation, action_masks).get_actions(deterministic=False)
+            if self.sampling_temperature == 1.0:
+                return self.get_distribution(observation, action_masks).get_actions(deterministic=False)
+            pre = self._preprocess(observation)
+            u_hat = self.uncertainty(pre)
+            masks = self._masks(pre, u_hat, action_masks)
+            logits = self._logits(pre, u_hat, masks) / self.sampling_temperature
+            return self._distribution(logits, masks).get_actions(deterministic=False)
         # The most likely action without building the distribution (three Categorical objects per
         # call in sb3-contrib, with argument checks): the same arithmetic, the same action.
         pre = self._preprocess(observation)

@@ -1,0 +1,145 @@
+"""A trained team's sampled actions at a temperature: softmax(logits / T) over the allowed nodes."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch as th
+from scipy import stats
+
+from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.envs import persistent_monitoring_v0
+from sb3_pm.errors import InputError
+from sb3_pm.evaluation import evaluate
+from sb3_pm.graphs import erdos_renyi
+from sb3_pm.graphs.io import save_graphml
+
+GRAPH = erdos_renyi(12, 0.4, n_targets=3, seed=1)
+ENV = {"max_cycles": 30}
+# Without the paper's barrier (rules 2-4), which often leaves a single allowed node, and without a
+# freeze, so the actor chooses on every step.
+TINY = {
+    "n_steps": 30,
+    "batch_size": 30,
+    "n_epochs": 1,
+    "policy_kwargs": {"dcbf_barrier": False, "freeze_steps": 0},
+}
+
+
+def make_team() -> IndependentPPO:
+    """An untrained DCBF team with a redrawn output layer, so its logits are far apart (an untrained
+    actor's are within ~1e-4 of each other, which no temperature would tell apart)."""
+    team = IndependentPPO(GRAPH, n_agents=2, seed=0, env_kwargs=ENV, hyperparams=TINY)
+    generator = th.Generator().manual_seed(0)
+    with th.no_grad():
+        for model in team.models.values():
+            weight = model.policy.action_net.weight
+            weight.copy_(th.randn(weight.shape, generator=generator) * 30.0)
+    return team
+
+
+def first_observation(team: IndependentPPO) -> tuple[dict, np.ndarray]:
+    env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, **ENV)
+    observations, _ = env.reset(seed=3)
+    env.close()
+    obs = observations["agent_0"]
+    return obs, np.asarray(obs["action_mask"], dtype=bool)
+
+
+def test_samples_follow_the_tempered_softmax_over_the_allowed_nodes() -> None:
+    team = make_team()
+    policy = team.models["agent_0"].policy
+    obs, mask = first_observation(team)
+    tensor, _ = policy.obs_to_tensor(obs)
+    with th.no_grad():
+        log_probs = policy.get_distribution(tensor, mask[None]).distribution.logits[0].double().numpy()
+    allowed = np.flatnonzero(mask)
+    assert len(allowed) >= 3
+    draws = 6000
+    batch = {key: value.repeat(draws, *([1] * (value.dim() - 1))) for key, value in tensor.items()}
+    masks = np.repeat(mask[None], draws, axis=0)
+    for temperature in (0.5, 2.0):
+        team.set_sampling_temperature(temperature)
+        th.manual_seed(0)
+        with th.no_grad():
+            actions = policy._predict(batch, deterministic=False, action_masks=masks).numpy()
+        assert set(actions.tolist()) <= set(allowed.tolist())  # the mask still holds
+        expected = np.exp(log_probs[allowed] / temperature)
+        expected /= expected.sum()
+        counts = np.array([(actions == node).sum() for node in allowed])
+        keep = expected * draws >= 5  # the chi-square test's usual condition
+        observed = np.append(counts[keep], counts[~keep].sum())
+        wanted = np.append(expected[keep], expected[~keep].sum()) * draws
+        nonzero = wanted > 0
+        observed, wanted = observed[nonzero], wanted[nonzero]
+        wanted *= observed.sum() / wanted.sum()  # exact totals, as chisquare requires
+        assert stats.chisquare(observed, wanted).pvalue > 1e-3
+        # The plain distribution (T = 1) differs from this one: the test can tell them apart.
+        plain = np.exp(log_probs[allowed])
+        plain /= plain.sum()
+        assert np.abs(plain - expected).max() > 0.05
+
+
+def test_a_tiny_temperature_acts_like_the_most_likely_action_and_training_ignores_it() -> None:
+    team = make_team()
+
+    def run(deterministic: bool) -> list[list[float]]:
+        result = evaluate(
+            team, GRAPH, n_agents=2, episodes=2, seed=5, max_cycles=30, deterministic=deterministic
+        )
+        return [record.trace.tolist() for record in result.episodes]  # summed uncertainty per step
+
+    greedy, plain = run(True), run(False)
+    assert plain != greedy  # sampling at T = 1 strays from the argmax on this team
+    team.set_sampling_temperature(1e-4)
+    assert run(False) == greedy
+    # Rollouts and PPO's ratio use T = 1: the log-probabilities of the same actions do not move.
+    policy = team.models["agent_0"].policy
+    obs, mask = first_observation(team)
+    tensor, _ = policy.obs_to_tensor(obs)
+    masks = th.as_tensor(mask[None])
+    actions = th.as_tensor([int(np.flatnonzero(mask)[0])])
+    with th.no_grad():
+        _, cold, _ = policy.evaluate_actions(tensor, actions, masks)
+        team.set_sampling_temperature(1.0)
+        _, plain_log_prob, _ = policy.evaluate_actions(tensor, actions, masks)
+    assert th.equal(cold, plain_log_prob)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf, True, "0.5"])
+def test_a_bad_temperature_is_refused(bad) -> None:
+    team = make_team()
+    with pytest.raises(InputError, match="sampling temperature must be"):
+        team.set_sampling_temperature(bad)
+
+
+def test_a_transferred_team_takes_it_on_its_rebuilt_policies() -> None:
+    team = IndependentPPO(
+        GRAPH,
+        n_agents=2,
+        seed=0,
+        env_kwargs=ENV,
+        hyperparams={**TINY, "policy_kwargs": {"laplacian": "none"}},
+    )
+    moved = team.on_graph(erdos_renyi(16, 0.3, n_targets=4, seed=2))
+    moved.set_sampling_temperature(0.25)
+    assert {policy.sampling_temperature for policy in moved.policies.values()} == {0.25}
+
+
+def test_the_command_line_samples_at_a_temperature_and_refuses_it_for_a_baseline(tmp_path, capsys) -> None:
+    from sb3_pm.cli import main
+
+    team = make_team()
+    team.save(tmp_path / "team")
+    graph_file = save_graphml(GRAPH, tmp_path / "g.graphml")
+    out = tmp_path / "t.json"
+    args = ["evaluate", "--policy", str(tmp_path / "team"), "--graph", str(graph_file), "--agents", "2"]
+    args += ["--steps", "30", "--episodes", "1", "--temperature", "0.5", "--json", str(out)]
+    assert main(args) == 0
+    config = json.loads(out.read_text())["config"]
+    assert config["temperature"] == 0.5 and config["deterministic"] is False
+    assert main(["evaluate", "--policy", "grazing", "--temperature", "0.5", "--episodes", "1"]) == 2
+    assert "--temperature needs a trained team" in capsys.readouterr().err
