@@ -624,3 +624,29 @@ def test_transfer_features_trains_the_transfer_config_with_one_flag(tmp_path: Pa
     assert {c.graph for c in learned} == set(experiment.graphs)
     for cell in learned:
         assert cell.team_folder is not None  # one team per seed, deployed zero-shot on every graph
+
+
+@pytest.mark.parametrize(
+    ("name", "knowledge"),
+    [
+        ("zero_shot", "discovered"),
+        ("zero_shot_scaling", "discovered"),
+        ("transfer_features", "discovered"),
+        ("transfer_known_map", "known"),
+    ],
+)
+def test_the_transfer_experiments_train_under_the_map_knowledge_they_measured(
+    tmp_path: Path, name: str, knowledge: str
+) -> None:
+    """zoo/ippo_transfer.yml gives a known map; the files that measured discovered maps pin them,
+    so every learned variant there trains (and, keeping its env settings, deploys) as measured."""
+    experiment = load_experiment(name)
+    learned = 0
+    for cell in plan_cells(experiment, tmp_path):
+        if cell.variant["kind"] == "baseline":
+            continue
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        for key in ("target_knowledge", "graph_knowledge"):  # unset: the env's default, discovered
+            assert config.env_kwargs.get(key, "discovered") == knowledge, (name, cell.variant["key"], key)
+        learned += 1
+    assert learned > 0

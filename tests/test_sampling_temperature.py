@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -41,7 +42,7 @@ def make_team() -> IndependentPPO:
     return team
 
 
-def first_observation(team: IndependentPPO) -> tuple[dict, np.ndarray]:
+def first_observation() -> tuple[dict, np.ndarray]:
     env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, **ENV)
     observations, _ = env.reset(seed=3)
     env.close()
@@ -52,7 +53,7 @@ def first_observation(team: IndependentPPO) -> tuple[dict, np.ndarray]:
 def test_samples_follow_the_tempered_softmax_over_the_allowed_nodes() -> None:
     team = make_team()
     policy = team.models["agent_0"].policy
-    obs, mask = first_observation(team)
+    obs, mask = first_observation()
     tensor, _ = policy.obs_to_tensor(obs)
     with th.no_grad():
         log_probs = policy.get_distribution(tensor, mask[None]).distribution.logits[0].double().numpy()
@@ -96,21 +97,51 @@ def test_a_tiny_temperature_acts_like_the_most_likely_action_and_training_ignore
     assert plain != greedy  # sampling at T = 1 strays from the argmax on this team
     team.set_sampling_temperature(1e-4)
     assert run(False) == greedy
-    # Rollouts and PPO's ratio use T = 1: the log-probabilities of the same actions do not move.
+    # Rollouts (forward_with_masks) sample at T = 1 whatever the deployment setting.
     policy = team.models["agent_0"].policy
-    obs, mask = first_observation(team)
+    obs, _ = first_observation()
     tensor, _ = policy.obs_to_tensor(obs)
-    masks = th.as_tensor(mask[None])
-    actions = th.as_tensor([int(np.flatnonzero(mask)[0])])
+    batch = {key: value.repeat(200, *([1] * (value.dim() - 1))) for key, value in tensor.items()}
+
+    def rollout_step() -> tuple[th.Tensor, th.Tensor]:
+        th.manual_seed(1)
+        with th.no_grad():
+            actions, _, log_probs, _ = policy.forward_with_masks(batch)
+        return actions, log_probs
+
+    cold = rollout_step()
+    team.set_sampling_temperature(1.0)
+    plain = rollout_step()
+    assert th.equal(cold[0], plain[0]) and th.equal(cold[1], plain[1])
+
+
+def test_a_tiny_temperature_never_samples_a_forbidden_node_even_if_its_logit_is_the_highest() -> None:
+    team = make_team()
+    policy = team.models["agent_0"].policy
+    obs, mask = first_observation()
+    tensor, _ = policy.obs_to_tensor(obs)
     with th.no_grad():
-        _, cold, _ = policy.evaluate_actions(tensor, actions, masks)
-        team.set_sampling_temperature(1.0)
-        _, plain_log_prob, _ = policy.evaluate_actions(tensor, actions, masks)
-    assert th.equal(cold, plain_log_prob)
+        log_probs = policy.get_distribution(tensor, mask[None]).distribution.logits[0]
+    best = int(log_probs.argmax())  # allowed, and now forbidden: the top logit is a masked node
+    narrower = mask.copy()
+    narrower[best] = False
+    allowed = np.flatnonzero(narrower)
+    assert len(allowed) >= 2
+    ranked = sorted(allowed, key=lambda node: float(log_probs[node]), reverse=True)
+    # Its lead is far beyond the mask's constant x T, which a plain division would not survive.
+    assert float(log_probs[best] - log_probs[ranked[0]]) * 1e8 > 10.0
+    batch = {key: value.repeat(500, *([1] * (value.dim() - 1))) for key, value in tensor.items()}
+    for temperature in (1e-8, 1e-30):
+        team.set_sampling_temperature(temperature)
+        with th.no_grad():
+            actions = policy._predict(
+                batch, deterministic=False, action_masks=np.repeat(narrower[None], 500, 0)
+            )
+        assert set(actions.tolist()) == {int(ranked[0])}
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf, True, "0.5"])
-def test_a_bad_temperature_is_refused(bad) -> None:
+def test_a_bad_temperature_is_refused(bad: object) -> None:
     team = make_team()
     with pytest.raises(InputError, match="sampling temperature must be"):
         team.set_sampling_temperature(bad)
@@ -124,12 +155,30 @@ def test_a_transferred_team_takes_it_on_its_rebuilt_policies() -> None:
         env_kwargs=ENV,
         hyperparams={**TINY, "policy_kwargs": {"laplacian": "none"}},
     )
-    moved = team.on_graph(erdos_renyi(16, 0.3, n_targets=4, seed=2))
-    moved.set_sampling_temperature(0.25)
-    assert {policy.sampling_temperature for policy in moved.policies.values()} == {0.25}
+    other = erdos_renyi(16, 0.3, n_targets=4, seed=2)
+    team.set_sampling_temperature(0.5)
+    assert {p.sampling_temperature for p in team.on_graph(other).policies.values()} == {0.5}  # kept
+    moved = team.on_graph(other)
+    with th.no_grad():
+        for policy in moved.policies.values():  # far-apart logits, as in make_team
+            policy.action_net.weight.copy_(th.randn(policy.action_net.weight.shape) * 30.0)
+
+    def run(deterministic: bool) -> list[list[float]]:
+        result = evaluate(
+            moved, other, n_agents=2, episodes=2, seed=5, max_cycles=30, deterministic=deterministic
+        )
+        return [record.trace.tolist() for record in result.episodes]
+
+    greedy = run(True)
+    moved.set_sampling_temperature(1.0)
+    assert run(False) != greedy
+    moved.set_sampling_temperature(1e-4)
+    assert run(False) == greedy
 
 
-def test_the_command_line_samples_at_a_temperature_and_refuses_it_for_a_baseline(tmp_path, capsys) -> None:
+def test_the_command_line_samples_at_a_temperature_and_refuses_it_for_a_baseline(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from sb3_pm.cli import main
 
     team = make_team()
@@ -143,3 +192,6 @@ def test_the_command_line_samples_at_a_temperature_and_refuses_it_for_a_baseline
     assert config["temperature"] == 0.5 and config["deterministic"] is False
     assert main(["evaluate", "--policy", "grazing", "--temperature", "0.5", "--episodes", "1"]) == 2
     assert "--temperature needs a trained team" in capsys.readouterr().err
+    for bad in ("0", "-1", "nan"):
+        assert main([*args[:-4], "--temperature", bad]) == 2
+        assert "--temperature must be positive and finite" in capsys.readouterr().err

@@ -9,7 +9,6 @@ team folder (:mod:`sb3_pm.agents.saved_teams`).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
@@ -159,6 +158,8 @@ class LearnedTeam(Team):
         :raises InputError: a temperature that is not a positive finite number, or a learner
             without the DCBF policy.
         """
+        from sb3_pm.policies.sampling import set_sampling_temperature
+
         set_sampling_temperature({name: m.policy for name, m in self.model_files().items()}, temperature)
 
     def filter_activity(self) -> dict[str, int]:
@@ -226,17 +227,3 @@ class LearnedTeam(Team):
 
 
 __all__ = ["LearnedTeam"]
-
-
-def set_sampling_temperature(policies: dict[str, Any], temperature: float) -> None:
-    """Set ``sampling_temperature`` on each policy of ``{name: policy}`` (see
-    :meth:`LearnedTeam.set_sampling_temperature`)."""
-    if isinstance(temperature, bool) or not isinstance(temperature, (int, float)):
-        raise InputError(f"the sampling temperature must be a number, got {temperature!r}")
-    if not math.isfinite(temperature) or temperature <= 0:
-        raise InputError(f"the sampling temperature must be positive and finite, got {temperature}")
-    for name, policy in policies.items():
-        if not hasattr(policy, "sampling_temperature"):
-            raise InputError(f"{name} has no DCBF policy whose sampling temperature could be set")
-    for policy in policies.values():
-        policy.sampling_temperature = float(temperature)

@@ -16,7 +16,9 @@ size-dependent tensors a transferable policy holds are the input scalings ``inv_
 whose rows are all equal (one scale per feature, from ``u_max`` and the training episode length);
 they are rebuilt row by row from the trained ones, so inputs are scaled exactly as in training.
 
-Mental maps start empty on the new graph (a new env), as on any first episode.
+Mental maps start anew on the new graph (a new env), as on any first episode: empty, or with the
+new graph's static map when the team's env settings make it known (``target_knowledge``,
+``graph_knowledge``).
 """
 
 from __future__ import annotations
@@ -75,6 +77,8 @@ def rebuild_policy(policy: Any, observation_space: Any, action_space: Any) -> An
         raise InputError(f"the policy's parameters {mismatched} depend on the graph's size")
     rebuilt.load_state_dict(state)
     rebuilt.set_training_mode(False)
+    if hasattr(policy, "sampling_temperature"):  # a deployment setting, not a constructor argument
+        rebuilt.sampling_temperature = policy.sampling_temperature
     return rebuilt.to(policy.device)
 
 
@@ -112,7 +116,7 @@ class TransferredTeam(Team):
     def set_sampling_temperature(self, temperature: float) -> None:
         """As :meth:`~sb3_pm.agents.learned_team.LearnedTeam.set_sampling_temperature`, on the
         rebuilt policies."""
-        from sb3_pm.agents.learned_team import set_sampling_temperature
+        from sb3_pm.policies.sampling import set_sampling_temperature
 
         set_sampling_temperature(self.policies, temperature)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -172,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.gif, "--gif")
     if args.neglect_scope is not None and args.neglect_bound is None:
         raise UsageError("--neglect-scope needs --neglect-bound")
+    if args.temperature is not None and not (math.isfinite(args.temperature) and args.temperature > 0):
+        raise UsageError(f"--temperature must be positive and finite, got {args.temperature}")
     team = resolve_team(args.policy, graph=graph, device=args.device)
     apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_temperature(team, args.temperature)
@@ -190,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         )
     env_kwargs = {**team_env_kwargs(team), **failure_kwargs(args)}
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
+    deterministic = not (args.stochastic or args.temperature is not None)
     result = evaluate(
         team,
         graph,
@@ -200,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
         env_kwargs=env_kwargs,
         progress=None if long_run and not args.no_progress else False,
         policy_name=label,
-        deterministic=not (args.stochastic or args.temperature is not None),
+        deterministic=deterministic,
         threads=args.threads,
     )
     result.config["graph"] = str(args.graph)
@@ -221,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
     if args.gif is not None:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
+        apply_temperature(gif_team, args.temperature)
         record_gif(
             gif_team,
             graph,
@@ -229,6 +234,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             max_cycles=args.steps,
             env_kwargs=env_kwargs,
+            deterministic=deterministic,
         )
         print(f"wrote {args.gif}", file=sys.stderr)
     return 0

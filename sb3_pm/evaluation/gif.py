@@ -22,9 +22,11 @@ def record_gif(
     max_cycles: int = 500,
     env_kwargs: Mapping[str, Any] | None = None,
     fps: int = 8,
+    deterministic: bool = True,
 ) -> EpisodeRecord:
     """Play one episode (env seed ``seed``, as episode 0 of ``evaluate(seed=seed)``) and save it.
 
+    :param deterministic: passed to ``team.predict``, as in :func:`~sb3_pm.evaluation.evaluate`.
     :return: the episode's record, identical to the one :func:`~sb3_pm.evaluation.evaluate` makes.
     """
     from sb3_pm.envs import persistent_monitoring_v0
@@ -41,7 +43,7 @@ def record_gif(
     )
     frames: list = []
     try:
-        record = run_episode(team, env, seed, frames=frames)
+        record = run_episode(team, env, seed, frames=frames, deterministic=deterministic)
     finally:
         env.close()
     write_gif(frames, path, fps=fps)

@@ -39,6 +39,7 @@ from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import DCBFConfig, dcbf_filter_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
+from sb3_pm.policies.sampling import check_temperature, tempered_logits
 
 MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
 #: Where the actor head runs: on every node (the default), or only on the nodes the mask allows.
@@ -203,11 +204,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         #: diagnostic read by ``LearnedTeam.filter_activity()``, never saved. ``forced`` is summed
         #: as a tensor, so counting costs no device synchronisation per forward pass.
         self.filter_counts: dict[str, Any] = {"masks": 0, "forced": 0}
-        #: Sampled (non-deterministic) predictions draw from softmax(logits / T) over the allowed
-        #: nodes: T < 1 sharpens towards the most likely action, T > 1 flattens. Deployment only:
-        #: training's rollouts and PPO's ratio use T = 1 (forward_with_masks, evaluate_actions),
-        #: and it is not saved with the policy.
-        self.sampling_temperature: float = 1.0
+        self._sampling_temperature = 1.0
         self.estimator_hidden = [int(w) for w in estimator_hidden]
         self.estimator_lr, self.estimator_epochs = float(estimator_lr), int(estimator_epochs)
         self.estimator_batch_size = int(estimator_batch_size)
@@ -544,6 +541,21 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         pre = self._preprocess(obs)
         return self._value(*self._node_inputs(pre, self.uncertainty(pre)))  # no actor, no mask
 
+    @property
+    def sampling_temperature(self) -> float:
+        """Sampled (non-deterministic) predictions draw from ``softmax(logits / T)`` over the
+        allowed nodes: ``T < 1`` sharpens towards the most likely action, ``T > 1`` flattens.
+        Deployment only: training's rollouts and PPO's ratio use ``T = 1`` (``forward_with_masks``,
+        ``evaluate_actions``), and it is not saved with the policy.
+
+        :raises InputError: on setting anything but a positive finite number.
+        """
+        return self._sampling_temperature
+
+    @sampling_temperature.setter
+    def sampling_temperature(self, temperature: float) -> None:
+        self._sampling_temperature = check_temperature(temperature)
+
     def set_training_mode(self, mode: bool) -> None:
         """SB3 calls this on every ``predict``; setting the mode on the whole module tree each time was
         13% of a learned team's evaluation step, so it is skipped when the policy and its direct
@@ -555,13 +567,13 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self, observation: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None
     ) -> th.Tensor:
         if not deterministic:
-            if self.sampling_temperature == 1.0:
+            if self._sampling_temperature == 1.0:
                 return self.get_distribution(observation, action_masks).get_actions(deterministic=False)
             pre = self._preprocess(observation)
             u_hat = self.uncertainty(pre)
             masks = self._masks(pre, u_hat, action_masks)
-            logits = self._logits(pre, u_hat, masks) / self.sampling_temperature
-            return self._distribution(logits, masks).get_actions(deterministic=False)
+            tempered = tempered_logits(self._logits(pre, u_hat, masks), masks, self._sampling_temperature)
+            return self._distribution(tempered, masks).get_actions(deterministic=False)
         # The most likely action without building the distribution (three Categorical objects per
         # call in sb3-contrib, with argument checks): the same arithmetic, the same action.
         pre = self._preprocess(observation)
