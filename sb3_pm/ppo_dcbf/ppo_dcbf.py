@@ -25,6 +25,7 @@ Usage::
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -66,6 +67,9 @@ class DCBFPPO(MaskablePPO):
 
     :param estimator_update_at: when :class:`~sb3_pm.callbacks.EstimatorCallback` fits the
         estimator, ``"after_train"`` (default) or ``"rollout_end"``.
+    :param ent_coef_final: with a number, the entropy coefficient decays linearly over training
+        from ``ent_coef`` (at the first update) to this value (at the end of ``learn()``), as
+        ``learning_rate: lin_...`` does for the step size; ``None`` (default) keeps ``ent_coef``.
 
     Policy options (ablation flags and the filter's settings) are policy kwargs, see
     :class:`~sb3_pm.policies.DCBFActorCriticPolicy`.
@@ -74,11 +78,34 @@ class DCBFPPO(MaskablePPO):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"DCBFPolicy": DCBFPolicy}
     policy: DCBFActorCriticPolicy  # type: ignore[assignment]
 
-    def __init__(self, *args: Any, estimator_update_at: str = "after_train", **kwargs: Any) -> None:
+    def __init__(
+        self,
+        *args: Any,
+        estimator_update_at: str = "after_train",
+        ent_coef_final: float | None = None,
+        **kwargs: Any,
+    ) -> None:
         if estimator_update_at not in UPDATE_AT:
             raise InputError(f"estimator_update_at must be one of {UPDATE_AT}, got {estimator_update_at!r}")
+        if ent_coef_final is not None and (
+            isinstance(ent_coef_final, bool)
+            or not isinstance(ent_coef_final, (int, float))
+            or not math.isfinite(ent_coef_final)
+            or ent_coef_final < 0
+        ):
+            raise InputError(f"ent_coef_final must be a non-negative number or None, got {ent_coef_final!r}")
         self.estimator_update_at = estimator_update_at
+        self.ent_coef_final = None if ent_coef_final is None else float(ent_coef_final)
         super().__init__(*args, **kwargs)
+        self.ent_coef_start = float(self.ent_coef)
+
+    def train(self) -> None:
+        """PPO's update, with the entropy coefficient of :attr:`ent_coef_final`'s schedule first."""
+        if self.ent_coef_final is not None:
+            # _current_progress_remaining: 1 at the start of learn(), 0 at its end (SB3's schedules).
+            remaining = float(self._current_progress_remaining)
+            self.ent_coef = self.ent_coef_final + (self.ent_coef_start - self.ent_coef_final) * remaining
+        super().train()
 
     def _setup_model(self) -> None:
         if self.rollout_buffer_class in (None, MaskableDictRolloutBuffer):  # also a zip saved before
