@@ -239,31 +239,24 @@ def test_the_entropy_coefficient_decays_to_ent_coef_final_and_stays_put_without_
         def _on_step(self) -> bool:
             return True
 
-    model = DCBFPPO(
-        "DCBFPolicy",
-        make_env(),
-        n_steps=16,
-        batch_size=16,
-        n_epochs=1,
-        seed=0,
-        policy_kwargs=SMALL,
-        ent_coef=0.02,
-        ent_coef_final=0.0,
-    )
+    def one_epoch_model(**kwargs: Any) -> DCBFPPO:
+        return DCBFPPO(
+            "DCBFPolicy",
+            make_env(),
+            n_steps=16,
+            batch_size=16,
+            n_epochs=1,
+            seed=0,
+            policy_kwargs=SMALL,
+            **kwargs,
+        )
+
+    model = one_epoch_model(ent_coef=0.02, ent_coef_final=0.0)
     model.learn(16 * 5, callback=Record())
     used = [*seen[1:], float(model.ent_coef)]  # the coefficient each of the 5 updates used
     # progress remaining after rollout k of 5 is 1 - k/5: 0.016, 0.012, ..., 0.0
     assert used == pytest.approx([0.02 * (1 - k / 5) for k in range(1, 6)])
-    plain = DCBFPPO(
-        "DCBFPolicy",
-        make_env(),
-        n_steps=16,
-        batch_size=16,
-        n_epochs=1,
-        seed=0,
-        policy_kwargs=SMALL,
-        ent_coef=0.02,
-    )
+    plain = one_epoch_model(ent_coef=0.02)
     plain.learn(16 * 2)
     assert plain.ent_coef == 0.02
     for bad in (-0.1, float("nan"), True, "0"):
