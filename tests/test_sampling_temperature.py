@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -50,17 +51,30 @@ def first_observation() -> tuple[dict, np.ndarray]:
     return obs, np.asarray(obs["action_mask"], dtype=bool)
 
 
-def test_samples_follow_the_tempered_softmax_over_the_allowed_nodes() -> None:
-    team = make_team()
+def policy_and_log_probs(team: IndependentPPO) -> tuple[Any, dict, np.ndarray, th.Tensor]:
+    """agent_0's policy, the first observation as tensors ``{key: (1, ...)}``, its mask ``(N,)``
+    and its masked log-probabilities ``(N,)`` at T = 1."""
     policy = team.models["agent_0"].policy
     obs, mask = first_observation()
     tensor, _ = policy.obs_to_tensor(obs)
     with th.no_grad():
-        log_probs = policy.get_distribution(tensor, mask[None]).distribution.logits[0].double().numpy()
+        log_probs = policy.get_distribution(tensor, mask[None]).distribution.logits[0]
+    return policy, tensor, mask, log_probs
+
+
+def tiled(tensor: dict, copies: int) -> dict:
+    """``{key: (1, ...)}`` -> ``{key: (copies, ...)}``: one observation as a batch."""
+    return {key: value.repeat(copies, *([1] * (value.dim() - 1))) for key, value in tensor.items()}
+
+
+def test_samples_follow_the_tempered_softmax_over_the_allowed_nodes() -> None:
+    team = make_team()
+    policy, tensor, mask, logits = policy_and_log_probs(team)
+    log_probs = logits.double().numpy()
     allowed = np.flatnonzero(mask)
     assert len(allowed) >= 3
     draws = 6000
-    batch = {key: value.repeat(draws, *([1] * (value.dim() - 1))) for key, value in tensor.items()}
+    batch = tiled(tensor, draws)
     masks = np.repeat(mask[None], draws, axis=0)
     for temperature in (0.5, 2.0):
         team.set_sampling_temperature(temperature)
@@ -98,10 +112,8 @@ def test_a_tiny_temperature_acts_like_the_most_likely_action_and_training_ignore
     team.set_sampling_temperature(1e-4)
     assert run(False) == greedy
     # Rollouts (forward_with_masks) sample at T = 1 whatever the deployment setting.
-    policy = team.models["agent_0"].policy
-    obs, _ = first_observation()
-    tensor, _ = policy.obs_to_tensor(obs)
-    batch = {key: value.repeat(200, *([1] * (value.dim() - 1))) for key, value in tensor.items()}
+    policy, tensor, _, _ = policy_and_log_probs(team)
+    batch = tiled(tensor, 200)
 
     def rollout_step() -> tuple[th.Tensor, th.Tensor]:
         th.manual_seed(1)
@@ -117,11 +129,7 @@ def test_a_tiny_temperature_acts_like_the_most_likely_action_and_training_ignore
 
 def test_a_tiny_temperature_never_samples_a_forbidden_node_even_if_its_logit_is_the_highest() -> None:
     team = make_team()
-    policy = team.models["agent_0"].policy
-    obs, mask = first_observation()
-    tensor, _ = policy.obs_to_tensor(obs)
-    with th.no_grad():
-        log_probs = policy.get_distribution(tensor, mask[None]).distribution.logits[0]
+    policy, tensor, mask, log_probs = policy_and_log_probs(team)
     best = int(log_probs.argmax())  # allowed, and now forbidden: the top logit is a masked node
     narrower = mask.copy()
     narrower[best] = False
@@ -130,7 +138,7 @@ def test_a_tiny_temperature_never_samples_a_forbidden_node_even_if_its_logit_is_
     ranked = sorted(allowed, key=lambda node: float(log_probs[node]), reverse=True)
     # Its lead is far beyond the mask's constant x T, which a plain division would not survive.
     assert float(log_probs[best] - log_probs[ranked[0]]) * 1e8 > 10.0
-    batch = {key: value.repeat(500, *([1] * (value.dim() - 1))) for key, value in tensor.items()}
+    batch = tiled(tensor, 500)
     for temperature in (1e-8, 1e-30):
         team.set_sampling_temperature(temperature)
         with th.no_grad():
