@@ -566,17 +566,14 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     def _predict(  # type: ignore[override]
         self, observation: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None
     ) -> th.Tensor:
-        if not deterministic:
-            if self._sampling_temperature == 1.0:
-                return self.get_distribution(observation, action_masks).get_actions(deterministic=False)
-            pre = self._preprocess(observation)
-            u_hat = self.uncertainty(pre)
-            masks = self._masks(pre, u_hat, action_masks)
-            tempered = tempered_logits(self._logits(pre, u_hat, masks), masks, self._sampling_temperature)
-            return self._distribution(tempered, masks).get_actions(deterministic=False)
-        # The most likely action without building the distribution (three Categorical objects per
-        # call in sb3-contrib, with argument checks): the same arithmetic, the same action.
         pre = self._preprocess(observation)
         u_hat = self.uncertainty(pre)
         masks = self._masks(pre, u_hat, action_masks)
-        return masked_mode(self._logits(pre, u_hat, masks), masks)
+        logits = self._logits(pre, u_hat, masks)
+        if not deterministic:  # get_distribution's arithmetic, at the deployment temperature
+            if self._sampling_temperature != 1.0:
+                logits = tempered_logits(logits, masks, self._sampling_temperature)
+            return self._distribution(logits, masks).get_actions(deterministic=False)
+        # The most likely action without building the distribution (three Categorical objects per
+        # call in sb3-contrib, with argument checks): the same arithmetic, the same action.
+        return masked_mode(logits, masks)
