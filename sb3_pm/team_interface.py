@@ -9,6 +9,9 @@ The evaluation harness drives every team the same way::
     team.reset(env, seed=...)            # once per episode, after env.reset()
     actions = team.predict(observations, deterministic=True)
 
+``deterministic`` is the harness's choice; when the caller leaves it open, a team's
+``deploy_temperature`` decides (``None``: deterministic; a learned team may sample instead).
+
 ``observations`` maps agent names to that agent's own observation (a mental map by default).
 A *decentralized* team must compute each agent's action from that agent's observation alone;
 an *omniscient* team (``omniscient = True``) may also read the true state through
@@ -35,6 +38,9 @@ class Team(ABC):
 
     name: str = "team"
     omniscient: bool = False
+    #: How the team acts when the caller does not say (``evaluate(..., deterministic=None)``):
+    #: ``None`` deterministically; a learned team may set a sampling temperature instead.
+    deploy_temperature: float | None = None
 
     def reset(self, env: Any, seed: int | None = None) -> None:
         """Start an episode on ``env`` (already reset). Seeds the team's own randomness."""

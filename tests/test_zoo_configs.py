@@ -206,7 +206,7 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
     assert model.num_timesteps == 128
 
 
-def test_ippo_transfer_is_the_default_without_the_rows_encoding_with_a_known_map() -> None:
+def test_ippo_transfer_is_the_default_without_the_rows_encoding_with_a_known_map_sampled_at_0_25() -> None:
     transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo", "paper-50")
     t_kwargs, d_kwargs = transfer.team_kwargs(), default.team_kwargs()
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
@@ -216,6 +216,8 @@ def test_ippo_transfer_is_the_default_without_the_rows_encoding_with_a_known_map
     t_env, d_env = dict(t_kwargs.pop("env_kwargs")), dict(d_kwargs.pop("env_kwargs"))
     assert (t_env.pop("target_knowledge"), t_env.pop("graph_knowledge")) == ("known", "known")
     assert "target_knowledge" not in d_env and "graph_knowledge" not in d_env
+    # Deployed by sampling at temperature 0.25, the default by its most likely actions.
+    assert (t_kwargs.pop("deploy_temperature"), d_kwargs.pop("deploy_temperature")) == (0.25, None)
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
     # It names the graph it trains on without --env; the default trains on the command line's.
     assert (transfer.env, default.env) == ("paper-50", None)

@@ -55,6 +55,7 @@ class LearnedTeam(Team):
     algo: str
     policy: str | type
     env_kwargs: dict[str, Any]
+    _deploy_temperature: float | None = None
 
     def _set_problem(
         self,
@@ -65,8 +66,16 @@ class LearnedTeam(Team):
         algo: str | type | None,
         policy: str | type | None,
         env_kwargs: Mapping[str, Any] | None,
+        deploy_temperature: float | None = None,
     ) -> None:
-        """Resolve and check what the team is built for (raises :class:`InputError` naming a bad value)."""
+        """Resolve and check what the team is built for (raises :class:`InputError` naming a bad value).
+
+        ``deploy_temperature`` is only checked and kept here; :meth:`_apply_deploy_temperature`
+        hands it to the policies once they exist.
+        """
+        from sb3_pm.policies.sampling import check_deploy_temperature
+
+        self._deploy_temperature = check_deploy_temperature(deploy_temperature)
         self.graph = resolve_graph_or_family(graph)
         if n_agents < 1:
             raise InputError(f"n_agents must be at least 1, got {n_agents}")
@@ -118,6 +127,39 @@ class LearnedTeam(Team):
         if seed is not None:
             th.manual_seed(seed)
 
+    # ------------------------------------------------- the deployment rule
+    @property
+    def deploy_temperature(self) -> float | None:
+        """How the team acts when nothing says otherwise (``predict(obs)``, ``evaluate()``,
+        ``sb3-pm evaluate`` and ``compare``): ``None`` takes each agent's most likely allowed node
+        (argmax); a temperature samples from ``softmax(logits / T)`` over the allowed nodes, as
+        :meth:`set_sampling_temperature`. Set by the config's ``deploy_temperature`` and saved with
+        the team. Training never reads it.
+
+        :raises InputError: on setting anything but ``None`` or a positive finite number.
+        """
+        return self._deploy_temperature
+
+    @deploy_temperature.setter
+    def deploy_temperature(self, temperature: float | None) -> None:
+        from sb3_pm.policies.sampling import check_deploy_temperature
+
+        self._deploy_temperature = check_deploy_temperature(temperature)
+        self._apply_deploy_temperature()
+
+    def _apply_deploy_temperature(self) -> None:
+        """Give the policies the deployment temperature (1, the trained distribution, under argmax)."""
+        if self._deploy_temperature is not None or any(
+            getattr(m.policy, "sampling_temperature", 1.0) != 1.0 for m in self.model_files().values()
+        ):
+            self.set_sampling_temperature(
+                1.0 if self._deploy_temperature is None else self._deploy_temperature
+            )
+
+    def acts_deterministically(self, deterministic: bool | None) -> bool:
+        """``deterministic`` as given, or the deployment rule's choice when it is ``None``."""
+        return self._deploy_temperature is None if deterministic is None else bool(deterministic)
+
     # ------------------------------------------------------ the DCBF filter
     def set_filter(self, **changes: Any) -> None:
         """Change the DCBF filter's settings of every learner (fields of
@@ -153,7 +195,7 @@ class LearnedTeam(Team):
     def set_sampling_temperature(self, temperature: float) -> None:
         """Sampled actions (``predict(..., deterministic=False)``) of every learner come from
         ``softmax(logits / temperature)`` over its allowed nodes, for deployment; deterministic
-        actions are unchanged. Not saved with the team.
+        actions are unchanged. Not saved with the team (:attr:`deploy_temperature` is).
 
         :raises InputError: a temperature that is not a positive finite number, or a learner
             without the DCBF policy.

@@ -80,6 +80,8 @@ def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
         "n_envs": team.n_envs,
         "seed": team.seed,
         "num_timesteps": team.num_timesteps,
+        # how the team acts by default (None: argmax); manifests without it load as None
+        "deploy_temperature": team.deploy_temperature,
         "versions": _versions(),
     }
 

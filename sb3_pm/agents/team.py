@@ -94,6 +94,9 @@ class IndependentPPO(LearnedTeam):
         on CPU without ``target_kl``). The parameters are the same, bit for bit, as with ``False``;
         on 2 cores the update phases take about half the time. Callbacks that share state between
         learners must then be thread-safe.
+    :param deploy_temperature: how the trained team acts by default (:attr:`deploy_temperature`):
+        ``None`` by the argmax, a positive number by sampling at that temperature. Saved with the
+        team; training never reads it.
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
         before training stops with :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
         ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (under a
@@ -125,9 +128,10 @@ class IndependentPPO(LearnedTeam):
         strict_order: bool = True,
         wait_timeout: float | None = DEFAULT_WAIT_TIMEOUT,
         concurrent_updates: bool = True,
+        deploy_temperature: float | None = None,
         _init_models: bool = True,
     ) -> None:
-        self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs)
+        self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs, deploy_temperature)
         self._stacker = PrunedInference()  # the stacked acting pass, pruned to the allowed nodes
         self.verbose = verbose
         self.device = device
@@ -168,6 +172,7 @@ class IndependentPPO(LearnedTeam):
                 )
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
+            self._apply_deploy_temperature()
             if isinstance(self.graph, GraphFamily):
                 # A family team acts on a graph only through on_graph(): refuse what cannot.
                 problem = transfer_problem(self)
@@ -328,9 +333,12 @@ class IndependentPPO(LearnedTeam):
             raise InputError(f"no learner for {agent!r}: this team's agents are {self.agents}")
         return self.agents[int(index) % len(self.agents)]
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict(
+        self, observations: dict[str, Observation], deterministic: bool | None = None
+    ) -> dict[str, int]:
         """One destination node per agent in ``observations``, each from its own learner
-        (:meth:`learner_for` maps agents of a team of another size).
+        (:meth:`learner_for` maps agents of a team of another size). ``deterministic=None`` follows
+        the team's :attr:`deploy_temperature` (argmax unless the config set one).
 
         Deterministic actions of DCBF learners come from one stacked forward pass for the whole
         team (:mod:`sb3_pm.agents.stacked_inference`; the same logits as one pass per agent, bit for
@@ -338,6 +346,7 @@ class IndependentPPO(LearnedTeam):
         (:mod:`sb3_pm.agents.pruned_inference`); set :attr:`stacked_inference` to ``False`` to run
         them one by one, :attr:`pruned_inference` to ``False`` to compute every node's logit.
         """
+        deterministic = self.acts_deterministically(deterministic)
         if deterministic and self.stacked_inference:
             self._stacker.prune = self.pruned_inference
             stacked = self._stacker.predict(observations, lambda a: self.models[self.learner_for(a)].policy)
@@ -417,6 +426,7 @@ class IndependentPPO(LearnedTeam):
             strict_order=strict_order,
             concurrent_updates=concurrent_updates,
             wait_timeout=wait_timeout,
+            deploy_temperature=manifest.get("deploy_temperature"),
             _init_models=False,
         )
         for i, agent in enumerate(team.agents):
@@ -433,6 +443,7 @@ class IndependentPPO(LearnedTeam):
             if verbose is not None:
                 model.verbose = verbose
             team.models[agent] = model
+        team._apply_deploy_temperature()
         return team
 
     @classmethod

@@ -112,6 +112,20 @@ class TransferredTeam(Team):
         self.policies = {
             agent: rebuild_policy(source.models[agent].policy, space, action) for agent in self.agents
         }
+        #: how the team acts by default, as the source team's (rebuild_policy kept its temperature)
+        self._deploy_temperature: float | None = getattr(source, "deploy_temperature", None)
+
+    @property
+    def deploy_temperature(self) -> float | None:
+        """As :attr:`~sb3_pm.agents.learned_team.LearnedTeam.deploy_temperature`."""
+        return self._deploy_temperature
+
+    @deploy_temperature.setter
+    def deploy_temperature(self, temperature: float | None) -> None:
+        from sb3_pm.policies.sampling import check_deploy_temperature
+
+        self._deploy_temperature = check_deploy_temperature(temperature)
+        self.set_sampling_temperature(1.0 if self._deploy_temperature is None else self._deploy_temperature)
 
     def set_sampling_temperature(self, temperature: float) -> None:
         """As :meth:`~sb3_pm.agents.learned_team.LearnedTeam.set_sampling_temperature`, on the
@@ -136,9 +150,14 @@ class TransferredTeam(Team):
         if seed is not None:
             th.manual_seed(seed)
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict(
+        self, observations: dict[str, Observation], deterministic: bool | None = None
+    ) -> dict[str, int]:
         """Each agent's action from its learner's rebuilt policy; deterministic actions through one
-        stacked pass where it applies, as in ``IndependentPPO.predict``."""
+        stacked pass where it applies, as in ``IndependentPPO.predict`` (``None``: the team's
+        :attr:`deploy_temperature` decides)."""
+        if deterministic is None:
+            deterministic = self._deploy_temperature is None
         if deterministic and self.stacked_inference:
             self._stacker.prune = self.pruned_inference
             stacked = self._stacker.predict(observations, lambda a: self.policies[self.learner_for(a)])

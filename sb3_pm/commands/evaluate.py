@@ -36,17 +36,25 @@ def register(subparsers: Any) -> None:
         "--json", type=Path, metavar="FILE", help="write episodes, mean, std and config as JSON"
     )
     parser.add_argument("--gif", type=Path, metavar="FILE", help="save the first episode as an animated GIF")
-    parser.add_argument(
+    acting = parser.add_mutually_exclusive_group()
+    acting.add_argument(
+        "--deterministic",
+        action="store_true",
+        help="take each agent's most likely allowed node, whatever the team's deploy_temperature",
+    )
+    acting.add_argument(
         "--stochastic",
         action="store_true",
-        help="sample a learned team's actions instead of taking the most likely (seeded, reproducible)",
+        help="sample a learned team's actions from its trained distribution (temperature 1; seeded, "
+        "reproducible)",
     )
-    parser.add_argument(
+    acting.add_argument(
         "--temperature",
         type=float,
         metavar="T",
         help="sample a learned team's actions from softmax(logits / T) over the allowed nodes "
-        "(implies --stochastic; T < 1 is closer to the most likely action)",
+        "(T < 1 is closer to the most likely action). Without any of these three a team acts by "
+        "its config's deploy_temperature, saved with it (most likely action unless it set one)",
     )
     parser.add_argument(
         "--neglect-bound",
@@ -125,15 +133,29 @@ def apply_neglect_bound(team: Any, bound: float | None, scope: str | None = None
     team.set_filter(neglect_bound=bound, **({} if scope is None else {"neglect_scope": scope}))
 
 
-def apply_temperature(team: Any, temperature: float | None) -> None:
-    """``--temperature``: the sampling temperature of a trained DCBF team; a baseline has none."""
+def apply_temperature(team: Any, temperature: float | None, stochastic: bool = False) -> None:
+    """``--temperature``: the sampling temperature of a trained DCBF team; a baseline has none.
+    ``--stochastic`` samples from the trained distribution (temperature 1), also on a team whose
+    config set another ``deploy_temperature``."""
     from sb3_pm.errors import UsageError
 
+    if stochastic and getattr(team, "deploy_temperature", None) is not None:
+        temperature = 1.0
     if temperature is None:
         return
     if not hasattr(team, "set_sampling_temperature"):
         raise UsageError(f"--temperature needs a trained team; {team.name!r} is not one")
     team.set_sampling_temperature(temperature)
+
+
+def acting_rule(args: argparse.Namespace) -> bool | None:
+    """``deterministic`` for the harness from ``--deterministic`` / ``--stochastic`` /
+    ``--temperature``, or ``None``: the team's own ``deploy_temperature`` decides."""
+    if args.deterministic:
+        return True
+    if args.stochastic or args.temperature is not None:
+        return False
+    return None
 
 
 def print_summary(result: Any, stream: Any = None) -> None:
@@ -177,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--temperature must be positive and finite, got {args.temperature}")
     team = resolve_team(args.policy, graph=graph, device=args.device)
     apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
-    apply_temperature(team, args.temperature)
+    apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
     trained_agents = getattr(team, "n_agents", None)
     if trained_agents is not None and trained_agents != args.agents:
@@ -193,7 +215,14 @@ def run(args: argparse.Namespace) -> int:
         )
     env_kwargs = {**team_env_kwargs(team), **failure_kwargs(args)}
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
-    deterministic = not (args.stochastic or args.temperature is not None)
+    deterministic = acting_rule(args)
+    own_temperature = getattr(team, "deploy_temperature", None)
+    if deterministic is None and own_temperature is not None:
+        print(
+            f"the team samples its actions at its deploy_temperature {own_temperature:g} "
+            "(--deterministic for the most likely action)",
+            file=sys.stderr,
+        )
     result = evaluate(
         team,
         graph,
@@ -225,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
     if args.gif is not None:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
-        apply_temperature(gif_team, args.temperature)
+        apply_temperature(gif_team, args.temperature, args.stochastic)
         record_gif(
             gif_team,
             graph,

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pm.evaluation.harness import EpisodeRecord, run_episode
+from sb3_pm.evaluation.harness import EpisodeRecord, acts_deterministically, run_episode
 from sb3_pm.graphs import GraphLike, resolve_graph
 from sb3_pm.team_interface import Team
 
@@ -22,11 +22,12 @@ def record_gif(
     max_cycles: int = 500,
     env_kwargs: Mapping[str, Any] | None = None,
     fps: int = 8,
-    deterministic: bool = True,
+    deterministic: bool | None = None,
 ) -> EpisodeRecord:
     """Play one episode (env seed ``seed``, as episode 0 of ``evaluate(seed=seed)``) and save it.
 
-    :param deterministic: passed to ``team.predict``, as in :func:`~sb3_pm.evaluation.evaluate`.
+    :param deterministic: passed to ``team.predict``, as in :func:`~sb3_pm.evaluation.evaluate`
+        (``None``: the team's ``deploy_temperature`` decides).
     :return: the episode's record, identical to the one :func:`~sb3_pm.evaluation.evaluate` makes.
     """
     from sb3_pm.envs import persistent_monitoring_v0
@@ -43,7 +44,9 @@ def record_gif(
     )
     frames: list = []
     try:
-        record = run_episode(team, env, seed, frames=frames, deterministic=deterministic)
+        record = run_episode(
+            team, env, seed, frames=frames, deterministic=acts_deterministically(team, deterministic)
+        )
     finally:
         env.close()
     write_gif(frames, path, fps=fps)

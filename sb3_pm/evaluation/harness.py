@@ -142,7 +142,7 @@ def evaluate(
     env_kwargs: Mapping[str, Any] | None = None,
     progress: bool | None = False,
     policy_name: str | None = None,
-    deterministic: bool = True,
+    deterministic: bool | None = None,
     threads: int | None = 1,
 ) -> EvaluationResult:
     """Run ``team`` for ``episodes`` full episodes on ``graph`` and collect their metrics.
@@ -158,7 +158,9 @@ def evaluate(
         a terminal, a plain line every 30 s elsewhere); ``False`` (default) is silent.
     :param policy_name: the label in reports; defaults to ``team.name``.
     :param deterministic: passed to ``team.predict``; ``False`` samples a learned team's actions
-        (from the team's own seeded stream, so still reproducible). Baselines ignore it.
+        (from the team's own seeded stream, so still reproducible). ``None`` (default) follows the
+        team's ``deploy_temperature``: deterministic unless its config set a sampling temperature
+        (:func:`acts_deterministically`). Baselines ignore it.
     :param threads: torch CPU threads while the episodes run, restored afterwards (default 1;
         ``None`` leaves torch's setting alone). A learned team's per-step forward passes are far
         too small to gain from intra-op threads: one episode took 31 s of wall time with one
@@ -172,6 +174,8 @@ def evaluate(
     if threads is not None and threads < 1:
         raise InputError(f"threads must be at least 1, got {threads}")
     spec = resolve_graph(graph)
+    by_rule = deterministic is None
+    deterministic = acts_deterministically(team, deterministic)
     kwargs = dict(env_kwargs or {})
     env = persistent_monitoring_v0.parallel_env(
         graph=spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs
@@ -201,7 +205,17 @@ def evaluate(
         "env_kwargs": kwargs,
         "deterministic": deterministic,
     }
+    if by_rule and not deterministic:
+        config["temperature"] = team.deploy_temperature  # the team's own rule chose to sample
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
+
+
+def acts_deterministically(team: Team, deterministic: bool | None) -> bool:
+    """``deterministic`` as given, or, for ``None``, the team's rule: deterministic unless it has a
+    ``deploy_temperature`` (a learned team whose config samples at deployment)."""
+    if deterministic is None:
+        return getattr(team, "deploy_temperature", None) is None
+    return bool(deterministic)
 
 
 @contextmanager

@@ -156,6 +156,10 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     config = load_config(source, variant.train_env or cell.graph)
     config.hyperparams.update({**cell.hyperparams, **variant.hyperparams})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
+    if "deploy_temperature" in config.hyperparams:  # a team key: a variant may pin it (null: argmax)
+        from sb3_pm.policies.sampling import check_deploy_temperature
+
+        config.deploy_temperature = check_deploy_temperature(config.hyperparams.pop("deploy_temperature"))
     if variant.policy_kwargs:
         config.hyperparams["policy_kwargs"] = {
             **config.hyperparams.get("policy_kwargs", {}),

@@ -29,8 +29,10 @@ default true; ``false`` builds the team and evaluates its *initial* policy witho
 control that tells how much of a learned row comes from training rather than from the DCBF filter
 around an untrained actor), ``config`` (learned variants: another team config to start from,
 relative to this file, instead of the experiment's; the variant's overrides then merge over that
-one), ``label`` (the name in tables; defaults to the key), ``train_env`` (independent variants:
-train once per seed on this graph or graph family, e.g. ``family:er``, and evaluate that one team
+one), ``label`` (the name in tables; defaults to the key), ``hyperparams: {deploy_temperature:
+...}`` (learned variants: how the trained team acts in the cells' evaluations, over the config's;
+``null`` by the argmax, a number by sampling at it), ``train_env`` (independent variants: train
+once per seed on this graph or graph family, e.g. ``family:er``, and evaluate that one team
 zero-shot on every graph of the experiment, instead of training on each graph), ``timesteps``
 (learned variants: this variant's budget per learner, instead of the experiment's).
 """
@@ -197,6 +199,13 @@ def load_experiment(path: str | Path) -> Experiment:
         for mapping in ("policy_kwargs", "hyperparams", "env_kwargs"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
+        if "deploy_temperature" in settings.get("hyperparams", {}):
+            from sb3_pm.policies.sampling import check_deploy_temperature
+
+            try:
+                check_deploy_temperature(settings["hyperparams"]["deploy_temperature"])
+            except InputError as error:
+                raise _fail(path, f"variant {key!r}: hyperparams.deploy_temperature: {error}") from None
         clash = sorted(_EXPERIMENT_ENV_KEYS & set(settings.get("env_kwargs", {})))
         if kind == "baseline" and clash:
             raise _fail(

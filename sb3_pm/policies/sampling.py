@@ -24,6 +24,14 @@ def check_temperature(temperature: object) -> float:
     return float(temperature)
 
 
+def check_deploy_temperature(temperature: object) -> float | None:
+    """A team's deployment rule: ``None`` (act by the argmax) or a sampling temperature.
+
+    :raises InputError: anything but ``None`` or a positive finite number.
+    """
+    return None if temperature is None else check_temperature(temperature)
+
+
 def tempered_logits(logits: th.Tensor, masks: th.Tensor, temperature: float) -> th.Tensor:
     """Logits whose softmax over the allowed nodes is ``softmax(logits / temperature)`` there.
 

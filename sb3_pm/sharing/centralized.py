@@ -47,6 +47,8 @@ class CentralizedPPO(LearnedTeam):
     :param n_envs: env copies; the model sees ``n_envs * n_agents`` vector entries.
     :param seed: seeds the model and the env copies.
     :param hyperparams: the algorithm's keyword arguments (``n_steps`` counts steps per entry).
+    :param deploy_temperature: how the trained team acts by default (see
+        :attr:`~sb3_pm.agents.learned_team.LearnedTeam.deploy_temperature`).
     """
 
     name = "centralized"
@@ -66,10 +68,18 @@ class CentralizedPPO(LearnedTeam):
         tensorboard_log: str | Path | None = None,
         verbose: int = 0,
         device: str = "cpu",
+        deploy_temperature: float | None = None,
         _init_model: bool = True,
     ) -> None:
         self._set_problem(
-            graph, n_agents, n_envs, seed, algo, policy, {**dict(env_kwargs or {}), "shared_map": True}
+            graph,
+            n_agents,
+            n_envs,
+            seed,
+            algo,
+            policy,
+            {**dict(env_kwargs or {}), "shared_map": True},
+            deploy_temperature,
         )
         if not isinstance(self.graph, GraphSpec):
             raise InputError(
@@ -90,6 +100,7 @@ class CentralizedPPO(LearnedTeam):
                 device=device,
                 **kwargs,
             )
+            self._apply_deploy_temperature()
 
     @classmethod
     def _config_options(cls, config: Any) -> dict[str, Any]:
@@ -132,8 +143,12 @@ class CentralizedPPO(LearnedTeam):
         if not getattr(getattr(env, "unwrapped", env), "shared_map", True):
             raise InputError("a centralized team needs an env with shared_map=True (its env_kwargs)")
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
-        """One batched forward pass of the shared network for every agent."""
+    def predict(
+        self, observations: dict[str, Observation], deterministic: bool | None = None
+    ) -> dict[str, int]:
+        """One batched forward pass of the shared network for every agent (``deterministic=None``:
+        the team's :attr:`deploy_temperature` decides)."""
+        deterministic = self.acts_deterministically(deterministic)
         agents = list(observations)
         batch = {
             key: np.stack([np.asarray(observations[a][key]) for a in agents])
@@ -168,9 +183,11 @@ class CentralizedPPO(LearnedTeam):
             n_envs=int(manifest["n_envs"]),
             seed=int(manifest["seed"]),
             device=device,
+            deploy_temperature=manifest.get("deploy_temperature"),
             _init_model=False,
         )
         team.model = load_model_file(team.algo_class, folder / MODEL_FILE, env=team.venv, device=device)
+        team._apply_deploy_temperature()
         return team
 
     def close(self) -> None:

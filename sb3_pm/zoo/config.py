@@ -48,7 +48,7 @@ from sb3_pm.zoo.shipped import resolve_config_path
 
 DEFAULT_ENTRY = "default"
 #: Keys that belong to the team, not to one learner's algorithm.
-TEAM_KEYS = ("n_timesteps", "n_envs", "n_agents", "algo", "env_kwargs", "agents", "env")
+TEAM_KEYS = ("n_timesteps", "n_envs", "n_agents", "algo", "env_kwargs", "agents", "env", "deploy_temperature")
 #: Algorithm arguments the team sets itself (never from a config).
 MANAGED_ARGS = {"self", "policy", "env", "seed", "tensorboard_log", "verbose", "device", "_init_setup_model"}
 #: Keys allowed in a per-agent override: learner hyperparameters, but not the team's own keys
@@ -81,6 +81,9 @@ class TrainConfig:
     #: The graph or graph family this entry trains on when the command line names none
     #: (``sb3-pm train`` without ``--env``); ``None``: the default graph.
     env: str | None = None
+    #: How the trained team acts by default: ``None`` by the argmax, a number by sampling at that
+    #: temperature (saved with the team; training never reads it).
+    deploy_temperature: float | None = None
 
     def team_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of ``IndependentPPO`` (all but ``graph``, ``seed`` and logging)."""
@@ -92,6 +95,7 @@ class TrainConfig:
             "n_envs": self.n_envs,
             "hyperparams": dict(self.hyperparams),
             "per_agent": {agent: dict(values) for agent, values in self.agents.items()},
+            "deploy_temperature": self.deploy_temperature,
         }
 
     def to_dict(self) -> dict[str, Any]:
@@ -109,6 +113,8 @@ class TrainConfig:
             data["agents"] = {agent: dict(values) for agent, values in self.agents.items()}
         if self.env is not None:
             data["env"] = self.env
+        if self.deploy_temperature is not None:
+            data["deploy_temperature"] = self.deploy_temperature
         return data
 
 
@@ -310,6 +316,13 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
     train_env = raw.get("env")
     if train_env is not None and not isinstance(train_env, str):
         raise ConfigError(f"{where}.env: expected a graph or family name, got {train_env!r}")
+    from sb3_pm.policies.sampling import check_deploy_temperature  # lazy: the module imports torch
+
+    deploy_temperature = raw.get("deploy_temperature")
+    try:
+        deploy_temperature = check_deploy_temperature(deploy_temperature)
+    except InputError as error:
+        raise ConfigError(f"{where}.deploy_temperature: {error} (null acts by the argmax)") from None
     hyperparams = _hyperparams(raw, allowed, where, set(TEAM_KEYS) | {"policy"})
     n_agents = _as_int(raw.get("n_agents", 4), f"{where}.n_agents")
     agents_raw = raw.get("agents") or {}
@@ -343,6 +356,7 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
         env_kwargs=dict(env_kwargs),
         agents=agents,
         env=train_env,
+        deploy_temperature=deploy_temperature,
     )
 
 
