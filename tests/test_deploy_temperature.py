@@ -190,3 +190,134 @@ def test_a_centralized_team_keeps_its_rule_too(tmp_path: Path) -> None:
     assert loaded.deploy_temperature == 0.5 and loaded.model.policy.sampling_temperature == 0.5
     team.close()
     loaded.close()
+
+
+def test_predict_without_deterministic_follows_the_rule() -> None:
+    from sb3_pm.envs import persistent_monitoring_v0
+
+    env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, **ENV)
+    observations, _ = env.reset(seed=3)
+    env.close()
+
+    def draws(team: IndependentPPO, deterministic: bool | None) -> list[dict[str, int]]:
+        th.manual_seed(11)
+        if deterministic is None:
+            return [team.predict(observations) for _ in range(20)]
+        return [team.predict(observations, deterministic) for _ in range(20)]
+
+    sampling, plain = make_team(0.5), make_team(None)
+    assert draws(sampling, None) == draws(sampling, False)
+    assert len({str(d) for d in draws(sampling, None)}) > 1  # it does sample
+    assert draws(plain, None) == draws(plain, True) == draws(sampling, True)
+    assert len({str(d) for d in draws(plain, None)}) == 1
+
+
+def test_a_moved_team_samples_at_the_rule_on_its_rebuilt_policies() -> None:
+    other = erdos_renyi(16, 0.3, n_targets=4, seed=2)
+    moved = make_team(0.5).on_graph(other)
+    assert {p.sampling_temperature for p in moved.policies.values()} == {0.5}  # type: ignore[attr-defined]
+    moved.deploy_temperature = None  # type: ignore[misc]
+    assert {p.sampling_temperature for p in moved.policies.values()} == {1.0}  # type: ignore[attr-defined]
+    assert traces(moved, graph=other) == traces(moved, deterministic=True, graph=other)
+
+
+def test_training_never_reads_the_rule() -> None:
+    teams = [
+        IndependentPPO(GRAPH, n_agents=2, seed=4, env_kwargs=ENV, hyperparams=TINY, deploy_temperature=t)
+        for t in (None, 0.5)
+    ]
+    for team in teams:
+        team.learn(60)
+    for agent in teams[0].agents:
+        first, second = (team.models[agent].policy.state_dict() for team in teams)
+        assert all(th.equal(first[key], second[key]) for key in first)
+    for team in teams:
+        team.close()
+
+
+def test_a_rule_for_learners_without_the_dcbf_policy_is_refused_and_leaves_the_team_as_it_was() -> None:
+    team = IndependentPPO(GRAPH, n_agents=2, env_kwargs=ENV, algo="maskable_ppo", hyperparams={"n_steps": 30})
+    with pytest.raises(ValueError, match="no DCBF policy"):
+        team.deploy_temperature = 0.5
+    assert team.deploy_temperature is None and team.manifest()["deploy_temperature"] is None
+    team.close()
+    with pytest.raises(ValueError, match="no DCBF policy"):
+        IndependentPPO(GRAPH, n_agents=2, env_kwargs=ENV, algo="maskable_ppo", deploy_temperature=0.5)
+
+
+def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> None:
+    """Only known_map_family samples; the transfer files pin the argmax their tables measured.
+    Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
+    from sb3_pm.experiments.runner import deploy_rules, experiment_record
+    from sb3_pm.zoo.shipped import EXPERIMENT_DIR, shipped_names
+
+    rules = {name: deploy_rules(load_experiment(name)) for name in shipped_names(EXPERIMENT_DIR)}
+    assert {name: rule for name, rule in rules.items() if rule} == {
+        "transfer_known_map": {"known_map_family": 0.25}
+    }
+    assert experiment_record(load_experiment("transfer_known_map"))["deploy_temperature"] == {
+        "known_map_family": 0.25
+    }
+    assert "deploy_temperature" not in experiment_record(load_experiment("comparison"))
+
+
+def test_the_runner_evaluates_by_the_experiment_files_rule_and_refuses_a_changed_one(tmp_path: Path) -> None:
+    from sb3_pm.cli import main
+
+    config = tmp_path / "team.yml"
+    team_entry = {
+        "algo": "dcbf_ppo",
+        "n_envs": 1,
+        "n_steps": 20,
+        "batch_size": 20,
+        "n_epochs": 1,
+        "deploy_temperature": 0.5,
+        "policy_kwargs": {"dcbf_barrier": False, "freeze_steps": 0},
+    }
+    config.write_text(yaml.safe_dump({"default": team_entry}))
+    experiment = {
+        "name": "rule",
+        "graphs": ["karate"],
+        "seeds": [0],
+        "episodes": 1,
+        "max_cycles": 20,
+        "n_agents": 2,
+        "config": str(config),
+        "timesteps": 20,
+        "variants": {"by_config": {}, "pinned": {"hyperparams": {"deploy_temperature": None}}},
+    }
+    path = tmp_path / "rule.yml"
+    path.write_text(yaml.safe_dump(experiment))
+    out = tmp_path / "out"
+    args = ["reproduce", str(path), "--out", str(out), "--jobs", "1", "--no-progress"]
+    assert main(args) == 0
+    cells = out / "cells"
+    by_config = json.loads((cells / "by_config" / "karate" / "seed0" / "evaluation.json").read_text())
+    pinned = json.loads((cells / "pinned" / "karate" / "seed0" / "evaluation.json").read_text())
+    assert (by_config["config"]["deterministic"], by_config["config"]["temperature"]) == (False, 0.5)
+    assert pinned["config"]["deterministic"] is True and "temperature" not in pinned["config"]
+    # A team already in a cell (trained by an earlier run, or copied in) acts by the file's rule, not
+    # by its manifest's: give the pinned cell's team a sampling rule and evaluate the cell again.
+    pinned_cell = cells / "pinned" / "karate" / "seed0"
+    manifest = pinned_cell / "team" / "manifest.json"
+    manifest.write_text(json.dumps({**json.loads(manifest.read_text()), "deploy_temperature": 0.5}))
+    (pinned_cell / "DONE").unlink()
+    (pinned_cell / "evaluation.json").unlink()
+    assert main(args) == 0
+    again = json.loads((pinned_cell / "evaluation.json").read_text())
+    assert again["config"]["deterministic"] is True and again["episodes"] == pinned["episodes"]
+    # The rule is part of the record: a resumed folder cannot mix the two ways of acting.
+    config.write_text(yaml.safe_dump({"default": {**team_entry, "deploy_temperature": 0.7}}))
+    assert main(args) != 0
+
+
+def test_the_train_command_can_switch_the_rule_off() -> None:
+    from sb3_pm.commands.train import parse_overrides
+    from sb3_pm.errors import UsageError
+
+    overrides = parse_overrides(["deploy_temperature:null"], "--hyperparams")
+    assert overrides == {"deploy_temperature": None}
+    assert load_config("ippo_transfer", "paper-50", overrides).deploy_temperature is None
+    for slip in ("deploy_temperature:", "n_steps:null"):
+        with pytest.raises(UsageError, match="has no value"):
+            parse_overrides([slip], "--hyperparams")

@@ -144,17 +144,24 @@ class LearnedTeam(Team):
     def deploy_temperature(self, temperature: float | None) -> None:
         from sb3_pm.policies.sampling import check_deploy_temperature
 
-        self._deploy_temperature = check_deploy_temperature(temperature)
-        self._apply_deploy_temperature()
+        value = check_deploy_temperature(temperature)
+        self._apply_deploy_temperature(value)  # first: a team it cannot apply to keeps its rule
+        self._deploy_temperature = value
 
-    def _apply_deploy_temperature(self) -> None:
-        """Give the policies the deployment temperature (1, the trained distribution, under argmax)."""
-        if self._deploy_temperature is not None or any(
-            getattr(m.policy, "sampling_temperature", 1.0) != 1.0 for m in self.model_files().values()
-        ):
-            self.set_sampling_temperature(
-                1.0 if self._deploy_temperature is None else self._deploy_temperature
-            )
+    def _apply_deploy_temperature(self, temperature: float | None) -> None:
+        """Give the policies the deployment temperature (1, the trained distribution, under argmax).
+
+        :raises InputError: a temperature for a learner without the DCBF policy.
+        """
+        if temperature is not None or self.sampling_temperature not in (None, 1.0):
+            self.set_sampling_temperature(1.0 if temperature is None else temperature)
+
+    @property
+    def sampling_temperature(self) -> float | None:
+        """The temperature sampled actions are drawn at (:meth:`set_sampling_temperature`): the
+        learners' common value, ``None`` if they differ or have none (not DCBF policies)."""
+        values = {getattr(m.policy, "sampling_temperature", None) for m in self.model_files().values()}
+        return values.pop() if len(values) == 1 else None
 
     def acts_deterministically(self, deterministic: bool | None) -> bool:
         """``deterministic`` as given, or the deployment rule's choice when it is ``None``."""

@@ -172,7 +172,11 @@ class IndependentPPO(LearnedTeam):
                 )
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
-            self._apply_deploy_temperature()
+            try:
+                self._apply_deploy_temperature(self.deploy_temperature)
+            except InputError:  # a sampling rule for learners without the DCBF policy
+                self.close()
+                raise
             if isinstance(self.graph, GraphFamily):
                 # A family team acts on a graph only through on_graph(): refuse what cannot.
                 problem = transfer_problem(self)
@@ -338,7 +342,9 @@ class IndependentPPO(LearnedTeam):
     ) -> dict[str, int]:
         """One destination node per agent in ``observations``, each from its own learner
         (:meth:`learner_for` maps agents of a team of another size). ``deterministic=None`` follows
-        the team's :attr:`deploy_temperature` (argmax unless the config set one).
+        the team's :attr:`deploy_temperature` (argmax unless the config set one); ``False`` samples
+        at :attr:`sampling_temperature` (the rule's temperature if it has one, else 1 unless
+        :meth:`set_sampling_temperature` said otherwise).
 
         Deterministic actions of DCBF learners come from one stacked forward pass for the whole
         team (:mod:`sb3_pm.agents.stacked_inference`; the same logits as one pass per agent, bit for
@@ -443,7 +449,7 @@ class IndependentPPO(LearnedTeam):
             if verbose is not None:
                 model.verbose = verbose
             team.models[agent] = model
-        team._apply_deploy_temperature()
+        team._apply_deploy_temperature(team.deploy_temperature)
         return team
 
     @classmethod

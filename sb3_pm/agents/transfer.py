@@ -124,8 +124,15 @@ class TransferredTeam(Team):
     def deploy_temperature(self, temperature: float | None) -> None:
         from sb3_pm.policies.sampling import check_deploy_temperature
 
-        self._deploy_temperature = check_deploy_temperature(temperature)
-        self.set_sampling_temperature(1.0 if self._deploy_temperature is None else self._deploy_temperature)
+        value = check_deploy_temperature(temperature)
+        self.set_sampling_temperature(1.0 if value is None else value)  # first: it may refuse
+        self._deploy_temperature = value
+
+    @property
+    def sampling_temperature(self) -> float | None:
+        """As :attr:`~sb3_pm.agents.learned_team.LearnedTeam.sampling_temperature`."""
+        values = {getattr(policy, "sampling_temperature", None) for policy in self.policies.values()}
+        return values.pop() if len(values) == 1 else None
 
     def set_sampling_temperature(self, temperature: float) -> None:
         """As :meth:`~sb3_pm.agents.learned_team.LearnedTeam.set_sampling_temperature`, on the

@@ -237,8 +237,6 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
     )
     result.config["graph"] = str(args.graph)
-    if args.temperature is not None:
-        result.config["temperature"] = args.temperature
     if args.neglect_bound is not None:
         activity = team.filter_activity()  # type: ignore[attr-defined]  # apply_neglect_bound checked
         result.config["neglect_bound"] = args.neglect_bound

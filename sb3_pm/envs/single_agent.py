@@ -103,6 +103,8 @@ class SingleAgentMonitoringEnv(gym.Env):
     def _teammate_actions(self) -> dict[str, int]:
         observations = {a: self._observations[a] for a in self.teammate_names}
         if self.teammates is not None:
+            # Fixed teammates are part of this env's dynamics: their most likely actions, whatever a
+            # learned team's deploy_temperature says, so the env depends on its seed alone.
             return {a: int(v) for a, v in self.teammates.predict(observations, deterministic=True).items()}
         return {
             a: int(self._teammate_rng.choice(np.flatnonzero(obs["action_mask"])))

@@ -158,9 +158,12 @@ def evaluate(
         a terminal, a plain line every 30 s elsewhere); ``False`` (default) is silent.
     :param policy_name: the label in reports; defaults to ``team.name``.
     :param deterministic: passed to ``team.predict``; ``False`` samples a learned team's actions
-        (from the team's own seeded stream, so still reproducible). ``None`` (default) follows the
-        team's ``deploy_temperature``: deterministic unless its config set a sampling temperature
-        (:func:`acts_deterministically`). Baselines ignore it.
+        (from the team's own seeded stream, so still reproducible) at the team's sampling
+        temperature: its ``deploy_temperature`` if it has one, else 1 unless
+        ``set_sampling_temperature`` said otherwise. ``None`` (default) follows the team's
+        ``deploy_temperature``: deterministic unless its config set a sampling temperature
+        (:func:`acts_deterministically`). Baselines ignore it. A sampled run records the
+        temperature in ``config["temperature"]``.
     :param threads: torch CPU threads while the episodes run, restored afterwards (default 1;
         ``None`` leaves torch's setting alone). A learned team's per-step forward passes are far
         too small to gain from intra-op threads: one episode took 31 s of wall time with one
@@ -174,7 +177,6 @@ def evaluate(
     if threads is not None and threads < 1:
         raise InputError(f"threads must be at least 1, got {threads}")
     spec = resolve_graph(graph)
-    by_rule = deterministic is None
     deterministic = acts_deterministically(team, deterministic)
     kwargs = dict(env_kwargs or {})
     env = persistent_monitoring_v0.parallel_env(
@@ -205,8 +207,9 @@ def evaluate(
         "env_kwargs": kwargs,
         "deterministic": deterministic,
     }
-    if by_rule and not deterministic:
-        config["temperature"] = team.deploy_temperature  # the team's own rule chose to sample
+    temperature = getattr(team, "sampling_temperature", None)
+    if not deterministic and temperature is not None:  # what the learned team sampled at
+        config["temperature"] = temperature
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
 
 

@@ -283,6 +283,10 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         # variant's setting, e.g. target_knowledge: known), over the experiment's.
         env_kwargs = {**cell.env_kwargs, **variant.env_kwargs}
     env_kwargs.update(cell.eval_env_kwargs)
+    if variant.learned:
+        # The experiment file's rule (config, then the variant's pin), also for a team trained by
+        # an earlier run or copied in, whose manifest may hold another.
+        team.deploy_temperature = cell_config(cell, variant).deploy_temperature
     result = evaluate(
         team,
         cell.graph,
@@ -367,10 +371,44 @@ def reproduce(
 _RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None, "train_env": None, "timesteps": None}
 
 
+def deploy_rules(experiment: Experiment) -> dict[str, Any]:
+    """``{variant: deploy_temperature}`` of the learned variants that sample at deployment, as their
+    configs and pins resolve (one value, or ``{graph: value}`` where the entries differ).
+
+    The record names a config by its path only, so without this an edited ``deploy_temperature``
+    would let a resumed folder mix cells evaluated both ways.
+    """
+    from sb3_pm.policies.sampling import check_deploy_temperature
+    from sb3_pm.zoo.config import load_config
+
+    rules: dict[str, Any] = {}
+    for variant in experiment.variants:
+        source = variant.config or experiment.config
+        if not variant.learned or source is None:
+            continue
+        pins = {**experiment.hyperparams, **variant.hyperparams}
+        per_graph = {}
+        for graph in [variant.train_env] if variant.train_env else experiment.graphs:
+            if "deploy_temperature" in pins:
+                per_graph[graph] = check_deploy_temperature(pins["deploy_temperature"])
+            else:
+                per_graph[graph] = load_config(source, graph).deploy_temperature
+        values = set(per_graph.values())
+        if values != {None}:
+            rules[variant.key] = values.pop() if len(values) == 1 else per_graph
+    return rules
+
+
 def experiment_record(experiment: Experiment) -> dict[str, Any]:
     # eval_env_kwargs is recorded only when set (folders written before it existed resume), so a
-    # changed deployment condition is a different experiment and never reuses finished cells.
-    extra = {"eval_env_kwargs": experiment.eval_env_kwargs} if experiment.eval_env_kwargs else {}
+    # changed deployment condition is a different experiment and never reuses finished cells;
+    # likewise the learned variants' sampling rules (deploy_rules).
+    extra: dict[str, Any] = (
+        {"eval_env_kwargs": experiment.eval_env_kwargs} if experiment.eval_env_kwargs else {}
+    )
+    rules = deploy_rules(experiment)
+    if rules:
+        extra["deploy_temperature"] = rules
     return {
         **extra,
         "name": experiment.name,

@@ -159,6 +159,18 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
     return out
 
 
+def _check_deploy_pin(hyperparams: dict[str, Any], source: Path, where: str = "") -> None:
+    """A ``deploy_temperature`` among ``hyperparams`` must be null or a positive number."""
+    if "deploy_temperature" not in hyperparams:
+        return
+    from sb3_pm.policies.sampling import check_deploy_temperature
+
+    try:
+        check_deploy_temperature(hyperparams["deploy_temperature"])
+    except InputError as error:
+        raise _fail(source, f"{where}hyperparams.deploy_temperature: {error}") from None
+
+
 def load_experiment(path: str | Path) -> Experiment:
     """Parse and validate an experiment file.
 
@@ -199,13 +211,7 @@ def load_experiment(path: str | Path) -> Experiment:
         for mapping in ("policy_kwargs", "hyperparams", "env_kwargs"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
-        if "deploy_temperature" in settings.get("hyperparams", {}):
-            from sb3_pm.policies.sampling import check_deploy_temperature
-
-            try:
-                check_deploy_temperature(settings["hyperparams"]["deploy_temperature"])
-            except InputError as error:
-                raise _fail(path, f"variant {key!r}: hyperparams.deploy_temperature: {error}") from None
+        _check_deploy_pin(settings.get("hyperparams", {}), path, f"variant {key!r}: ")
         clash = sorted(_EXPERIMENT_ENV_KEYS & set(settings.get("env_kwargs", {})))
         if kind == "baseline" and clash:
             raise _fail(
@@ -265,6 +271,9 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, "learned variants need 'config' (the training YAML)")
         if not config_path.is_file():
             raise _fail(path, f"training config not found: {config_path}")
+    if not isinstance(raw.get("hyperparams", {}) or {}, dict):
+        raise _fail(path, "'hyperparams' must be a mapping")
+    _check_deploy_pin(raw.get("hyperparams", {}) or {}, path)
     quick = raw.get("quick", {}) or {}
     if not isinstance(quick, dict):
         raise _fail(path, "'quick' must be a mapping")

@@ -100,7 +100,11 @@ class CentralizedPPO(LearnedTeam):
                 device=device,
                 **kwargs,
             )
-            self._apply_deploy_temperature()
+            try:
+                self._apply_deploy_temperature(self.deploy_temperature)
+            except InputError:  # a sampling rule for a model without the DCBF policy
+                self.close()
+                raise
 
     @classmethod
     def _config_options(cls, config: Any) -> dict[str, Any]:
@@ -187,7 +191,7 @@ class CentralizedPPO(LearnedTeam):
             _init_model=False,
         )
         team.model = load_model_file(team.algo_class, folder / MODEL_FILE, env=team.venv, device=device)
-        team._apply_deploy_temperature()
+        team._apply_deploy_temperature(team.deploy_temperature)
         return team
 
     def close(self) -> None:
