@@ -17,16 +17,11 @@ from sb3_pm.experiments.spec import ExperimentError, load_experiment
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.graphs.io import save_graphml
 from sb3_pm.zoo.config import ConfigError, load_config
+from tests.test_sampling_temperature import ENV, GRAPH, spread_logits
+from tests.test_sampling_temperature import TINY as SAMPLING_TINY
 
-GRAPH = erdos_renyi(12, 0.4, n_targets=3, seed=1)
-ENV = {"max_cycles": 30}
-# No barrier and no freeze, so the actor chooses on every step (as in test_sampling_temperature).
-TINY = {
-    "n_steps": 30,
-    "batch_size": 30,
-    "n_epochs": 1,
-    "policy_kwargs": {"dcbf_barrier": False, "freeze_steps": 0, "laplacian": "none"},
-}
+# test_sampling_temperature's tiny team (the actor chooses on every step), made transferable.
+TINY = {**SAMPLING_TINY, "policy_kwargs": {**SAMPLING_TINY["policy_kwargs"], "laplacian": "none"}}
 
 
 def make_team(deploy_temperature: float | None) -> IndependentPPO:
@@ -35,12 +30,7 @@ def make_team(deploy_temperature: float | None) -> IndependentPPO:
     team = IndependentPPO(
         GRAPH, n_agents=2, seed=0, env_kwargs=ENV, hyperparams=TINY, deploy_temperature=deploy_temperature
     )
-    generator = th.Generator().manual_seed(0)
-    with th.no_grad():
-        for model in team.models.values():
-            weight = model.policy.action_net.weight
-            weight.copy_(th.randn(weight.shape, generator=generator) * 3.0)
-    return team
+    return spread_logits(team, 3.0)
 
 
 def traces(team: object, deterministic: bool | None = None, graph: object = GRAPH) -> list[list[float]]:

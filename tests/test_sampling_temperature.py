@@ -34,12 +34,16 @@ TINY = {
 def make_team() -> IndependentPPO:
     """An untrained DCBF team with a redrawn output layer, so its logits are far apart (an untrained
     actor's are within ~1e-4 of each other, which no temperature would tell apart)."""
-    team = IndependentPPO(GRAPH, n_agents=2, seed=0, env_kwargs=ENV, hyperparams=TINY)
+    return spread_logits(IndependentPPO(GRAPH, n_agents=2, seed=0, env_kwargs=ENV, hyperparams=TINY), 30.0)
+
+
+def spread_logits(team: IndependentPPO, scale: float) -> IndependentPPO:
+    """``team`` with every learner's output layer redrawn (seeded) at ``scale``, in place."""
     generator = th.Generator().manual_seed(0)
     with th.no_grad():
         for model in team.models.values():
             weight = model.policy.action_net.weight
-            weight.copy_(th.randn(weight.shape, generator=generator) * 30.0)
+            weight.copy_(th.randn(weight.shape, generator=generator) * scale)
     return team
 
 
