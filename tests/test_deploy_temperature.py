@@ -311,3 +311,30 @@ def test_the_train_command_can_switch_the_rule_off() -> None:
     for slip in ("deploy_temperature:", "n_steps:null"):
         with pytest.raises(UsageError, match="has no value"):
             parse_overrides([slip], "--hyperparams")
+
+
+def test_compare_follows_each_teams_rule_unless_told_to_take_the_most_likely_actions() -> None:
+    from sb3_pm.evaluation import compare
+
+    teams = {"sampling": lambda graph: make_team(0.5), "plain": lambda graph: make_team(None)}
+    by_rule = compare(teams, [GRAPH], seeds=[0], episodes=1, n_agents=2, max_cycles=30)
+    assert [run.config["deterministic"] for run in by_rule.results["sampling"]] == [False]
+    assert [run.config["deterministic"] for run in by_rule.results["plain"]] == [True]
+    argmax = compare(teams, [GRAPH], seeds=[0], episodes=1, n_agents=2, max_cycles=30, deterministic=True)
+    assert argmax.config["deterministic"] is True
+    assert argmax.results["sampling"][0].mean == argmax.results["plain"][0].mean  # same parameters
+    assert by_rule.results["sampling"][0].mean != argmax.results["sampling"][0].mean
+
+
+def test_the_compare_command_passes_deterministic_on(tmp_path: Path) -> None:
+    from sb3_pm.cli import main
+
+    make_team(0.5).save(tmp_path / "team")
+    graph_file = save_graphml(GRAPH, tmp_path / "g.graphml")
+    base = ["compare", "--policies", str(tmp_path / "team"), "--graphs", str(graph_file), "--agents", "2"]
+    base += ["--steps", "30", "--episodes", "1", "--no-progress"]
+    assert main([*base, "--out", str(tmp_path / "rule")]) == 0
+    assert main([*base, "--deterministic", "--out", str(tmp_path / "argmax")]) == 0
+    rule, argmax = (json.loads((tmp_path / name / "results.json").read_text()) for name in ("rule", "argmax"))
+    assert "deterministic" not in rule["config"] and argmax["config"]["deterministic"] is True
+    assert rule["results"] != argmax["results"]

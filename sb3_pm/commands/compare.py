@@ -35,6 +35,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+    parser.add_argument(
+        "--deterministic",
+        action="store_true",
+        help="every learned team takes its most likely actions; without it each team acts by its "
+        "config's deploy_temperature, saved with it",
+    )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
     add_compute_options(parser)
     parser.set_defaults(func=run)
@@ -71,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         max_cycles=args.steps,
         progress=False if args.no_progress else None,
         threads=args.threads,
+        deterministic=True if args.deterministic else None,
     )
     comparison.config["command"] = shlex.join(getattr(args, "command_line", ["sb3-pm", *sys.argv[1:]]))
     written = comparison.write(args.out)

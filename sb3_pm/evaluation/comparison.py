@@ -144,6 +144,7 @@ def compare(
     env_kwargs: Mapping[str, Any] | None = None,
     progress: bool | None = False,
     threads: int | None = 1,
+    deterministic: bool | None = None,
 ) -> Comparison:
     """Evaluate every team on every graph for every seed.
 
@@ -153,6 +154,8 @@ def compare(
     :param graphs: preset names or ``.graphml`` paths.
     :param seeds: grid seeds (see the module docstring for the env seeds they give).
     :param threads: torch CPU threads while evaluating (see :func:`~sb3_pm.evaluation.evaluate`).
+    :param deterministic: how learned teams act (see :func:`~sb3_pm.evaluation.evaluate`): ``None``
+        by each team's own ``deploy_temperature``, ``True`` every team by its most likely actions.
     """
     if not teams:
         raise InputError("compare needs at least one policy")
@@ -172,6 +175,7 @@ def compare(
             "max_cycles": max_cycles,
             "env_kwargs": dict(env_kwargs or {}),
             "seed_stride": SEED_STRIDE,
+            **({} if deterministic is None else {"deterministic": deterministic}),
         }
     )
     for label, factory in teams.items():
@@ -191,6 +195,7 @@ def compare(
                         progress=progress,
                         policy_name=label,
                         threads=threads,
+                        deterministic=deterministic,
                     )
                 )
     return comparison
