@@ -42,6 +42,11 @@ class Team(ABC):
     #: ``None`` deterministically; a learned team may set a sampling temperature instead.
     deploy_temperature: float | None = None
 
+    def acts_deterministically(self, deterministic: bool | None) -> bool:
+        """``deterministic`` as given, or, for ``None``, the team's rule: deterministically unless
+        it has a ``deploy_temperature``."""
+        return self.deploy_temperature is None if deterministic is None else bool(deterministic)
+
     def reset(self, env: Any, seed: int | None = None) -> None:
         """Start an episode on ``env`` (already reset). Seeds the team's own randomness."""
         self.env = env

@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sb3_pm.agents.deployment_rule import DeploymentRule
 from sb3_pm.agents.learners import resolve_learner
 from sb3_pm.agents.saved_teams import (
     MANIFEST,
@@ -35,7 +36,7 @@ from sb3_pm.team_interface import Team
 _POLICY_KWARG = {"barrier": "dcbf_barrier"}
 
 
-class LearnedTeam(Team):
+class LearnedTeam(DeploymentRule, Team):
     """Base of the trained teams: the problem they were built for, the graph check, save and load.
 
     Subclasses set :attr:`MANIFEST_FORMAT`, call :meth:`_set_problem` first in ``__init__``, and
@@ -55,7 +56,6 @@ class LearnedTeam(Team):
     algo: str
     policy: str | type
     env_kwargs: dict[str, Any]
-    _deploy_temperature: float | None = None
 
     def _set_problem(
         self,
@@ -128,44 +128,9 @@ class LearnedTeam(Team):
             th.manual_seed(seed)
 
     # ------------------------------------------------- the deployment rule
-    @property
-    def deploy_temperature(self) -> float | None:
-        """How the team acts when nothing says otherwise (``predict(obs)``, ``evaluate()``,
-        ``sb3-pm evaluate`` and ``compare``): ``None`` takes each agent's most likely allowed node
-        (argmax); a temperature samples from ``softmax(logits / T)`` over the allowed nodes, as
-        :meth:`set_sampling_temperature`. Set by the config's ``deploy_temperature`` and saved with
-        the team. Training never reads it.
-
-        :raises InputError: on setting anything but ``None`` or a positive finite number.
-        """
-        return self._deploy_temperature
-
-    @deploy_temperature.setter
-    def deploy_temperature(self, temperature: float | None) -> None:
-        from sb3_pm.policies.sampling import check_deploy_temperature
-
-        value = check_deploy_temperature(temperature)
-        self._apply_deploy_temperature(value)  # first: a team it cannot apply to keeps its rule
-        self._deploy_temperature = value
-
-    def _apply_deploy_temperature(self, temperature: float | None) -> None:
-        """Give the policies the deployment temperature (1, the trained distribution, under argmax).
-
-        :raises InputError: a temperature for a learner without the DCBF policy.
-        """
-        if temperature is not None or self.sampling_temperature not in (None, 1.0):
-            self.set_sampling_temperature(1.0 if temperature is None else temperature)
-
-    @property
-    def sampling_temperature(self) -> float | None:
-        """The temperature sampled actions are drawn at (:meth:`set_sampling_temperature`): the
-        learners' common value, ``None`` if they differ or have none (not DCBF policies)."""
-        values = {getattr(m.policy, "sampling_temperature", None) for m in self.model_files().values()}
-        return values.pop() if len(values) == 1 else None
-
-    def acts_deterministically(self, deterministic: bool | None) -> bool:
-        """``deterministic`` as given, or the deployment rule's choice when it is ``None``."""
-        return self._deploy_temperature is None if deterministic is None else bool(deterministic)
+    def acting_policies(self) -> dict[str, Any]:
+        """``{model file: policy}``: every learner's policy (:class:`DeploymentRule`)."""
+        return {name: model.policy for name, model in self.model_files().items()}
 
     # ------------------------------------------------------ the DCBF filter
     def set_filter(self, **changes: Any) -> None:
@@ -198,18 +163,6 @@ class LearnedTeam(Team):
             # SB3 saves (and rebuilds the policy from) the model's policy_kwargs.
             kwargs = {_POLICY_KWARG.get(key, key): value for key, value in changes.items()}
             model.policy_kwargs = {**model.policy_kwargs, **kwargs}
-
-    def set_sampling_temperature(self, temperature: float) -> None:
-        """Sampled actions (``predict(..., deterministic=False)``) of every learner come from
-        ``softmax(logits / temperature)`` over its allowed nodes, for deployment; deterministic
-        actions are unchanged. Not saved with the team (:attr:`deploy_temperature` is).
-
-        :raises InputError: a temperature that is not a positive finite number, or a learner
-            without the DCBF policy.
-        """
-        from sb3_pm.policies.sampling import set_sampling_temperature
-
-        set_sampling_temperature({name: m.policy for name, m in self.model_files().items()}, temperature)
 
     def filter_activity(self) -> dict[str, int]:
         """Summed over learners since they were built: masks computed with the neglect bound on

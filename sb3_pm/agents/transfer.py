@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from sb3_pm.agents.deployment_rule import DeploymentRule
 from sb3_pm.agents.pruned_inference import PrunedInference
 from sb3_pm.agents.saved_teams import check_same_graph
 from sb3_pm.errors import InputError
@@ -82,7 +83,7 @@ def rebuild_policy(policy: Any, observation_space: Any, action_space: Any) -> An
     return rebuilt.to(policy.device)
 
 
-class TransferredTeam(Team):
+class TransferredTeam(DeploymentRule, Team):
     """A trained team's policies rebuilt for another graph; acts like the team it came from.
 
     :ivar source: the trained team (its graph, agents and settings).
@@ -113,33 +114,11 @@ class TransferredTeam(Team):
             agent: rebuild_policy(source.models[agent].policy, space, action) for agent in self.agents
         }
         #: how the team acts by default, as the source team's (rebuild_policy kept its temperature)
-        self._deploy_temperature: float | None = getattr(source, "deploy_temperature", None)
+        self._deploy_temperature = getattr(source, "deploy_temperature", None)
 
-    @property
-    def deploy_temperature(self) -> float | None:
-        """As :attr:`~sb3_pm.agents.learned_team.LearnedTeam.deploy_temperature`."""
-        return self._deploy_temperature
-
-    @deploy_temperature.setter
-    def deploy_temperature(self, temperature: float | None) -> None:
-        from sb3_pm.policies.sampling import check_deploy_temperature
-
-        value = check_deploy_temperature(temperature)
-        self.set_sampling_temperature(1.0 if value is None else value)  # first: it may refuse
-        self._deploy_temperature = value
-
-    @property
-    def sampling_temperature(self) -> float | None:
-        """As :attr:`~sb3_pm.agents.learned_team.LearnedTeam.sampling_temperature`."""
-        values = {getattr(policy, "sampling_temperature", None) for policy in self.policies.values()}
-        return values.pop() if len(values) == 1 else None
-
-    def set_sampling_temperature(self, temperature: float) -> None:
-        """As :meth:`~sb3_pm.agents.learned_team.LearnedTeam.set_sampling_temperature`, on the
-        rebuilt policies."""
-        from sb3_pm.policies.sampling import set_sampling_temperature
-
-        set_sampling_temperature(self.policies, temperature)
+    def acting_policies(self) -> dict[str, Any]:
+        """``{agent: policy}``: the rebuilt policies (:class:`DeploymentRule`)."""
+        return self.policies
 
     def learner_for(self, agent: str) -> str:
         """The learner acting for ``agent`` (see :meth:`IndependentPPO.learner_for`)."""
@@ -163,8 +142,7 @@ class TransferredTeam(Team):
         """Each agent's action from its learner's rebuilt policy; deterministic actions through one
         stacked pass where it applies, as in ``IndependentPPO.predict`` (``None``: the team's
         :attr:`deploy_temperature` decides)."""
-        if deterministic is None:
-            deterministic = self._deploy_temperature is None
+        deterministic = self.acts_deterministically(deterministic)
         if deterministic and self.stacked_inference:
             self._stacker.prune = self.pruned_inference
             stacked = self._stacker.predict(observations, lambda a: self.policies[self.learner_for(a)])

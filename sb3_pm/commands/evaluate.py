@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -183,7 +182,7 @@ def print_summary(result: Any, stream: Any = None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_pm.errors import UsageError
+    from sb3_pm.errors import InputError, UsageError
     from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
     from sb3_pm.evaluation.teams import team_env_kwargs
     from sb3_pm.graphs import resolve_graph
@@ -195,8 +194,13 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.gif, "--gif")
     if args.neglect_scope is not None and args.neglect_bound is None:
         raise UsageError("--neglect-scope needs --neglect-bound")
-    if args.temperature is not None and not (math.isfinite(args.temperature) and args.temperature > 0):
-        raise UsageError(f"--temperature must be positive and finite, got {args.temperature}")
+    if args.temperature is not None:
+        from sb3_pm.policies.sampling import check_temperature
+
+        try:
+            check_temperature(args.temperature)  # before the team loads
+        except InputError:
+            raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
     team = resolve_team(args.policy, graph=graph, device=args.device)
     apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_temperature(team, args.temperature, args.stochastic)

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pm.evaluation.harness import EpisodeRecord, acts_deterministically, run_episode
+from sb3_pm.evaluation.harness import EpisodeRecord, run_episode
 from sb3_pm.graphs import GraphLike, resolve_graph
 from sb3_pm.team_interface import Team
 
@@ -45,7 +45,7 @@ def record_gif(
     frames: list = []
     try:
         record = run_episode(
-            team, env, seed, frames=frames, deterministic=acts_deterministically(team, deterministic)
+            team, env, seed, frames=frames, deterministic=team.acts_deterministically(deterministic)
         )
     finally:
         env.close()

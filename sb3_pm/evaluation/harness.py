@@ -162,7 +162,7 @@ def evaluate(
         temperature: its ``deploy_temperature`` if it has one, else 1 unless
         ``set_sampling_temperature`` said otherwise. ``None`` (default) follows the team's
         ``deploy_temperature``: deterministic unless its config set a sampling temperature
-        (:func:`acts_deterministically`). Baselines ignore it. A sampled run records the
+        (``Team.acts_deterministically``). Baselines ignore it. A sampled run records the
         temperature in ``config["temperature"]``.
     :param threads: torch CPU threads while the episodes run, restored afterwards (default 1;
         ``None`` leaves torch's setting alone). A learned team's per-step forward passes are far
@@ -177,7 +177,7 @@ def evaluate(
     if threads is not None and threads < 1:
         raise InputError(f"threads must be at least 1, got {threads}")
     spec = resolve_graph(graph)
-    deterministic = acts_deterministically(team, deterministic)
+    deterministic = team.acts_deterministically(deterministic)
     kwargs = dict(env_kwargs or {})
     env = persistent_monitoring_v0.parallel_env(
         graph=spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs
@@ -211,14 +211,6 @@ def evaluate(
     if not deterministic and temperature is not None:  # what the learned team sampled at
         config["temperature"] = temperature
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
-
-
-def acts_deterministically(team: Team, deterministic: bool | None) -> bool:
-    """``deterministic`` as given, or, for ``None``, the team's rule: deterministic unless it has a
-    ``deploy_temperature`` (a learned team whose config samples at deployment)."""
-    if deterministic is None:
-        return getattr(team, "deploy_temperature", None) is None
-    return bool(deterministic)
 
 
 @contextmanager

@@ -154,12 +154,10 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     source = variant.config or cell.config
     assert source is not None
     config = load_config(source, variant.train_env or cell.graph)
-    config.hyperparams.update({**cell.hyperparams, **variant.hyperparams})
+    pins = {**cell.hyperparams, **variant.hyperparams}
+    config.deploy_temperature = pinned_deploy_temperature(config, pins)
+    config.hyperparams.update({key: value for key, value in pins.items() if key != "deploy_temperature"})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
-    if "deploy_temperature" in config.hyperparams:  # a team key: a variant may pin it (null: argmax)
-        from sb3_pm.policies.sampling import check_deploy_temperature
-
-        config.deploy_temperature = check_deploy_temperature(config.hyperparams.pop("deploy_temperature"))
     if variant.policy_kwargs:
         config.hyperparams["policy_kwargs"] = {
             **config.hyperparams.get("policy_kwargs", {}),
@@ -168,6 +166,16 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
     config.n_agents = cell.n_agents
     return config
+
+
+def pinned_deploy_temperature(config: Any, hyperparams: dict[str, Any]) -> float | None:
+    """The config's ``deploy_temperature``, unless the experiment's or the variant's
+    ``hyperparams`` pin it (a team key, never passed to the algorithm; ``null``: argmax)."""
+    if "deploy_temperature" not in hyperparams:
+        return config.deploy_temperature  # type: ignore[no-any-return]
+    from sb3_pm.policies.sampling import check_deploy_temperature
+
+    return check_deploy_temperature(hyperparams["deploy_temperature"])
 
 
 def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
@@ -378,7 +386,6 @@ def deploy_rules(experiment: Experiment) -> dict[str, Any]:
     The record names a config by its path only, so without this an edited ``deploy_temperature``
     would let a resumed folder mix cells evaluated both ways.
     """
-    from sb3_pm.policies.sampling import check_deploy_temperature
     from sb3_pm.zoo.config import load_config
 
     rules: dict[str, Any] = {}
@@ -387,12 +394,10 @@ def deploy_rules(experiment: Experiment) -> dict[str, Any]:
         if not variant.learned or source is None:
             continue
         pins = {**experiment.hyperparams, **variant.hyperparams}
-        per_graph = {}
-        for graph in [variant.train_env] if variant.train_env else experiment.graphs:
-            if "deploy_temperature" in pins:
-                per_graph[graph] = check_deploy_temperature(pins["deploy_temperature"])
-            else:
-                per_graph[graph] = load_config(source, graph).deploy_temperature
+        per_graph = {
+            graph: pinned_deploy_temperature(load_config(source, graph), pins)
+            for graph in ([variant.train_env] if variant.train_env else experiment.graphs)
+        }
         values = set(per_graph.values())
         if values != {None}:
             rules[variant.key] = values.pop() if len(values) == 1 else per_graph
