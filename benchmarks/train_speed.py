@@ -2,7 +2,7 @@
 
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
-                                     [--updates side-by-side serial]
+                                     [--updates side-by-side serial] [--rollouts stacked serial]
                                      [--arithmetic default csr allowed fast fast-sparse]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
@@ -18,6 +18,11 @@ runs (the CPU may be shared; the load average is printed).
 ``--updates`` picks how the learners' update phases run: ``side-by-side`` (the default,
 ``IndependentPPO(concurrent_updates=True)``, each learner's ``train()`` in its own thread) and/or
 ``serial`` (one after another); both give the same parameters, so listing both measures the gain.
+
+``--rollouts`` picks how the learners' rollout passes run: ``stacked`` (the default,
+``IndependentPPO.batched_rollouts``: one stacked pass per joint step for all learners,
+:mod:`sb3_pm.agents.rollout_batching`) and/or ``serial`` (each learner its own pass); both give the
+same parameters, so listing both measures the gain.
 
 ``--arithmetic`` picks the policy's kernels, one or more of: ``default``; ``csr``
 (``gat_sparse_kernel: csr``: sparse matrix products for sparse minibatches; graphs of up to 64
@@ -75,18 +80,29 @@ def _timed(phases: dict[str, float], name: str, method: Callable[..., Any]) -> C
     return wrapper
 
 
-def _instrument(team: Any, phases: dict[str, float]) -> None:
-    """Time the team's phases (see the module docstring) into ``phases``."""
+def _instrument(team: Any, phases: dict[str, float]) -> Callable[[], None]:
+    """Time the team's phases (see the module docstring) into ``phases``; returns what undoes the
+    patches of classes."""
+    from sb3_pm.agents.rollout_batching import RolloutBatcher
     from sb3_pm.callbacks import EstimatorCallback
 
     team.hub._joint_step = _timed(phases, "environment step", team.hub._joint_step)
     for model in team.models.values():
         policy = model.policy
-        for name in ("forward_with_masks", "predict_values"):
+        # forward_with_masks for other algorithms' ... and rollout_heads/sample_masked for DCBFPPO's
+        for name in ("forward_with_masks", "rollout_heads", "sample_masked", "predict_values"):
             if hasattr(policy, name):
                 setattr(policy, name, _timed(phases, "rollout inference", getattr(policy, name)))
         model.train = _timed(phases, "train()", model.train)
-    EstimatorCallback.fit = _timed(phases, "estimator fit", EstimatorCallback.fit)
+    fit, heads = EstimatorCallback.fit, RolloutBatcher.heads
+    EstimatorCallback.fit = _timed(phases, "estimator fit", fit)  # type: ignore[method-assign]
+    RolloutBatcher.heads = _timed(phases, "rollout inference", heads)  # type: ignore[method-assign]
+
+    def undo() -> None:
+        EstimatorCallback.fit = fit  # type: ignore[method-assign]
+        RolloutBatcher.heads = heads  # type: ignore[method-assign]
+
+    return undo
 
 
 def team_speed(
@@ -99,6 +115,7 @@ def team_speed(
     profile: bool = False,
     concurrent: bool = True,
     arithmetic: str = "default",
+    rollouts: str = "stacked",
 ) -> float:
     """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
@@ -119,21 +136,17 @@ def team_speed(
         kwargs = options["hyperparams"].get("policy_kwargs", {})
         options["hyperparams"]["policy_kwargs"] = {**kwargs, **ARITHMETIC[arithmetic]}
     team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, **options)
+    team.batched_rollouts = rollouts == "stacked"
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
     team.learn(rollout)  # warm-up: one rollout and one train() per learner
     phases: dict[str, float] = defaultdict(float)
-    original_fit = None
-    if profile:
-        from sb3_pm.callbacks import EstimatorCallback
-
-        original_fit = EstimatorCallback.fit
-        _instrument(team, phases)
+    undo = _instrument(team, phases) if profile else None
     start = time.perf_counter()
     try:
         team.learn(timesteps, reset_num_timesteps=False)
     finally:
-        if original_fit is not None:
-            EstimatorCallback.fit = original_fit  # type: ignore[method-assign]
+        if undo is not None:
+            undo()
     elapsed = time.perf_counter() - start
     if profile:
         if not concurrent:
@@ -177,6 +190,13 @@ def main() -> None:
         help="how the learners' update phases run (default side-by-side; give both to compare)",
     )
     parser.add_argument(
+        "--rollouts",
+        nargs="+",
+        choices=["stacked", "serial"],
+        default=["stacked"],
+        help="how the learners' rollout passes run (default stacked; give both to compare)",
+    )
+    parser.add_argument(
         "--arithmetic",
         nargs="+",
         choices=list(ARITHMETIC),
@@ -193,9 +213,9 @@ def main() -> None:
         + f"; load average {os.getloadavg()[0]:.2f}"
     )
     cartpole = cartpole_speed(args.cartpole_timesteps)
-    print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<56} {cartpole:>10.0f} steps/s")
+    print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<62} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
-        for mode, arithmetic in itertools.product(args.updates, args.arithmetic):
+        for mode, rollouts, arithmetic in itertools.product(args.updates, args.rollouts, args.arithmetic):
             runs = [
                 team_speed(
                     graph,
@@ -207,15 +227,16 @@ def main() -> None:
                     args.profile,
                     concurrent=mode == "side-by-side",
                     arithmetic=arithmetic,
+                    rollouts=rollouts,
                 )
                 for _ in range(args.repeats)
             ]
             speed = statistics.median(runs)
             paper = 4 * 50_000 / speed
             spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
-            label = f"team {graph} ({args.algo or 'config'}, {mode}, {arithmetic})"
+            label = f"team {graph} ({args.algo or 'config'}, {mode}, {rollouts}, {arithmetic})"
             print(
-                f"{label:<56} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
+                f"{label:<62} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
                 f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"
             )
 

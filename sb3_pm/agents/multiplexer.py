@@ -142,6 +142,9 @@ class ParallelEnvMultiplexer(LearnerStreams):
         self._ep_lengths = np.zeros(self.n_envs, dtype=np.int64)
         self._t_start = time.time()
         self._last_obs: list[list[dict[str, Any]]] = [[{} for _ in range(self.n_envs)] for _ in self.agents]
+        #: per agent, the batched observation object its ``VecEnv`` returned last (what its learner
+        #: keeps as ``_last_obs`` and acts on next), ``None`` before the first reset
+        self.published: list[VecEnvObs | None] = [None] * self.n_agents
         self.vec_envs = [AgentVecEnv(self, i) for i in range(self.n_agents)]
 
     # ------------------------------------------------------------------ public
@@ -338,10 +341,8 @@ class ParallelEnvMultiplexer(LearnerStreams):
         self._ep_lengths[:] = 0
         for i, agent in enumerate(self.agents):
             self._last_obs[i] = [obs[agent] for obs, _ in per_env]
-            self._results[i] = (
-                self._stack(agent, self._last_obs[i]),
-                [dict(infos.get(agent, {})) for _, infos in per_env],
-            )
+            self.published[i] = self._stack(agent, self._last_obs[i])
+            self._results[i] = (self.published[i], [dict(infos.get(agent, {})) for _, infos in per_env])
 
     def _joint_step(self) -> None:
         n, e = self.n_agents, self.n_envs
@@ -384,7 +385,8 @@ class ParallelEnvMultiplexer(LearnerStreams):
                     new_obs[i][k] = reset_obs[agent]
         for i, agent in enumerate(self.agents):
             self._last_obs[i] = new_obs[i]
-            self._results[i] = (self._stack(agent, new_obs[i]), rewards[i].copy(), dones.copy(), infos_out[i])
+            self.published[i] = self._stack(agent, new_obs[i])
+            self._results[i] = (self.published[i], rewards[i].copy(), dones.copy(), infos_out[i])
         if self.on_round is not None:
             self.on_round(n * e)
 

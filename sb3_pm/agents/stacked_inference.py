@@ -170,66 +170,87 @@ class StackedInference:
         self._graph_cache: tuple[th.Tensor, th.Tensor | None, th.Tensor] | None = None
         self._stack: _Stack | None = None
 
-    def problem(self, policies: Sequence[Any]) -> str | None:
-        """Why ``policies`` cannot act stacked now: :func:`stack_problem`, or a failed check of the
-        rounding (remembered for the same policy objects and thread count; the filter settings,
+    def problem(self, policies: Sequence[Any], maps: int = 1, values: bool = False) -> str | None:
+        """Why ``policies`` cannot act stacked now, ``maps`` maps each (``values``: the critic's
+        values are wanted too): :func:`stack_problem`, or a failed check of the rounding
+        (remembered for the same policy objects, thread count and batch; the filter settings,
         which deployment may change, are compared on every call)."""
-        ids = (*(id(p) for p in policies), th.get_num_threads())
+        ids = (*(id(p) for p in policies), th.get_num_threads(), maps, values)
         if ids != self._ids:
             self._ids, self._problem = ids, stack_problem(policies)
             self._graph_cache = None  # other policies may encode the same maps differently
             self._stack = None if self._problem is not None else _Stack(policies)
-            if self._stack is not None and not self._rounds_as_serial(self._stack):
+            if self._stack is not None and not self._rounds_as_serial(self._stack, maps, values):
                 self._problem = "on this machine the stacked pass does not round as the serial one"
                 self._stack = None
         if self._problem is None and any(p.dcbf_config != policies[0].dcbf_config for p in policies):
             return "the policies' DCBF filter settings differ"
         return self._problem
 
-    def _rounds_as_serial(self, stack: _Stack) -> bool:
-        """Whether the stacked logits equal each policy's own on random maps of its observation
-        space, to the last bit (drawn from a generator of their own: nothing else's state moves)."""
+    def _rounds_as_serial(self, stack: _Stack, maps: int = 1, values: bool = False) -> bool:
+        """Whether the stacked logits (and with ``values`` the masks and values) equal each
+        policy's own on random batches of ``maps`` maps of its observation space, to the last bit
+        (drawn from a generator of their own: nothing else's state moves)."""
         rng = np.random.default_rng(0)
-        return all(self._rounds_as_serial_on(stack, rng) for _ in range(_CHECKS))
+        return all(self._rounds_as_serial_on(stack, rng, maps, values) for _ in range(_CHECKS))
 
-    def _rounds_as_serial_on(self, stack: _Stack, rng: np.random.Generator) -> bool:
+    def _rounds_as_serial_on(self, stack: _Stack, rng: np.random.Generator, maps: int, values: bool) -> bool:
         """One draw of :meth:`_rounds_as_serial`."""
-        pre = self._random_maps(stack, rng)
+        pre = self._random_maps(stack, rng, maps)
         if pre is None:
             return True  # such maps never take this pass
-        k, n = pre["nodes"].shape[:2]
+        n = pre["nodes"].shape[1]
         with th.no_grad():
-            masks = th.ones((k, n), dtype=th.bool)
-            stacked = self._logits_given(stack, pre, self._uncertainty(stack, pre))
+            u_hat = self._uncertainty(stack, pre)
+            if values:
+                masks, _ = stack.policies[0].filtered_masks(pre, u_hat, None)
+                stacked, stacked_values = self._heads_given(stack, pre, u_hat)
+            else:
+                masks = th.ones((len(stack.policies) * maps, n), dtype=th.bool)
+                stacked = self._logits_given(stack, pre, u_hat)
             for i, policy in enumerate(stack.policies):
-                alone = {key: value[i : i + 1].clone() for key, value in pre.items()}
-                serial = policy._logits(alone, policy.uncertainty(alone), masks[i : i + 1])
-                if not th.equal(serial[0], stacked[i]):
+                rows = slice(i * maps, (i + 1) * maps)
+                alone = {key: value[rows].clone() for key, value in pre.items()}
+                alone_u = policy.uncertainty(alone)
+                if values:
+                    alone_masks, _ = policy.filtered_masks(alone, alone_u, None)
+                    serial, serial_values = policy._heads(alone, alone_u, alone_masks)
+                    if not (
+                        th.equal(alone_masks, masks[rows]) and th.equal(serial_values, stacked_values[rows])
+                    ):
+                        return False
+                else:
+                    serial = policy._logits(alone, alone_u, masks[rows])
+                if not th.equal(serial, stacked[rows]):
                     return False
         return True
 
     def _random_maps(
-        self, stack: _Stack, rng: np.random.Generator, density: float = 0.3
+        self, stack: _Stack, rng: np.random.Generator, maps: int = 1, density: float = 0.3
     ) -> dict[str, th.Tensor] | None:
-        """Preprocessed random maps of the policies' observation space, one per policy, each edge
-        known with probability ``density``, with the stack refreshed (``None`` if they would not
-        take the dense kernel, hence not this pass)."""
+        """Preprocessed random maps of the policies' observation space, ``maps`` per policy (policy
+        ``k``'s are rows ``k * maps`` to ``(k + 1) * maps - 1``), each edge known with probability
+        ``density``, with the stack refreshed (``None`` if they would not take the dense kernel,
+        hence not this pass)."""
         first = stack.policies[0]
         space = first.observation_space
-        k, n = len(stack.policies), first.n_nodes
+        k, n = len(stack.policies) * maps, first.n_nodes
         nodes_space = space["nodes"]  # type: ignore[index]
         nodes = rng.uniform(0.0, 1.0, (k, *nodes_space.shape)) * nodes_space.high
         nodes = np.round(nodes).astype(nodes_space.dtype)  # the env's counters are integers
         upper = np.triu(rng.random((k, n, n)) < density, 1)
         adjacency = (upper | upper.transpose(0, 2, 1)).astype(space["adjacency"].dtype)  # type: ignore[index]
+        position = rng.integers(0, n, k)
+        mask = adjacency.astype(bool)[np.arange(k), position]  # a reachable set: the node and its neighbours
+        mask[np.arange(k), position] = True
         arrays = {
             "nodes": th.as_tensor(nodes),
             "adjacency": th.as_tensor(adjacency),
-            "position": th.as_tensor(rng.integers(0, n, k)),
+            "position": th.as_tensor(position),
             "dwell": th.as_tensor(rng.integers(0, 5, (k, 1)).astype(np.float32)),
-            "action_mask": th.ones((k, n), dtype=th.int8),
+            "action_mask": th.as_tensor(mask.astype(np.int8)),
         }
-        if not _all_dense(first, arrays["adjacency"]):
+        if not _all_dense(first, arrays["adjacency"], maps):
             return None
         stack.refresh()
         with th.no_grad():
@@ -271,17 +292,24 @@ class StackedInference:
             return self._logits_given(self._stack, pre, u_hat), masks
 
     def prepare(
-        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]], maps: int | None = None
     ) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor] | None:
         """The stacked pass up to the actor: the preprocessed maps, every policy's ``û`` on its own
-        map and its DCBF mask (counting rule 8's decisions), with the parameters stacked anew;
+        maps and its DCBF mask (counting rule 8's decisions), with the parameters stacked anew;
         ``None`` where this step must run serially.
 
+        :param maps: ``None``: each observation is one map, acted on as ``predict`` does (the
+            observation's ``action_mask`` is intersected with the filter's); a number: each is a
+            batch of that many maps, as a rollout's ``forward`` sees them (the filter's mask alone).
+
         Shapes:
-            - observations: ``K`` mental-map observations (numpy), one per policy
-            - output: the maps (``(K, ...)`` each), ``û`` ``(K, N)``, masks ``(K, N)`` bool
+            - observations: ``K`` mental-map observations (numpy), one per policy, each one map or
+              ``(maps, ...)``
+            - output: the maps (``(K * maps, ...)`` each, policy ``k``'s first), ``û`` ``(K * maps, N)``,
+              masks ``(K * maps, N)`` bool
         """
-        if len(policies) != len(observations) or self.problem(policies) is not None:
+        batch = 1 if maps is None else maps
+        if len(policies) != len(observations) or self.problem(policies, batch, maps is not None) is not None:
             return None
         stack = self._stack
         assert stack is not None
@@ -291,23 +319,57 @@ class StackedInference:
         for key in MAP_KEYS:
             shape = space[key].shape  # type: ignore[index]
             values = [np.asarray(obs[key]) for obs in observations]
-            if any(v.shape not in (shape, (1, *shape)) for v in values):
+            allowed = (shape, (1, *shape)) if maps is None else ((maps, *shape),)
+            if any(v.shape not in allowed for v in values):
                 return None  # the serial path raises SB3's error for it
-            arrays[key] = th.as_tensor(np.stack([v.reshape(shape) for v in values]))  # CPU only
-        if not _all_dense(first, arrays["adjacency"]):
+            arrays[key] = th.as_tensor(np.concatenate([v.reshape(batch, *shape) for v in values]))  # CPU only
+        if not _all_dense(first, arrays["adjacency"], batch):
             return None  # a map the serial path would run through the sparse kernel
+        if batch * first.n_nodes >= GATHER_MIN_ROWS:
+            return None  # the serial estimator would gather the known targets' rows
         for policy in policies:
-            policy.set_training_mode(False)  # as SB3's predict does
+            policy.set_training_mode(False)  # as SB3's predict and collect_rollouts do
         stack.refresh()
         with th.no_grad():
             pre = first._preprocess(arrays)
             u_hat = self._uncertainty(stack, pre)
-            # The filter has no parameters: one call on the K maps, each row its own.
-            masks, forced = first.filtered_masks(pre, u_hat, arrays["action_mask"])
+            # The filter has no parameters: one call on all the maps, each row its own.
+            given = arrays["action_mask"] if maps is None else None
+            masks, forced = first.filtered_masks(pre, u_hat, given)
             if forced is not None:
                 for k, policy in enumerate(policies):
-                    policy.count_forced(forced[k : k + 1])
+                    policy.count_forced(forced[k * batch : (k + 1) * batch])
             return pre, u_hat, masks
+
+    def rollout_heads(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+    ) -> list[tuple[th.Tensor, th.Tensor, th.Tensor]] | None:
+        """Every policy's :meth:`~sb3_pm.policies.DCBFActorCriticPolicy.rollout_heads` on its own
+        batch of maps (a learner's ``VecEnv`` observation), bit for bit; ``None`` where this step
+        must run serially. Counts rule 8's decisions in each policy's ``filter_counts``.
+
+        Shapes:
+            - observations: ``K`` observations (numpy dicts), each ``(B, ...)`` per key
+            - output: per policy, logits ``(B, N)``, values ``(B, 1)`` and masks ``(B, N)`` bool
+        """
+        if not observations or "nodes" not in observations[0]:
+            return None
+        maps = int(np.shape(observations[0]["nodes"])[0])
+        prepared = self.prepare(policies, observations, maps)
+        if prepared is None:
+            return None
+        pre, u_hat, masks = prepared
+        assert self._stack is not None
+        with th.no_grad():
+            logits, values = self._heads_given(self._stack, pre, u_hat)
+        return [
+            (
+                logits[k * maps : (k + 1) * maps],
+                values[k * maps : (k + 1) * maps],
+                masks[k * maps : (k + 1) * maps],
+            )
+            for k in range(len(policies))
+        ]
 
     def predict(
         self, observations: Mapping[str, Mapping[str, Any]], policy_for: Callable[[str], Any]
@@ -327,14 +389,28 @@ class StackedInference:
         return self._estimate(stack, pre) if first.estimator is not None else first.uncertainty(pre)
 
     def _logits_given(self, stack: _Stack, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> th.Tensor:
-        """Each policy's logits ``(K, N)`` on its own map, given ``û`` ``(K, N)``."""
+        """Each policy's logits ``(K * B, N)`` on its own ``B`` maps, given ``û`` ``(K * B, N)``."""
         first = stack.policies[0]
         return self._actor(stack, *first._with_estimate(self._embed(stack, pre), pre, u_hat))
 
+    def _heads_given(
+        self, stack: _Stack, pre: dict[str, th.Tensor], u_hat: th.Tensor
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """Each policy's logits ``(K * B, N)`` and values ``(K * B, 1)`` on its own ``B`` maps. The
+        critic (two small layers on ``B`` rows) runs policy by policy, on its own modules."""
+        first = stack.policies[0]
+        embeddings, own = first._with_estimate(self._embed(stack, pre), pre, u_hat)
+        groups = _groups(stack, embeddings)
+        values = th.cat(
+            [p._value(embeddings[rows].clone(), own[rows].clone()) for p, rows in zip(stack.policies, groups)]
+        )
+        return self._actor(stack, embeddings, own), values
+
     @staticmethod
     def _mlp(stack: _Stack, prefix: str, layers: nn.Sequential, x: th.Tensor, start: int = 0) -> th.Tensor:
-        """``layers[start:]`` on ``x`` ``(K, N, d)``, each map with its own policy's weights."""
+        """``layers[start:]`` on ``x`` ``(K * B, N, d)``, each policy's ``B`` maps with its own weights."""
         n = x.shape[1]
+        k = len(stack.policies)
         for i, layer in enumerate(layers):
             if i < start:
                 continue
@@ -343,14 +419,17 @@ class StackedInference:
                     x = _per_map(stack, f"{prefix}.{i}", x)
                 else:
                     weight, bias = stack.weights[f"{prefix}.{i}.weight"], stack.weights[f"{prefix}.{i}.bias"]
-                    x = th.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+                    rows = x.shape[0] * n // k
+                    x = th.baddbmm(bias.unsqueeze(1), x.reshape(k, rows, -1), weight.transpose(1, 2))
+                    x = x.view(-1, n, x.shape[-1])
             else:
-                x = _activation(layer, x, n)
+                x = _activation(layer, x, n, k)
         return x
 
     def _estimate(self, stack: _Stack, pre: dict[str, th.Tensor]) -> th.Tensor:
-        """``û`` ``(K, N)``: :meth:`StateEstimator.forward <sb3_pm.policies.estimator.StateEstimator.forward>`
-        per map (a map's ``N`` rows are below the estimator's row-gathering size)."""
+        """``û`` ``(K * B, N)``: :meth:`StateEstimator.forward
+        <sb3_pm.policies.estimator.StateEstimator.forward>` per policy (its ``B`` maps' rows are
+        below the estimator's row-gathering size)."""
         first = stack.policies[0]
         estimator: StateEstimator | None = first.estimator  # type: ignore[assignment]
         assert estimator is not None
@@ -372,74 +451,97 @@ class StackedInference:
         return encoding, bias
 
     def _embed(self, stack: _Stack, pre: dict[str, th.Tensor]) -> th.Tensor:
-        """The GAT embeddings ``(K, N, h)``: ``GATFeaturesExtractor.node_embeddings`` on the dense
-        kernel, each map with its own policy's weights."""
+        """The GAT embeddings ``(K * B, N, h)``: ``GATFeaturesExtractor.node_embeddings`` on the
+        dense kernel, each policy's ``B`` maps with its own weights."""
         extractor: GATFeaturesExtractor = stack.policies[0].features_extractor  # type: ignore[assignment]
         adjacency = pre["adjacency"]
         encoding, bias = self._graph_inputs(extractor, adjacency)
-        x = extractor.node_features(pre)  # (K, N, F): scaled by the observation space's highs
+        x = extractor.node_features(pre)  # (K * B, N, F): scaled by the observation space's highs
         n = x.shape[1]
+        k = len(stack.policies)
         for i, module in enumerate(extractor.gat):
             layer: GraphAttention = module  # type: ignore[assignment]
             h, a_dst, a_src = _project(stack, i, layer, x, encoding if i == 0 else None)
             alpha = attention_probabilities(a_dst, a_src, bias, float(layer.conv.negative_slope))
-            out = th.matmul(alpha, h).mean(1) + stack.weights[
-                f"features_extractor.gat.{i}.conv.bias"
-            ].unsqueeze(1)
-            x = _activation(extractor.activation, out, n)
+            layer_bias = _per_policy(stack.weights[f"features_extractor.gat.{i}.conv.bias"], x.shape[0] // k)
+            out = th.matmul(alpha, h).mean(1) + layer_bias.unsqueeze(1)
+            x = _activation(extractor.activation, out, n, k)
         return x
 
     @staticmethod
     def _actor(stack: _Stack, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
-        """``DCBFActorCriticPolicy._actor_logits`` (``actor_nodes: all``) per map: ``(K, N)``."""
+        """``DCBFActorCriticPolicy._actor_logits`` (``actor_nodes: all``) per policy: ``(K * B, N)``."""
         return _per_map(stack, "action_net", StackedInference._actor_hidden(stack, embeddings, own)).squeeze(
             -1
         )
 
     @staticmethod
     def _actor_hidden(stack: _Stack, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
-        """The actor body per map, on every row given: ``(K, R, d)``, own ``(K, h)`` -> ``(K, R, w)``."""
+        """The actor body per policy, on every row given: ``(K * B, R, d)``, own ``(K * B, h)`` ->
+        ``(K * B, R, w)`` (policy ``k``'s ``B`` maps first)."""
         policies = stack.policies
         width = embeddings.shape[-1]
         weight, bias = stack.weights["actor_body.0.weight"], stack.weights["actor_body.0.bias"]
-        per_node = th.baddbmm(bias.unsqueeze(1), embeddings, weight[:, :, :width].transpose(1, 2))
-        # The product with the own node's embedding has one row: map by map (see the module docstring).
-        per_map = th.stack(
+        per_node = th.baddbmm(
+            bias.unsqueeze(1),
+            embeddings.reshape(len(policies), -1, width),
+            weight[:, :, :width].transpose(1, 2),
+        ).view(*embeddings.shape[:-1], -1)
+        # The product with the own node's embedding has one row per map: policy by policy, as the
+        # serial path computes it on its B maps (see the module docstring).
+        per_map = th.cat(
             [
-                nn.functional.linear(own[k : k + 1].clone(), _first_weight(p)[:, width:])
-                for k, p in enumerate(policies)
+                nn.functional.linear(own[rows].clone(), _first_weight(p)[:, width:])
+                for p, rows in zip(policies, _groups(stack, own))
             ]
-        )  # (K, 1, w)
+        ).unsqueeze(1)  # (K * B, 1, w)
         return StackedInference._mlp(stack, "actor_body", policies[0].actor_body, per_node + per_map, start=1)
 
 
 def _project(
     stack: _Stack, index: int, layer: GraphAttention, x: th.Tensor, encoding: th.Tensor | None
 ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
-    """GAT layer ``index``'s projection of every node, each map with its own policy's weights:
-    ``h`` ``(K, H, N, C)`` and the attention terms ``a_dst``, ``a_src`` ``(K, H, N)``
-    (``GraphAttention._project``, with the first layer's positional ``encoding`` ``(K, N, E)``)."""
+    """GAT layer ``index``'s projection of every node, each policy's ``B`` maps with its own
+    weights: ``h`` ``(K * B, H, N, C)`` and the attention terms ``a_dst``, ``a_src``
+    ``(K * B, H, N)`` (``GraphAttention._project``, with the first layer's positional ``encoding``
+    ``(K * B, N, E)``)."""
     prefix = f"features_extractor.gat.{index}.conv"
     weight = stack.weights[f"{prefix}.lin.weight"]  # (K, heads * C, F [+ E])
     batch, n, features = x.shape
+    k = weight.shape[0]
     heads, channels = int(layer.heads), int(layer.out_channels)
+    by_policy = x.reshape(k, -1, features)  # (K, B * N, F)
     if encoding is not None:
-        h = th.bmm(x, weight[:, :, :features].transpose(1, 2)) + th.matmul(
-            encoding, weight[:, :, features:].transpose(1, 2)
+        h = th.bmm(by_policy, weight[:, :, :features].transpose(1, 2)) + th.matmul(
+            encoding.reshape(k, -1, encoding.shape[-1]), weight[:, :, features:].transpose(1, 2)
         )
     else:
-        h = th.bmm(x, weight.transpose(1, 2))
-    h = h.view(batch, n, heads, channels).transpose(1, 2).contiguous()  # (K, H, N, C)
-    att_src = stack.weights[f"{prefix}.att_src"].view(batch, heads, 1, channels)
-    att_dst = stack.weights[f"{prefix}.att_dst"].view(batch, heads, 1, channels)
+        h = th.bmm(by_policy, weight.transpose(1, 2))
+    h = h.view(batch, n, heads, channels).transpose(1, 2).contiguous()  # (K * B, H, N, C)
+    att_src = _per_policy(stack.weights[f"{prefix}.att_src"], batch // k).view(batch, heads, 1, channels)
+    att_dst = _per_policy(stack.weights[f"{prefix}.att_dst"], batch // k).view(batch, heads, 1, channels)
     return h, (h * att_dst).sum(-1), (h * att_src).sum(-1)
 
 
-def _all_dense(policy: DCBFActorCriticPolicy, adjacency: th.Tensor) -> bool:
-    """Whether the serial path would run every map of ``adjacency`` ``(K, N, N)`` through the dense
-    kernel (it decides per call, and a serial call holds one map)."""
+def _all_dense(policy: DCBFActorCriticPolicy, adjacency: th.Tensor, maps: int = 1) -> bool:
+    """Whether the serial path would run every map of ``adjacency`` ``(K * maps, N, N)`` through
+    the dense kernel (it decides per call, and a serial call holds one policy's ``maps`` maps)."""
     extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
-    return all(use_dense(adjacency[k : k + 1], extractor.backend) for k in range(adjacency.shape[0]))
+    return all(
+        use_dense(adjacency[start : start + maps], extractor.backend)
+        for start in range(0, adjacency.shape[0], maps)
+    )
+
+
+def _groups(stack: _Stack, x: th.Tensor) -> list[slice]:
+    """The rows of ``x`` ``(K * B, ...)`` that belong to each policy (its ``B`` maps, in order)."""
+    size = x.shape[0] // len(stack.policies)
+    return [slice(k * size, (k + 1) * size) for k in range(len(stack.policies))]
+
+
+def _per_policy(weights: th.Tensor, maps: int) -> th.Tensor:
+    """Stacked weights ``(K, ...)`` repeated for each policy's ``maps`` maps: ``(K * maps, ...)``."""
+    return weights if maps == 1 else weights.repeat_interleave(maps, dim=0)
 
 
 def _first_weight(policy: DCBFActorCriticPolicy) -> th.Tensor:
@@ -449,18 +551,22 @@ def _first_weight(policy: DCBFActorCriticPolicy) -> th.Tensor:
 
 
 def _per_map(stack: _Stack, name: str, x: th.Tensor) -> th.Tensor:
-    """The linear layer ``name`` of each policy on its own map: ``(K, N, d) -> (K, N, out)``,
-    each on a fresh copy of the map's rows, as the serial path's input is."""
-    return th.cat([p.get_submodule(name)(x[k : k + 1].clone()) for k, p in enumerate(stack.policies)])
+    """The linear layer ``name`` of each policy on its own maps: ``(K * B, N, d) -> (K * B, N, out)``,
+    each on a fresh copy of its ``B`` maps' rows, as the serial path's input is."""
+    return th.cat(
+        [p.get_submodule(name)(x[rows].clone()) for p, rows in zip(stack.policies, _groups(stack, x))]
+    )
 
 
-def _activation(layer: nn.Module, x: th.Tensor, n: int) -> th.Tensor:
-    """``layer`` on ``x`` ``(K, N, d)``: batched where each map rounds as alone, else map by map
-    (see the module docstring: whole blocks of :data:`TAIL_FREE`, and one thread at this size)."""
+def _activation(layer: nn.Module, x: th.Tensor, n: int, policies: int | None = None) -> th.Tensor:
+    """``layer`` on ``x`` ``(K * B, N, d)``: batched where each policy's maps round as alone, else
+    policy by policy (see the module docstring: whole blocks of :data:`TAIL_FREE`, and one thread
+    at this size). ``policies``: ``K`` (default: one map per policy)."""
     if isinstance(layer, _TRANSCENDENTAL) and (
         (n * x.shape[-1]) % TAIL_FREE or (th.get_num_threads() > 1 and x.numel() > _ONE_THREAD_ELEMENTS)
     ):
-        return th.cat([layer(x[k : k + 1].clone()) for k in range(x.shape[0])])
+        size = x.shape[0] // (policies or x.shape[0])
+        return th.cat([layer(x[start : start + size].clone()) for start in range(0, x.shape[0], size)])
     return layer(x)  # type: ignore[no-any-return]
 
 

@@ -52,6 +52,7 @@ from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
 from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_kwargs
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
 from sb3_pm.agents.pruned_inference import PrunedInference
+from sb3_pm.agents.rollout_batching import RolloutBatcher
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
 from sb3_pm.agents.transfer import on_graph, transfer_problem
@@ -110,6 +111,9 @@ class IndependentPPO(LearnedTeam):
     #: in that pass, decide from the allowed nodes' logits where that gives the same action
     #: (:mod:`sb3_pm.agents.pruned_inference`); ``False`` computes every node's logit
     pruned_inference: bool = True
+    #: while training, run the learners' rollout passes as one stacked pass per joint step where it
+    #: applies (:mod:`sb3_pm.agents.rollout_batching`; the same parameters bit for bit)
+    batched_rollouts: bool = True
 
     def __init__(
         self,
@@ -298,6 +302,9 @@ class IndependentPPO(LearnedTeam):
             )
             self.hub.on_round = bar.update
         self.hub.on_sync = lambda: checkpoint_at_barrier(self, checkpoints)
+        batcher = self._rollout_batcher()
+        if batcher is not None:
+            batcher.attach()
         try:
             errors = learn_concurrently(
                 [self.models[a] for a in self.agents],
@@ -311,6 +318,8 @@ class IndependentPPO(LearnedTeam):
                 raise TrainingInterrupted(checkpoints.last) from None
             raise
         finally:
+            if batcher is not None:
+                batcher.detach()
             self.hub.on_round = None
             self.hub.on_sync = None
             load_stream(caller_stream)
@@ -320,6 +329,16 @@ class IndependentPPO(LearnedTeam):
         if self.hub.aborted is not None:
             logger.warning("team training ended early: %s", self.hub.aborted)
         return self
+
+    def _rollout_batcher(self) -> RolloutBatcher | None:
+        """A batcher for this run's rollout passes, or ``None`` (switched off, learners without the
+        hook, or no baton: the passes are stacked only while one learner acts at a time)."""
+        models = [self.models[a] for a in self.agents]
+        if not (self.batched_rollouts and self.hub.strict_order):
+            return None
+        if not all(hasattr(m, "rollout_heads_source") for m in models):  # DCBFPPO learners only
+            return None
+        return RolloutBatcher(self.hub, models)
 
     # ------------------------------------------------------------ acting
     def learner_for(self, agent: str) -> str:

@@ -484,25 +484,45 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     def forward_with_masks(
         self, obs: PyTorchObs, deterministic: bool = False
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-        """Sample actions under the DCBF mask and return that mask too.
+        """Sample actions under the DCBF mask and return that mask too: :meth:`rollout_heads`, then
+        :meth:`sample_masked`.
 
         :return: actions ``(B,)``, values ``(B, 1)``, log-probabilities ``(B,)`` and masks ``(B, N)`` bool.
         """
+        logits, values, masks = self.rollout_heads(obs)
+        actions, log_probs = self.sample_masked(logits, masks, deterministic)
+        return actions, values, log_probs, masks
+
+    def rollout_heads(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """What a rollout step computes before its draw: logits ``(B, N)``, values ``(B, 1)`` and
+        the DCBF masks ``(B, N)`` bool (counting rule 8's decisions)."""
         pre = self._preprocess(obs)
         u_hat = self.uncertainty(pre)
         masks = self._masks(pre, u_hat, None)
         logits, values = self._heads(pre, u_hat, masks)
-        # sb3-contrib's masked categorical, without building distribution objects: this runs once
-        # per env step with a batch of n_envs, where constructing and re-masking two Categoricals
-        # (each normalizing its logits) cost about a quarter of the step. Same masking constant,
-        # same normalization and the same multinomial draw as MaskableCategorical.sample().
+        return logits, values, masks
+
+    @staticmethod
+    def sample_masked(
+        logits: th.Tensor, masks: th.Tensor, deterministic: bool = False
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """An action per map from ``softmax(logits)`` over the allowed nodes (the most likely one
+        with ``deterministic``), drawn from torch's generator, and its log-probability.
+
+        sb3-contrib's masked categorical, without building distribution objects: this runs once per
+        env step with a batch of n_envs, where constructing and re-masking two Categoricals (each
+        normalizing its logits) cost about a quarter of the step. Same masking constant, same
+        normalization and the same multinomial draw as ``MaskableCategorical.sample()``.
+
+        Shapes: logits ``(B, N)``, masks ``(B, N)`` bool -> actions ``(B,)``, log-probabilities ``(B,)``.
+        """
         masked = th.where(masks, logits, _HUGE_NEG.to(logits.dtype))
         log_probs = th.log_softmax(masked, dim=-1)  # (B, N)
         if deterministic:
             actions = log_probs.argmax(-1)
         else:
             actions = th.multinomial(th.softmax(masked, dim=-1), 1, True).squeeze(-1)
-        return actions, values, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1), masks
+        return actions, log_probs.gather(-1, actions.unsqueeze(-1)).squeeze(-1)
 
     def forward(  # type: ignore[override]
         self, obs: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None

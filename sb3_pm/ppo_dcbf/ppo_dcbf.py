@@ -26,6 +26,7 @@ Usage::
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -96,6 +97,13 @@ class DCBFPPO(MaskablePPO):
             raise InputError(f"ent_coef_final must be a non-negative number or None, got {ent_coef_final!r}")
         self.estimator_update_at = estimator_update_at
         self.ent_coef_final = None if ent_coef_final is None else float(ent_coef_final)
+        #: where a rollout step's logits, values and masks come from instead of this learner's own
+        #: forward pass (:meth:`collect_rollouts`): a callable given the learner's last observation
+        #: that returns ``(logits, values, masks)`` equal to ``policy.rollout_heads`` on it, or
+        #: ``None`` to compute them here. A team sets it to batch its learners' passes; never saved.
+        self.rollout_heads_source: Callable[[Any], tuple[th.Tensor, th.Tensor, th.Tensor] | None] | None = (
+            None
+        )
         super().__init__(*args, **kwargs)
         self.ent_coef_start = float(self.ent_coef)
 
@@ -113,6 +121,9 @@ class DCBFPPO(MaskablePPO):
         super()._setup_model()
         if not isinstance(self.policy, DCBFActorCriticPolicy):
             raise InputError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "rollout_heads_source"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
@@ -147,8 +158,13 @@ class DCBFPPO(MaskablePPO):
             # inference_mode, not no_grad: nothing computed here is ever differentiated (the buffer
             # stores NumPy copies), and it skips autograd's version counting on every op.
             with th.inference_mode():
-                obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
-                actions_t, values, log_probs, masks_t = self.policy.forward_with_masks(obs_tensor)
+                source = self.rollout_heads_source
+                heads = None if source is None else source(self._last_obs)
+                if heads is None:
+                    heads = self.policy.rollout_heads(obs_as_tensor(self._last_obs, self.device))  # type: ignore[arg-type]
+                logits, values, masks_t = heads
+                # the draw from torch's generator, in this learner's turn, as forward_with_masks makes it
+                actions_t, log_probs = self.policy.sample_masked(logits, masks_t)
             actions = actions_t.cpu().numpy()
             masks = masks_t.cpu().numpy()
             new_obs, rewards, dones, infos = env.step(actions)
