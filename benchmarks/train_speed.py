@@ -89,8 +89,9 @@ def _instrument(team: Any, phases: dict[str, float]) -> Callable[[], None]:
     team.hub._joint_step = _timed(phases, "environment step", team.hub._joint_step)
     for model in team.models.values():
         policy = model.policy
-        # forward_with_masks for other algorithms' ... and rollout_heads/sample_masked for DCBFPPO's
-        for name in ("forward_with_masks", "rollout_heads", "sample_masked", "predict_values"):
+        # DCBFPPO's rollout passes (its own, or the batcher's below) and draws; the values of
+        # truncated episodes' last observations
+        for name in ("rollout_heads", "sample_masked", "predict_values"):
             if hasattr(policy, name):
                 setattr(policy, name, _timed(phases, "rollout inference", getattr(policy, name)))
         model.train = _timed(phases, "train()", model.train)

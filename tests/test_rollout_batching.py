@@ -7,12 +7,14 @@ from typing import Any
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import obs_as_tensor
 
 from sb3_pm.agents import rollout_batching
 from sb3_pm.agents.rollout_batching import RolloutBatcher
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.graphs import erdos_renyi
+from sb3_pm.graphs.distributions import ErdosRenyiFamily
 
 th.set_num_threads(1)
 GRAPH = erdos_renyi(14, 0.3, n_targets=4, seed=3)
@@ -20,19 +22,25 @@ TINY = {"n_steps": 16, "batch_size": 16, "n_epochs": 2}
 
 
 def make_team(
-    n_envs: int = 2, seed: int = 0, algo: str | None = None, **policy_kwargs: Any
+    n_envs: int = 2,
+    seed: int = 0,
+    algo: str | None = None,
+    graph: Any = GRAPH,
+    concurrent_updates: bool = True,
+    **policy_kwargs: Any,
 ) -> IndependentPPO:
     hyperparams: dict[str, Any] = dict(TINY)
     if algo is None:
         hyperparams["policy_kwargs"] = {"hidden_dim": 8, **policy_kwargs}
     return IndependentPPO(
-        GRAPH,
+        graph,
         n_agents=3,
         n_envs=n_envs,
         seed=seed,
         algo=algo,
         env_kwargs={"max_cycles": 20},
         hyperparams=hyperparams,
+        concurrent_updates=concurrent_updates,
     )
 
 
@@ -54,14 +62,22 @@ class Recorded:
         monkeypatch.setattr(rollout_batching.RolloutBatcher, "attach", attach)
 
 
-def train_both_ways(steps: int = 64, **kwargs: Any) -> tuple[IndependentPPO, IndependentPPO]:
+def train_both_ways(
+    steps: int = 64, callback: Any = None, twice: bool = False, **kwargs: Any
+) -> tuple[IndependentPPO, IndependentPPO]:
     teams = []
     for batched in (False, True):
         team = make_team(**kwargs)
         team.batched_rollouts = batched
-        team.learn(steps)
+        team.learn(steps, callback=None if callback is None else callback())
+        if twice:
+            team.learn(steps, reset_num_timesteps=False)
         teams.append(team)
     return teams[0], teams[1]
+
+
+def filter_counts(team: IndependentPPO) -> dict[str, dict[str, int]]:
+    return {a: {k: int(v) for k, v in team.models[a].policy.filter_counts.items()} for a in team.agents}
 
 
 @pytest.mark.parametrize(
@@ -84,7 +100,7 @@ def test_batched_rollouts_train_the_same_parameters_bit_for_bit(
     for a, b in zip(parameters(serial), parameters(batched)):
         assert th.equal(a, b)
     (batcher,) = recorded.batchers
-    assert batcher.problem is None
+    assert batcher.refusal is None
     assert batcher.counts == {"stacked": 32, "serial": 0}  # one pass per joint step (64 steps, 2 copies)
     for agent in serial.agents:  # rule 8's decisions counted per learner as the serial passes count them
         counts = [
@@ -119,7 +135,7 @@ def test_an_observation_other_than_the_published_one_gets_its_own_pass() -> None
     batcher = RolloutBatcher(team.hub, models)
     copy = {key: np.array(value) for key, value in team.hub.published[1].items()}
     assert batcher.heads(1, copy) is None
-    assert batcher.counts == {"stacked": 0, "serial": 1}
+    assert batcher.counts == {"stacked": 0, "serial": 1} and "published" in str(batcher.refusal)
     assert batcher.heads(1, team.hub.published[1]) is not None
 
 
@@ -136,7 +152,7 @@ def test_a_stack_that_would_round_differently_leaves_every_pass_serial(
     for a, b in zip(parameters(serial), parameters(batched)):
         assert th.equal(a, b)
     (batcher,) = recorded.batchers
-    assert "round" in str(batcher.problem)
+    assert "round" in str(batcher.refusal)
     assert batcher.counts["stacked"] == 0 and batcher.counts["serial"] > 0
 
 
@@ -157,3 +173,91 @@ def test_the_hook_is_detached_after_training_and_never_saved(tmp_path: Any) -> N
     team.save(tmp_path / "team")  # (tests/test_checkpoints.py resumes batched runs bit for bit)
     loaded = IndependentPPO.load(tmp_path / "team")
     assert all(loaded.models[a].rollout_heads_source is None for a in loaded.agents)
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"n_envs": 1},
+        {"concurrent_updates": False},
+        {"twice": True},
+        {
+            "graph": ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="small-er"),
+            "laplacian": "none",
+        },
+    ],
+    ids=["one-env-copy", "serial-updates", "learn-twice", "graph-family-padded"],
+)
+def test_other_run_shapes_train_the_same_parameters(
+    options: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    recorded = Recorded(monkeypatch)
+    serial, batched = train_both_ways(**options)
+    for a, b in zip(parameters(serial), parameters(batched)):
+        assert th.equal(a, b)
+    assert all(
+        b.refusal is None and b.counts["serial"] == 0 and b.counts["stacked"] > 0 for b in recorded.batchers
+    )
+
+
+class StopAt(BaseCallback):
+    """Stops its learner's training at ``steps`` (the team then stops too)."""
+
+    def __init__(self, steps: int) -> None:
+        super().__init__()
+        self.steps = steps
+
+    def _on_step(self) -> bool:
+        return self.num_timesteps < self.steps
+
+
+def test_a_learner_that_stops_early_counts_rule_8_as_its_own_passes_do() -> None:
+    def callbacks() -> list[Any]:
+        return [None, StopAt(40), None]
+
+    serial, batched = train_both_ways(callback=callbacks, neglect_bound=12)
+    assert filter_counts(serial) == filter_counts(batched)
+    assert filter_counts(batched)["agent_1"]["masks"] == 40  # it stopped there, counted up to there
+
+
+class Perturb(BaseCallback):
+    """Writes new values into its policy's actor and critic in place, once, mid-rollout."""
+
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.at = at
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps == self.at:
+            with th.no_grad():
+                for module in (self.model.policy.action_net, self.model.policy.value_net):
+                    for parameter in module.parameters():
+                        parameter.mul_(-2.0)
+        return True
+
+
+def test_a_policy_changed_in_place_during_a_rollout_gets_its_own_pass(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    recorded = Recorded(monkeypatch)
+    serial, batched = train_both_ways(callback=lambda: [None, Perturb(20), None])
+    for a, b in zip(parameters(serial), parameters(batched)):
+        assert th.equal(a, b)
+    (batcher,) = recorded.batchers
+    assert batcher.counts["serial"] == 1 and "changed" in str(batcher.refusal)
+
+
+def test_what_cannot_stack_says_why() -> None:
+    sparse = make_team(gat_backend="sparse")
+    sparse.hub._joint_reset()
+    batcher = RolloutBatcher(sparse.hub, [sparse.models[a] for a in sparse.agents])
+    assert batcher.heads(0, sparse.hub.published[0]) is None
+    assert "sparse" in str(batcher.refusal)
+    assert batcher.heads(1, sparse.hub.published[1]) is None  # the step is refused once, for all
+    assert batcher.counts == {"stacked": 0, "serial": 2}
+
+    big = make_team(n_envs=9, graph=erdos_renyi(120, 0.05, n_targets=10, seed=1))  # 9 x 120 rows
+    big.hub._joint_reset()
+    batcher = RolloutBatcher(big.hub, [big.models[a] for a in big.agents])
+    assert batcher.heads(0, big.hub.published[0]) is None
+    assert "gathering" in str(batcher.refusal)

@@ -2,8 +2,8 @@
 
 While a team collects its rollouts, every learner runs its own policy's forward pass on its own
 observation, one learner after the other (:mod:`sb3_pm.agents.multiplexer`'s baton): ``K`` small
-passes per joint step, each about 150 tensor operations on ``n_envs`` maps, where the time goes to
-per-operation overhead rather than arithmetic. Every learner's observation for the next step is
+passes per joint step, each a few hundred tensor operations on ``n_envs`` maps, where the time goes
+to per-operation overhead rather than arithmetic. Every learner's observation for the next step is
 known as soon as the joint step is published, so the first learner to act can compute all ``K``
 passes as one :class:`~sb3_pm.agents.stacked_inference.StackedInference` pass (each policy with
 its own parameters, on its own maps) and leave the others their results.
@@ -14,13 +14,17 @@ Nothing is shared but the arithmetic, and nothing changes in what is computed:
   ``rollout_heads`` bit for bit, and checks that it does where it runs (else every step runs
   serially, as before);
 * each learner still draws its action from torch's generator itself, in its own turn, so every
-  draw comes from its own random stream, in the order it always did;
+  draw comes from its own random stream, in the order it always did, and rule 8's decisions are
+  counted in a learner's ``filter_counts`` when it takes its result, as its own pass counts them;
 * a learner is served only for the very observation object the multiplexer handed it (its
-  ``_last_obs``); anything else (a wrapper, an observation it changed) runs its own pass.
+  ``_last_obs``), and only if its parameters and filter settings are those the pass used: a
+  callback that changes a policy in place during a rollout (``on_step``) makes that learner run
+  its own pass. A write through ``.data``, which torch's version counters do not see, is not
+  detected: a callback that writes a policy's parameters that way should run with
+  ``IndependentPPO.batched_rollouts = False``.
 
 So a seeded run trains the same parameters, bit for bit, with batching on or off
-(``tests/test_rollout_batching.py``). The learners' parameters change only in their update
-phases, which end at the rollout barrier before any pass of the next rollout.
+(``tests/test_rollout_batching.py``).
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ from typing import Any
 import torch as th
 
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
-from sb3_pm.agents.stacked_inference import StackedInference
+from sb3_pm.agents.stacked_inference import RolloutHeads, StackedInference
 
 Heads = tuple[th.Tensor, th.Tensor, th.Tensor]
 
@@ -52,10 +56,17 @@ class RolloutBatcher:
         self.hub = hub
         self.models = list(models)
         self.stacker = StackedInference()
-        self._inputs: list[dict[str, Any]] | None = None  # the observation objects of the last pass
-        self._outputs: list[Heads] = []
+        # Each learner's parameter objects, found once: their version counters tell whether a
+        # policy changed between the stacked pass and the learner's turn.
+        self._parameters = [list(model.policy.parameters()) for model in self.models]
+        self._inputs: list[dict[str, Any]] | None = None  # the observation objects of the last step
+        self._outputs: list[RolloutHeads] | None = None  # its results (None: it was refused)
+        self._versions: list[tuple[int, ...]] = []
+        self._configs: list[Any] = []
         #: joint steps served by one stacked pass, and learner passes left to their own forward
         self.counts = {"stacked": 0, "serial": 0}
+        #: why the last step that was not stacked was not (``None``: every step so far was)
+        self.refusal: str | None = None
 
     def attach(self) -> None:
         """Route every learner's rollout passes through this batcher."""
@@ -71,31 +82,57 @@ class RolloutBatcher:
         """The ``rollout_heads_source`` of learner ``index``."""
         return lambda observation: self.heads(index, observation)
 
-    @property
-    def problem(self) -> str | None:
-        """Why the learners' passes are not stacked (``None``: they are, or none was asked yet)."""
-        return self.stacker._problem
-
     def heads(self, index: int, observation: Any) -> Heads | None:
-        """Learner ``index``'s ``(logits, values, masks)`` on ``observation``, or ``None`` when it
-        must run its own pass.
+        """Learner ``index``'s ``(logits, values, masks)`` on ``observation``, counting its rule-8
+        decisions, or ``None`` when it must run its own pass.
 
         Shapes: logits ``(n_envs, N)``, values ``(n_envs, 1)``, masks ``(n_envs, N)`` bool.
         """
-        inputs = self._inputs
-        if inputs is None or inputs[index] is not observation:
-            published = [obs for obs in self.hub.published if isinstance(obs, dict)]  # Dict spaces only
-            if len(published) != len(self.models) or published[index] is not observation:
-                self.counts["serial"] += 1
-                return None
-            outputs = self.stacker.rollout_heads([model.policy for model in self.models], published)
-            if outputs is None:
-                self._inputs = None
-                self.counts["serial"] += 1
-                return None
-            self._inputs, self._outputs = published, outputs
+        if self._inputs is None or self._inputs[index] is not observation:
+            self._compute(index, observation)
+        outputs = self._outputs
+        policy = self.models[index].policy
+        if (
+            outputs is None
+            or self._inputs is None
+            or self._inputs[index] is not observation
+            or self._versions[index] != _versions(self._parameters[index])
+            or policy.dcbf_config is not self._configs[index]
+        ):
+            if outputs is not None:
+                self.refusal = "a learner's policy changed during the rollout step"
+            self.counts["serial"] += 1
+            return None
+        served = outputs[index]
+        if served.forced is not None:
+            policy.count_forced(served.forced)
+        return served.logits, served.values, served.masks
+
+    def _compute(self, index: int, observation: Any) -> None:
+        """One stacked pass on every learner's published observation (learner ``index`` must be
+        acting on its own), or a refusal remembered for this step."""
+        published = [obs for obs in self.hub.published if isinstance(obs, dict)]  # Dict spaces only
+        if len(published) != len(self.models) or published[index] is not observation:
+            self._inputs, self._outputs = None, None
+            self.refusal = "the observation is not the one the multiplexer published"
+            return
+        policies = [model.policy for model in self.models]
+        self._versions = [_versions(parameters) for parameters in self._parameters]
+        self._configs = [policy.dcbf_config for policy in policies]
+        self._inputs = published
+        self._outputs = self.stacker.rollout_heads(policies, published)
+        if self._outputs is not None:
             self.counts["stacked"] += 1
-        return self._outputs[index]
+        else:  # the learners of this step run their own passes; nobody computes it again
+            maps = len(published[0]["nodes"])
+            self.refusal = self.stacker.problem(policies, maps, True) or (
+                "this step's maps take another kernel (or are not the observation space's shape)"
+            )
+
+
+def _versions(parameters: Sequence[th.Tensor]) -> tuple[int, ...]:
+    """Torch's version counters of ``parameters`` (each in-place write bumps its tensor's)."""
+    return tuple(p._version for p in parameters)
 
 
 __all__ = ["RolloutBatcher"]

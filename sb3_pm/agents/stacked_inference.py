@@ -45,7 +45,7 @@ path then raises SB3's error), or a failed check of the rounding.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
@@ -86,6 +86,8 @@ def stack_problem(policies: Sequence[Any]) -> str | None:
     if first.actor_nodes != "all":
         return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
     extractor = first.features_extractor
+    if extractor.backend == "sparse":
+        return "gat_backend: sparse runs the sparse kernel on every map"
     if extractor.derived_features:
         return "derived_features search hop distances per map (data-dependent)"
     if extractor.extra_gat is not None:
@@ -133,6 +135,15 @@ def _signature(policy: DCBFActorCriticPolicy) -> tuple[Any, ...]:
     )
 
 
+class RolloutHeads(NamedTuple):
+    """One policy's rollout step from the stacked pass (see :meth:`StackedInference.rollout_heads`)."""
+
+    logits: th.Tensor  #: ``(B, N)``
+    values: th.Tensor  #: ``(B, 1)``
+    masks: th.Tensor  #: ``(B, N)`` bool, the DCBF masks
+    forced: th.Tensor | None  #: ``(B,)`` bool, where rule 8 forced the mask (``None``: rule 8 off)
+
+
 class _Stack:
     """The stacked parameters of ``K`` policies, ``(K, *shape)`` each, by parameter name."""
 
@@ -178,6 +189,10 @@ class StackedInference:
         ids = (*(id(p) for p in policies), th.get_num_threads(), maps, values)
         if ids != self._ids:
             self._ids, self._problem = ids, stack_problem(policies)
+            if self._problem is None and maps * policies[0].n_nodes >= GATHER_MIN_ROWS:
+                self._problem = (
+                    f"{maps} maps of {policies[0].n_nodes} nodes take the estimator's row gathering"
+                )
             self._graph_cache = None  # other policies may encode the same maps differently
             self._stack = None if self._problem is not None else _Stack(policies)
             if self._stack is not None and not self._rounds_as_serial(self._stack, maps, values):
@@ -292,22 +307,32 @@ class StackedInference:
             return self._logits_given(self._stack, pre, u_hat), masks
 
     def prepare(
-        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]], maps: int | None = None
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
     ) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor] | None:
-        """The stacked pass up to the actor: the preprocessed maps, every policy's ``û`` on its own
-        maps and its DCBF mask (counting rule 8's decisions), with the parameters stacked anew;
-        ``None`` where this step must run serially.
-
-        :param maps: ``None``: each observation is one map, acted on as ``predict`` does (the
-            observation's ``action_mask`` is intersected with the filter's); a number: each is a
-            batch of that many maps, as a rollout's ``forward`` sees them (the filter's mask alone).
+        """The stacked pass up to the actor on one map per policy, acted on as ``predict`` does
+        (the observation's ``action_mask`` intersected with the filter's): the preprocessed maps,
+        every policy's ``û`` on its own map and its DCBF mask (counting rule 8's decisions), with
+        the parameters stacked anew; ``None`` where this step must run serially.
 
         Shapes:
-            - observations: ``K`` mental-map observations (numpy), one per policy, each one map or
-              ``(maps, ...)``
-            - output: the maps (``(K * maps, ...)`` each, policy ``k``'s first), ``û`` ``(K * maps, N)``,
-              masks ``(K * maps, N)`` bool
+            - observations: ``K`` mental-map observations (numpy), one per policy
+            - output: the maps (``(K, ...)`` each), ``û`` ``(K, N)``, masks ``(K, N)`` bool
         """
+        prepared = self._prepare(policies, observations, None)
+        if prepared is None:
+            return None
+        pre, u_hat, masks, forced = prepared
+        if forced is not None:
+            for k, policy in enumerate(policies):
+                policy.count_forced(forced[k : k + 1])
+        return pre, u_hat, masks
+
+    def _prepare(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]], maps: int | None
+    ) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor, th.Tensor | None] | None:
+        """:meth:`prepare` without counting, also for ``maps`` maps per policy (a rollout's batch,
+        masked by the filter alone, as ``rollout_heads`` masks): adds rule 8's decisions
+        ``(K * maps,)`` bool (``None`` when rule 8 is off)."""
         batch = 1 if maps is None else maps
         if len(policies) != len(observations) or self.problem(policies, batch, maps is not None) is not None:
             return None
@@ -325,8 +350,6 @@ class StackedInference:
             arrays[key] = th.as_tensor(np.concatenate([v.reshape(batch, *shape) for v in values]))  # CPU only
         if not _all_dense(first, arrays["adjacency"], batch):
             return None  # a map the serial path would run through the sparse kernel
-        if batch * first.n_nodes >= GATHER_MIN_ROWS:
-            return None  # the serial estimator would gather the known targets' rows
         for policy in policies:
             policy.set_training_mode(False)  # as SB3's predict and collect_rollouts do
         stack.refresh()
@@ -336,39 +359,35 @@ class StackedInference:
             # The filter has no parameters: one call on all the maps, each row its own.
             given = arrays["action_mask"] if maps is None else None
             masks, forced = first.filtered_masks(pre, u_hat, given)
-            if forced is not None:
-                for k, policy in enumerate(policies):
-                    policy.count_forced(forced[k * batch : (k + 1) * batch])
-            return pre, u_hat, masks
+            return pre, u_hat, masks, forced
 
     def rollout_heads(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
-    ) -> list[tuple[th.Tensor, th.Tensor, th.Tensor]] | None:
+    ) -> list[RolloutHeads] | None:
         """Every policy's :meth:`~sb3_pm.policies.DCBFActorCriticPolicy.rollout_heads` on its own
-        batch of maps (a learner's ``VecEnv`` observation), bit for bit; ``None`` where this step
-        must run serially. Counts rule 8's decisions in each policy's ``filter_counts``.
+        batch of maps (a learner's ``VecEnv`` observation), bit for bit, with the rule-8 decisions
+        that call would count (counted by nobody here: the caller counts each policy's when it
+        uses them); ``None`` where this step must run serially.
 
         Shapes:
             - observations: ``K`` observations (numpy dicts), each ``(B, ...)`` per key
-            - output: per policy, logits ``(B, N)``, values ``(B, 1)`` and masks ``(B, N)`` bool
+            - output: per policy, logits ``(B, N)``, values ``(B, 1)``, masks ``(B, N)`` bool and
+              rule 8's decisions ``(B,)`` bool (``None`` when rule 8 is off)
         """
         if not observations or "nodes" not in observations[0]:
             return None
         maps = int(np.shape(observations[0]["nodes"])[0])
-        prepared = self.prepare(policies, observations, maps)
+        prepared = self._prepare(policies, observations, maps)
         if prepared is None:
             return None
-        pre, u_hat, masks = prepared
+        pre, u_hat, masks, forced = prepared
         assert self._stack is not None
         with th.no_grad():
             logits, values = self._heads_given(self._stack, pre, u_hat)
+        groups = _groups(self._stack, logits)
         return [
-            (
-                logits[k * maps : (k + 1) * maps],
-                values[k * maps : (k + 1) * maps],
-                masks[k * maps : (k + 1) * maps],
-            )
-            for k in range(len(policies))
+            RolloutHeads(logits[rows], values[rows], masks[rows], None if forced is None else forced[rows])
+            for rows in groups
         ]
 
     def predict(
@@ -384,7 +403,7 @@ class StackedInference:
 
     # -------------------------------------------------------------- the pass
     def _uncertainty(self, stack: _Stack, pre: dict[str, th.Tensor]) -> th.Tensor:
-        """``û`` ``(K, N)``: each policy's ``uncertainty`` on its own map."""
+        """``û`` ``(K * B, N)``: each policy's ``uncertainty`` on its own ``B`` maps."""
         first = stack.policies[0]
         return self._estimate(stack, pre) if first.estimator is not None else first.uncertainty(pre)
 
@@ -397,7 +416,8 @@ class StackedInference:
         self, stack: _Stack, pre: dict[str, th.Tensor], u_hat: th.Tensor
     ) -> tuple[th.Tensor, th.Tensor]:
         """Each policy's logits ``(K * B, N)`` and values ``(K * B, 1)`` on its own ``B`` maps. The
-        critic (two small layers on ``B`` rows) runs policy by policy, on its own modules."""
+        critic (its layers on ``B`` rows, a small part of the pass) runs policy by policy, on its
+        own modules."""
         first = stack.policies[0]
         embeddings, own = first._with_estimate(self._embed(stack, pre), pre, u_hat)
         groups = _groups(stack, embeddings)
@@ -441,8 +461,9 @@ class StackedInference:
     def _graph_inputs(
         self, extractor: GATFeaturesExtractor, adjacency: th.Tensor
     ) -> tuple[th.Tensor | None, th.Tensor]:
-        """Positional encodings ``(K, N, E)`` (or ``None``) and attention masks ``(K, 1, N, N)`` of
-        the maps' known adjacencies ``(K, N, N)``, reused while the adjacencies are unchanged."""
+        """Positional encodings ``(K * B, N, E)`` (or ``None``) and attention masks
+        ``(K * B, 1, N, N)`` of the maps' known adjacencies ``(K * B, N, N)``, reused while the
+        adjacencies are unchanged."""
         cached = self._graph_cache
         if cached is not None and cached[0].shape == adjacency.shape and th.equal(cached[0], adjacency):
             return cached[1], cached[2]
@@ -570,4 +591,4 @@ def _activation(layer: nn.Module, x: th.Tensor, n: int, policies: int | None = N
     return layer(x)  # type: ignore[no-any-return]
 
 
-__all__ = ["TAIL_FREE", "StackedInference", "stack_problem"]
+__all__ = ["TAIL_FREE", "RolloutHeads", "StackedInference", "stack_problem"]

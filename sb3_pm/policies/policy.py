@@ -13,11 +13,12 @@ Architecture, for a batch of ``B`` mental maps on ``N`` nodes:
 * DCBF mask (:mod:`sb3_pm.policies.dcbf`) from ``û`` (or, with ``use_estimator=False``, the map's
   last observed ``u``), applied to the categorical distribution.
 
-Where masks come from: :meth:`DCBFActorCriticPolicy.forward_with_masks` returns the DCBF mask it
-sampled with, which :class:`~sb3_pm.ppo_dcbf.DCBFPPO` stores in the rollout buffer; ``train()``
-passes the stored masks back to :meth:`evaluate_actions`. Every entry point that receives no mask
-(``forward``, ``get_distribution``, ``predict``) computes the DCBF mask itself, so deployment is
-filtered exactly like training; a mask given by the caller is intersected with it.
+Where masks come from: :meth:`DCBFActorCriticPolicy.rollout_heads` (and ``forward_with_masks``,
+which samples from it) returns the DCBF mask a rollout step samples with, which
+:class:`~sb3_pm.ppo_dcbf.DCBFPPO` stores in the rollout buffer; ``train()`` passes the stored masks
+back to :meth:`evaluate_actions`. Every entry point that receives no mask (``forward``,
+``get_distribution``, ``predict``) computes the DCBF mask itself, so deployment is filtered
+exactly like training; a mask given by the caller is intersected with it.
 """
 
 from __future__ import annotations

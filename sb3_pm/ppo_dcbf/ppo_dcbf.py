@@ -3,7 +3,9 @@
 :class:`DCBFPPO` is sb3-contrib's :class:`~sb3_contrib.MaskablePPO` with two changes:
 
 * ``collect_rollouts`` takes each action's mask from the policy
-  (:meth:`~sb3_pm.policies.DCBFActorCriticPolicy.forward_with_masks`), not from the env's
+  (:meth:`~sb3_pm.policies.DCBFActorCriticPolicy.rollout_heads`, or the same from
+  :attr:`DCBFPPO.rollout_heads_source`, then the draw of
+  :meth:`~sb3_pm.policies.DCBFActorCriticPolicy.sample_masked`), not from the env's
   ``action_masks()``, and stores exactly that mask in the :class:`MaskableDictRolloutBuffer`.
   MaskablePPO's ``train()`` then feeds the stored masks to ``evaluate_actions`` unchanged, so the
   ratio compares the same distribution support that was sampled from, even after the estimator
@@ -99,7 +101,8 @@ class DCBFPPO(MaskablePPO):
         self.ent_coef_final = None if ent_coef_final is None else float(ent_coef_final)
         #: where a rollout step's logits, values and masks come from instead of this learner's own
         #: forward pass (:meth:`collect_rollouts`): a callable given the learner's last observation
-        #: that returns ``(logits, values, masks)`` equal to ``policy.rollout_heads`` on it, or
+        #: that returns ``(logits, values, masks)`` equal to ``policy.rollout_heads`` on it (and
+        #: counts rule 8's decisions in the policy's ``filter_counts`` as that call does), or
         #: ``None`` to compute them here. A team sets it to batch its learners' passes; never saved.
         self.rollout_heads_source: Callable[[Any], tuple[th.Tensor, th.Tensor, th.Tensor] | None] | None = (
             None
