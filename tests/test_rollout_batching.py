@@ -76,12 +76,20 @@ def train_both_ways(
     return teams[0], teams[1]
 
 
+def assert_same_parameters(serial: IndependentPPO, batched: IndependentPPO) -> None:
+    for a, b in zip(parameters(serial), parameters(batched), strict=True):
+        assert th.equal(a, b)
+
+
 def filter_counts(team: IndependentPPO) -> dict[str, dict[str, int]]:
     return {a: {k: int(v) for k, v in team.models[a].policy.filter_counts.items()} for a in team.agents}
 
 
+FAMILY = ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="small-er")
+
+
 @pytest.mark.parametrize(
-    "policy_kwargs",
+    "options",
     [
         {},
         {"laplacian": "eigen", "gat_heads": 2},
@@ -89,26 +97,38 @@ def filter_counts(team: IndependentPPO) -> dict[str, dict[str, int]]:
         {"hidden_dim": 32, "gat_layers": 3},
         {"dcbf_barrier": True, "freeze_steps": 10},
         {"neglect_bound": 12},
+        {"n_envs": 1},
+        {"concurrent_updates": False},
+        {"twice": True},
+        {"graph": FAMILY, "laplacian": "none"},
     ],
-    ids=["small", "eigen-2-heads", "no-estimator", "wide-3-layers", "barrier", "bound"],
+    ids=[
+        "small",
+        "eigen-2-heads",
+        "no-estimator",
+        "wide-3-layers",
+        "barrier",
+        "bound",
+        "one-env-copy",
+        "serial-updates",
+        "learn-twice",
+        "graph-family-padded",
+    ],
 )
 def test_batched_rollouts_train_the_same_parameters_bit_for_bit(
-    policy_kwargs: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+    options: dict[str, Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     recorded = Recorded(monkeypatch)
-    serial, batched = train_both_ways(**policy_kwargs)
-    for a, b in zip(parameters(serial), parameters(batched)):
-        assert th.equal(a, b)
-    (batcher,) = recorded.batchers
-    assert batcher.refusal is None
-    assert batcher.counts == {"stacked": 32, "serial": 0}  # one pass per joint step (64 steps, 2 copies)
-    for agent in serial.agents:  # rule 8's decisions counted per learner as the serial passes count them
-        counts = [
-            {k: int(v) for k, v in t.models[agent].policy.filter_counts.items()} for t in (serial, batched)
-        ]
-        assert counts[0] == counts[1]
-    if "neglect_bound" in policy_kwargs:
-        assert sum(int(batched.models[a].policy.filter_counts["forced"]) for a in batched.agents) > 0
+    serial, batched = train_both_ways(**options)
+    assert_same_parameters(serial, batched)
+    assert filter_counts(serial) == filter_counts(batched)  # rule 8's decisions, counted per learner
+    joint_steps = 64 // options.get("n_envs", 2)  # each learn() call: 64 steps per learner
+    assert recorded.batchers  # one per learn() call
+    for batcher in recorded.batchers:  # one stacked pass per joint step, none left to a learner
+        assert batcher.refusal is None
+        assert batcher.counts == {"stacked": joint_steps, "serial": 0}
+    if "neglect_bound" in options:
+        assert sum(counts["forced"] for counts in filter_counts(batched).values()) > 0
 
 
 def test_each_learner_is_served_its_own_passes_heads() -> None:
@@ -149,8 +169,7 @@ def test_a_stack_that_would_round_differently_leaves_every_pass_serial(
     )
     recorded = Recorded(monkeypatch)
     serial, batched = train_both_ways(steps=32)
-    for a, b in zip(parameters(serial), parameters(batched)):
-        assert th.equal(a, b)
+    assert_same_parameters(serial, batched)
     (batcher,) = recorded.batchers
     assert "round" in str(batcher.refusal)
     assert batcher.counts["stacked"] == 0 and batcher.counts["serial"] > 0
@@ -173,31 +192,6 @@ def test_the_hook_is_detached_after_training_and_never_saved(tmp_path: Any) -> N
     team.save(tmp_path / "team")  # (tests/test_checkpoints.py resumes batched runs bit for bit)
     loaded = IndependentPPO.load(tmp_path / "team")
     assert all(loaded.models[a].rollout_heads_source is None for a in loaded.agents)
-
-
-@pytest.mark.parametrize(
-    "options",
-    [
-        {"n_envs": 1},
-        {"concurrent_updates": False},
-        {"twice": True},
-        {
-            "graph": ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="small-er"),
-            "laplacian": "none",
-        },
-    ],
-    ids=["one-env-copy", "serial-updates", "learn-twice", "graph-family-padded"],
-)
-def test_other_run_shapes_train_the_same_parameters(
-    options: dict[str, Any], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    recorded = Recorded(monkeypatch)
-    serial, batched = train_both_ways(**options)
-    for a, b in zip(parameters(serial), parameters(batched)):
-        assert th.equal(a, b)
-    assert all(
-        b.refusal is None and b.counts["serial"] == 0 and b.counts["stacked"] > 0 for b in recorded.batchers
-    )
 
 
 class StopAt(BaseCallback):
@@ -241,8 +235,7 @@ def test_a_policy_changed_in_place_during_a_rollout_gets_its_own_pass(
 ) -> None:
     recorded = Recorded(monkeypatch)
     serial, batched = train_both_ways(callback=lambda: [None, Perturb(20), None])
-    for a, b in zip(parameters(serial), parameters(batched)):
-        assert th.equal(a, b)
+    assert_same_parameters(serial, batched)
     (batcher,) = recorded.batchers
     assert batcher.counts["serial"] == 1 and "changed" in str(batcher.refusal)
 
