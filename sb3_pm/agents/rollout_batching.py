@@ -89,13 +89,11 @@ class RolloutBatcher:
         Shapes: logits ``(n_envs, N)``, values ``(n_envs, 1)``, masks ``(n_envs, N)`` bool.
         """
         if self._inputs is None or self._inputs[index] is not observation:
-            self._compute(index, observation)
+            self._compute(index, observation)  # afterwards: this observation's results, or None
         outputs = self._outputs
         policy = self.models[index].policy
         if (
             outputs is None
-            or self._inputs is None
-            or self._inputs[index] is not observation
             or self._versions[index] != _versions(self._parameters[index])
             or policy.dcbf_config is not self._configs[index]
         ):
