@@ -9,11 +9,16 @@ Next to each graph's figure, the same random walk drives a *bare* eq. (1) loop i
 process: NumPy arrays of positions and uncertainties, one ``bincount`` for presence and one
 ``where`` for the capped update, nothing else (no observations, maps, rewards or metrics). The
 ratio env / bare is what the environment's bookkeeping costs over the dynamics alone.
+
+The machine's speed drifts by a factor of two within minutes on shared virtual machines, so the
+two loops alternate ``--repeats`` times and the figure printed is the median of the per-repeat
+ratios (each ratio compares two runs seconds apart), next to the median rates.
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 
 import numpy as np
@@ -73,14 +78,24 @@ def main() -> None:
     parser.add_argument("--agents", type=int, default=4)
     parser.add_argument("--graphs", nargs="+", default=["paper-50", "paper-100", "paper-200"])
     parser.add_argument("--observation", default="map", choices=["map", "local"])
+    parser.add_argument("--repeats", type=int, default=5, help="alternations of env and bare loop (median)")
     args = parser.parse_args()
-    print(f"env steps/s, {args.agents} agents, observation={args.observation}, {args.steps} steps per graph")
+    if args.repeats < 1 or args.steps < 1:
+        parser.error("--steps and --repeats must be at least 1")
+    print(
+        f"env steps/s, {args.agents} agents, observation={args.observation}, {args.steps} steps per graph"
+        f" and repeat, median of {args.repeats} alternations"
+    )
     for graph in args.graphs:
-        rate = measure(graph, args.agents, args.steps, args.observation)
-        bare = bare_loop(graph, args.agents, args.steps)
+        rates, bares = [], []
+        for _ in range(args.repeats):
+            rates.append(measure(graph, args.agents, args.steps, args.observation))
+            bares.append(bare_loop(graph, args.agents, args.steps))
+        ratios = [rate / bare for rate, bare in zip(rates, bares)]
         print(
-            f"  {graph:>12s}: {rate:10,.0f} steps/s   bare eq. (1) loop {bare:10,.0f} steps/s"
-            f"   ratio {rate / bare:.3f}"
+            f"  {graph:>12s}: {statistics.median(rates):10,.0f} steps/s   bare eq. (1) loop"
+            f" {statistics.median(bares):10,.0f} steps/s   ratio {statistics.median(ratios):.3f}"
+            f" (range {min(ratios):.3f}-{max(ratios):.3f})"
         )
 
 

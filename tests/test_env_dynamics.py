@@ -105,20 +105,37 @@ class TestIllegalActions:
             assert stay.unwrapped.positions.tolist() == [node]
             assert infos["agent_0"]["illegal_action"] == destination
 
-    def test_a_core_pickled_before_the_legality_table_still_steps(self) -> None:
-        # Checkpoints pickle the env copies; a core written by an earlier version lacks the table.
+    @pytest.mark.parametrize(
+        "missing",
+        [("_legal_table", "_row_start"), ("n_nodes", "_legal_sets", "_next_u", "_no_illegal")],
+        ids=["legality-table", "set-and-update-tables"],
+    )
+    def test_a_core_pickled_before_its_tables_still_steps(self, missing: tuple[str, ...]) -> None:
+        # Checkpoints pickle the env copies; a core written by an earlier version lacks the tables.
         import pickle
 
         env = make(path_graph(4, [3]), 1, [0])
         core = env.unwrapped.core
-        state = {k: v for k, v in core.__dict__.items() if k not in ("_legal_table", "_row_start")}
+        state = {k: v for k, v in core.__dict__.items() if k not in missing}
         old = object.__new__(type(core))
         old.__dict__.update(state)
         env.unwrapped.core = pickle.loads(pickle.dumps(old))
         act(env, 1)
         assert env.unwrapped.positions.tolist() == [1]
+        assert env.unwrapped.uncertainty[3] == 1  # eq. (1) by the rebuilt table
         with pytest.raises(IllegalActionError, match="cannot move to node 3"):
             act(env, 3)
+
+    @pytest.mark.parametrize("u_max", [1, 7, 100])
+    def test_the_update_table_is_eq_1_with_the_cap(self, u_max: int) -> None:
+        # Every level and both presences, against eq. (1) written out.
+        from sb3_pm.envs.core import MonitoringCore
+
+        core = MonitoringCore(path_graph(2, [0]), 1, u_max=u_max)
+        for u in range(u_max + 1):
+            for occupied in (False, True):
+                expected = max(u - 1, 0) if occupied else min(u + 1, u_max)
+                assert core._next_u[u + occupied * (u_max + 1)] == expected
 
     def test_an_action_that_is_not_one_node_is_refused(self) -> None:
         env = make(path_graph(4, [3]), 2, [0, 3])

@@ -149,3 +149,48 @@ def test_new_lifetime_forgets_edges_and_history() -> None:
     env.step({"agent_0": 1})
     obs, _ = env.reset(seed=0, options={"initial_positions": [4], "new_lifetime": True})
     assert obs["agent_0"]["adjacency"].sum() == 2  # only the edge 3-4, seen now
+
+
+@pytest.mark.parametrize("obs_radius", [1, 2])
+def test_skipping_folded_positions_discovers_the_same_edges(obs_radius: int) -> None:
+    # The env tells the maps each agent's node so that a map back on a node it has folded skips
+    # the array work; the known adjacency, the explored rows and the int8 copies handed out must be
+    # those of the maps that are told nothing, step by step.
+    from sb3_pm.graphs import resolve_graph
+
+    graph = resolve_graph("paper-50")
+    hops = graph.hop_distances
+    edge_rows = hops <= obs_radius - 1
+    told, untold = (MentalMaps(3, graph.adjacency) for _ in range(2))
+    rng = np.random.default_rng(0)
+    positions = rng.choice(graph.n_nodes, size=3, replace=False)
+    for step in range(300):
+        if step == 150:  # a new lifetime starts over, folded positions included
+            told.forget_edges()
+            untold.forget_edges()
+        positions = np.array([rng.choice(np.flatnonzero(graph.reachable[p])) for p in positions])
+        observed = hops[positions] <= obs_radius
+        counts = np.bincount(positions, minlength=graph.n_nodes)
+        u = rng.integers(0, 100, graph.n_nodes)
+        edges = edge_rows[positions]
+        untold.update(positions, observed, u, graph.targets, counts, edges)
+        told.update(positions, observed, u, graph.targets, counts, edges, edge_positions=positions.tolist())
+        assert np.array_equal(told.adjacency, untold.adjacency)
+        assert np.array_equal(told.explored, untold.explored)
+        for mine, theirs in zip(told.adjacency_observations(), untold.adjacency_observations()):
+            assert np.array_equal(mine, theirs)
+    assert told._adjacency_cached and any(told._folded_positions)
+
+
+def test_maps_pickled_before_the_folded_positions_still_discover_edges() -> None:
+    # Checkpoints pickle the env copies; maps written by an earlier version lack the new caches.
+    import pickle
+
+    env, _ = env_on_path([0])
+    maps = env.unwrapped.maps
+    state = {k: v for k, v in maps.__dict__.items() if k not in ("_folded_positions", "_adjacency_cached")}
+    old = object.__new__(type(maps))
+    old.__dict__.update(state)
+    env.unwrapped.maps = pickle.loads(pickle.dumps(old))
+    obs, *_ = env.step({"agent_0": 1})
+    assert obs["agent_0"]["adjacency"].sum() == 4  # edges 0-1 and 1-2, both ways

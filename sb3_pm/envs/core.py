@@ -14,12 +14,18 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 
+#: What :meth:`MonitoringCore._build_legal_table` derives from the graph (rebuilt on unpickling a
+#: core written before one of them existed).
+_DERIVED_TABLES = frozenset(
+    {"n_nodes", "_legal_sets", "_legal_table", "_row_start", "_next_u", "_no_illegal"}
+)
+
 
 class IllegalActionError(InputError):
     """An agent asked to move to a node outside its reachable set."""
 
 
-@dataclass
+@dataclass(slots=True)
 class StepOutcome:
     """What one simultaneous move did; all arrays are fresh (safe to keep).
 
@@ -65,27 +71,42 @@ class MonitoringCore:
         self.n_agents = n_agents
         self.u_max = int(u_max)
         self._reachable = graph.reachable
-        self._build_legal_table()
         self._target_idx = graph.target_indices
+        self._build_legal_table()
         self.positions = np.zeros(n_agents, dtype=np.int64)
         self.uncertainty = np.zeros(graph.n_nodes, dtype=np.int64)
 
     def _build_legal_table(self) -> None:
-        """The reachable matrix with a never-reachable column on each side, flattened: one lookup
-        at ``row_start[position] + destination`` checks a move, and a destination outside
-        ``0..N-1``, clipped to -1 or N first, lands in a padding column of the agent's own row
-        (``(N * (N + 2),)`` bool and ``(N,)`` int64)."""
+        """The lookup tables of :meth:`step`, derived from the graph and ``u_max``.
+
+        * ``_legal_sets``: each node's reachable set as a frozenset of ints. A team of a few agents
+          checks its moves with a few set lookups, far cheaper than any NumPy call.
+        * ``_legal_table`` and ``_row_start``: the reachable matrix with a never-reachable column on
+          each side, flattened (``(N * (N + 2),)`` bool, ``(N,)`` int64): one lookup at
+          ``row_start[position] + destination`` checks every move at once, and a destination outside
+          ``0..N-1``, clipped to -1 or N first, lands in a padding column of the agent's own row.
+          Used only to name the agents whose move was illegal.
+        * ``_next_u``: eq. (1) with the cap as one ``(2 * (u_max + 1),)`` int64 table, indexed by
+          ``u + (u_max + 1) * occupied``: one gather updates every target.
+        """
         n = self.graph.n_nodes
+        #: ``N``, a plain attribute: the per-step code reads it where a property call would cost more.
+        self.n_nodes = n
+        self._legal_sets = [frozenset(np.flatnonzero(row).tolist()) for row in self.graph.reachable]
         legal_table = np.zeros((n, n + 2), dtype=bool)
         legal_table[:, 1:-1] = self.graph.reachable
         self._legal_table = legal_table.ravel()
         self._row_start = np.arange(n, dtype=np.int64) * (n + 2) + 1
+        levels = np.arange(self.u_max + 1, dtype=np.int64)
+        # empty: u + 1 up to the cap; occupied: u - 1, and 0 stays 0
+        self._next_u = np.concatenate([np.minimum(levels + 1, self.u_max), np.maximum(levels - 1, 0)])
+        self._no_illegal = np.zeros(self.n_agents, dtype=bool)
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (a checkpoint's env copy), rebuilding the legality table that cores pickled by
+        """Unpickle (a checkpoint's env copy), rebuilding the lookup tables that cores pickled by
         earlier versions lack."""
         self.__dict__.update(state)
-        if "_legal_table" not in state:
+        if not _DERIVED_TABLES <= state.keys():
             self._build_legal_table()
 
     def reset(self, positions: np.ndarray, uncertainty: np.ndarray | None = None) -> None:
@@ -130,12 +151,18 @@ class MonitoringCore:
         destinations = np.asarray(destinations, dtype=np.int64)
         if active is not None:
             destinations = np.where(active, destinations, self.positions)
-        n = self.graph.n_nodes
-        lookup = self._row_start[self.positions] + np.minimum(np.maximum(destinations, -1), n)
-        legal = self._legal_table[lookup]
-        # count_nonzero: a fraction of the cost of ndarray.all() on a few agents
-        all_legal = np.count_nonzero(legal) == self.n_agents
-        if not all_legal:
+        n = self.n_nodes
+        legal_sets = self._legal_sets
+        # A few agents: set lookups on Python ints beat any vectorized check.
+        all_legal = all(
+            destination in legal_sets[position]
+            for position, destination in zip(self.positions.tolist(), destinations.tolist())
+        )
+        if all_legal:
+            illegal_flags = self._no_illegal.copy()
+        else:
+            lookup = self._row_start[self.positions] + np.minimum(np.maximum(destinations, -1), n)
+            legal = self._legal_table[lookup]
             if illegal == "raise":
                 agent = int(np.flatnonzero(~legal)[0])
                 name = agent_names[agent] if agent_names else f"agent {agent}"
@@ -145,25 +172,27 @@ class MonitoringCore:
                     f"its reachable set is {self.reachable_from(agent).tolist()}"
                 )
             destinations = np.where(legal, destinations, self.positions)
+            illegal_flags = ~legal
         self.positions = destinations
         present = destinations if active is None else destinations[active]
         counts = np.bincount(present, minlength=n)
         presence = counts > 0
-        u_before = self.uncertainty[destinations]
+        uncertainty = self.uncertainty
+        u_before = uncertainty[destinations]
         targets = self._target_idx
-        u = self.uncertainty[targets]
         target_presence = presence[targets]
-        # eq. 1 with the cap: a visited target drops by one (u + 1 - 2p, u > 0) or stays at zero
-        # (u + 1 - p, u == 0); an unvisited one grows by one up to u_max.
-        u = np.where(target_presence, np.maximum(u - 1, 0), np.minimum(u + 1, self.u_max))
-        self.uncertainty[targets] = u
+        # eq. 1 with the cap, by table (see _build_legal_table): a visited target drops by one or
+        # stays at zero; an unvisited one grows by one up to u_max.
+        u = self._next_u[uncertainty[targets] + target_presence * (self.u_max + 1)]
+        uncertainty[targets] = u
+        collided = counts[destinations] > 1
         return StepOutcome(
             counts=counts,
             presence=presence,
             u_before=u_before,
-            u_after=self.uncertainty[destinations],
-            collided=(counts[destinations] > 1) if active is None else (counts[destinations] > 1) & active,
-            illegal=~legal,
+            u_after=uncertainty[destinations],
+            collided=collided if active is None else collided & active,
+            illegal=illegal_flags,
             any_illegal=not all_legal,
             target_presence=target_presence,
             target_uncertainty=u,

@@ -84,6 +84,11 @@ class MentalMaps:
         #: ``(n_agents,)`` running sum, this episode, of the map's uncertainties (reward term ``change``).
         self.episode_uncertainty_sum = np.zeros(n_agents, dtype=np.float64)
         self._adjacency_int8: list[np.ndarray | None] = [None] * n_agents
+        #: True while every entry of ``_adjacency_int8`` is built (no map gained an edge since).
+        self._adjacency_cached = False
+        #: Per map, the positions whose whole edge-node row has been folded into ``explored``: a
+        #: map standing on one of them again can discover nothing (``explored`` only grows).
+        self._folded_positions: list[set[int]] = [set() for _ in range(n_agents)]
         self._rows = np.arange(n_agents)
         self._all_explored = False
         # Staging block for the four channels overwritten on observation (U, AGE, TARGET, OCCUPIED
@@ -104,6 +109,8 @@ class MentalMaps:
             self.explored[:] = False
             self._all_explored = False
             self._adjacency_int8 = [None] * self.n_agents
+            self._adjacency_cached = False
+            self._folded_positions = [set() for _ in range(self.n_agents)]
 
     @property
     def features(self) -> np.ndarray:
@@ -132,6 +139,8 @@ class MentalMaps:
         counts: np.ndarray,
         edge_nodes: np.ndarray,
         advance_age: bool = True,
+        edge_positions: list[int] | None = None,
+        presence: np.ndarray | None = None,
     ) -> None:
         """Fold one step of local observations into every map.
 
@@ -142,6 +151,10 @@ class MentalMaps:
         :param counts: ``(N,)`` agents per node; each map sees others' presence on observed nodes.
         :param edge_nodes: ``(n_agents, N)`` bool, nodes whose incident edges each agent observes now.
         :param advance_age: False for the very first observation of an episode.
+        :param edge_positions: the agents' nodes, when each row of ``edge_nodes`` is exactly the
+            edge-node row of its agent's node (no failed agent, no shared map): then a map on a
+            node whose row it has folded before is skipped without any array work.
+        :param presence: ``(N,)`` bool, ``counts > 0``, if the caller has it (saves recomputing it).
         """
         c = self.channels
         self_onehot = c[SELF]
@@ -157,17 +170,26 @@ class MentalMaps:
         # Others there: count minus self > 0, i.e. count > 0 off the agent's own node and count > 1
         # on it (cheaper than comparing the int counts with the float one-hot row by row).
         occupied = staged[OCCUPIED]
-        np.greater(counts, 0, out=occupied)
+        if presence is None:
+            np.greater(counts, 0, out=occupied)
+        else:
+            np.copyto(occupied, presence)  # the bool broadcast cast to 0/1, cheaper than comparing
         occupied[self._rows, positions] = counts[positions] > 1
         c[: OCCUPIED + 1] = np.where(observed, staged, c[: OCCUPIED + 1])  # faster than a masked copyto here
         if self.track_uncertainty_sum:
             self.episode_uncertainty_sum += np.add.reduce(c[U], axis=1)  # = .sum(axis=1), no wrapper
         if not self._all_explored:
-            self._discover_edges(edge_nodes)
+            self._discover_edges(edge_nodes, edge_positions)
 
-    def _discover_edges(self, edge_nodes: np.ndarray) -> None:
+    def _discover_edges(self, edge_nodes: np.ndarray, edge_positions: list[int] | None = None) -> None:
+        folded = getattr(self, "_folded_positions", None)  # None: a map unpickled from before it
+        if edge_positions is not None and folded is not None:
+            if all(position in seen for position, seen in zip(edge_positions, folded)):
+                return  # the common case once the agents walk where they have been
+            for position, seen in zip(edge_positions, folded):
+                seen.add(position)  # folded by the lines below
         new = edge_nodes & ~self.explored
-        if not new.any():  # the common case once a neighbourhood has been seen
+        if not new.any():
             return
         for agent in np.flatnonzero(new.any(axis=1)):
             rows = np.flatnonzero(new[agent])
@@ -175,6 +197,7 @@ class MentalMaps:
             self.adjacency[agent, :, rows] |= self._true_adjacency[rows, :]
             self.explored[agent, rows] = True
             self._adjacency_int8[agent] = None
+        self._adjacency_cached = False
         self._all_explored = bool(self.explored.all())
 
     def adjacency_observation(self, agent: int) -> np.ndarray:
@@ -193,7 +216,8 @@ class MentalMaps:
     def adjacency_observations(self) -> list[np.ndarray]:
         """Every map's :meth:`adjacency_observation` (``n_agents`` read-only ``(N, N)`` int8
         arrays), in agent order."""
-        cached = self._adjacency_int8
-        if all(array is not None for array in cached):  # the common case: no map gained an edge
-            return cast(list[np.ndarray], list(cached))
-        return [self.adjacency_observation(i) for i in range(self.n_agents)]
+        if getattr(self, "_adjacency_cached", False):  # the common case: no map gained an edge
+            return cast(list[np.ndarray], list(self._adjacency_int8))
+        arrays = [self.adjacency_observation(i) for i in range(self.n_agents)]
+        self._adjacency_cached = True
+        return arrays

@@ -380,7 +380,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.rewards_computer.reset()
         self.metrics.reset()
         counts = np.bincount(self.core.positions, minlength=n_nodes)
-        self._observe(counts, advance_age=False)
+        self._observe(counts, counts > 0, advance_age=False)
         infos: dict[str, dict] = {agent: {} for agent in self.agents}
         return self._observations(), infos
 
@@ -407,7 +407,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         positions = self.core.positions
         self._dwell += 1
         self._dwell[positions != previous] = 0
-        self._observe(outcome.counts, advance_age=True)
+        self._observe(outcome.counts, outcome.presence, advance_age=True)
         alone_on_target = self._targets[positions] & ~outcome.collided
         if failures_on:
             alone_on_target &= self._active  # a failed agent is on no node
@@ -490,15 +490,21 @@ class PersistentMonitoringEnv(ParallelEnv):
         return self.metrics.uncertainty_trace()
 
     # -------------------------------------------------------- observations
-    def _observe(self, counts: np.ndarray, advance_age: bool) -> None:
+    def _observe(self, counts: np.ndarray, presence: np.ndarray, advance_age: bool) -> None:
+        """Fold this step's local views into the maps: ``counts`` ``(N,)`` agents per node and
+        ``presence`` ``(N,)`` bool, ``counts > 0``."""
         positions = self.core.positions
         self._observed = self._observes[positions]  # (n_agents, N) bool
         self._last_outcome_counts = counts
         edge_nodes = self._edge_nodes[positions]
+        # Each map's edge row is its own node's unless an agent failed or the map is shared.
+        edge_positions: list[int] | None = None
         # A failed agent senses nothing (nor feeds a shared map).
         if np.count_nonzero(self._active) < self.n_agents:
             self._observed = self._observed & self._active[:, None]
             edge_nodes = edge_nodes & self._active[:, None]
+        elif not self.shared_map:
+            edge_positions = positions.tolist()
         map_observed = self._observed
         if self.shared_map:
             # Centralized setting: every map receives the union of the team's observations.
@@ -512,6 +518,8 @@ class PersistentMonitoringEnv(ParallelEnv):
             counts,
             edge_nodes,
             advance_age=advance_age,
+            edge_positions=edge_positions,
+            presence=presence,
         )
 
     def _observations(self) -> dict[str, dict[str, Any]]:
@@ -521,7 +529,7 @@ class PersistentMonitoringEnv(ParallelEnv):
             nodes = self.maps.features  # a fresh array; rows handed out as views
             dwell = self._dwell.astype(np.float32)[:, None]
             adjacency: Sequence[np.ndarray] | np.ndarray
-            if self.space_nodes > self.graph.n_nodes:
+            if self.space_nodes > self.core.n_nodes:
                 nodes, adjacency, masks = self._padded(nodes, masks)
             else:
                 adjacency = self.maps.adjacency_observations()
