@@ -45,6 +45,11 @@ def test_train_writes_run_folder_and_refuses_overwrite(tiny_train, capsys) -> No
     )
     assert yaml.safe_load((out / "args.yml").read_text())["seed"] == 3
     assert "--timesteps 32" in (out / "command.txt").read_text()
+    machine = yaml.safe_load((out / "machine.yml").read_text())  # what the run was computed on
+    import torch
+
+    assert machine["torch"] == str(torch.__version__) and machine["torch_threads"] == 1
+    assert machine["cpu"] and machine["torch_cpu_capability"] == str(torch.backends.cpu.get_cpu_capability())
     assert any((out / "tb").iterdir())  # TensorBoard runs, one per agent
 
     from sb3_pm.agents.team import IndependentPPO

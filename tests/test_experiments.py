@@ -57,6 +57,8 @@ def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
         assert variant.label in table
     report = (out / "report.md").read_text()
     assert table.strip() in report and (out / "effects.md").read_text().strip() in report
+    trained = [cell for cell in out.glob("cells/*/*/*") if (cell / "team").is_dir()]
+    assert trained and all((cell / "machine.yml").is_file() for cell in trained)  # who trained it
     assert "reproduce" in report and "--quick" in report  # the command that made it
     assert "sb3_pm " in report and "![" in report  # the code version and the figures
     for cell in plan_cells(experiment, out):

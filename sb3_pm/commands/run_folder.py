@@ -25,7 +25,7 @@ LOCK = ".lock"
 #: Files that mark a folder as a run folder.
 RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
 #: Everything a run writes into its folder: all that ``--overwrite`` may remove.
-RUN_ENTRIES = frozenset({*RUN_MARKERS, "tb", "checkpoints", "resumed.txt", LOCK})
+RUN_ENTRIES = frozenset({*RUN_MARKERS, "machine.yml", "tb", "checkpoints", "resumed.txt", LOCK})
 
 
 class RunFolderError(Sb3PmError):

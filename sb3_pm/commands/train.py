@@ -9,7 +9,8 @@
 configuration measured; ``--config ippo_paper`` trains the paper-faithful one.
 
 The run folder (default ``runs/<graph>_<algo>_s<seed>``, relative to the working directory)
-records ``config.yml`` (the resolved entry), ``args.yml``, ``command.txt``, TensorBoard logs per
+records ``config.yml`` (the resolved entry), ``args.yml``, ``command.txt``, ``machine.yml`` (the CPU
+and library versions it ran on), TensorBoard logs per
 agent in ``tb/``, checkpoints in ``checkpoints/`` and the saved team in ``team/`` (what
 ``sb3-pm evaluate --policy RUN_DIR`` loads).
 
@@ -42,6 +43,7 @@ from sb3_pm.commands.run_folder import (
     locked_run_folder,
 )
 from sb3_pm.files import write_atomic
+from sb3_pm.machine import machine_record
 
 
 def register(subparsers: Any) -> None:
@@ -350,7 +352,8 @@ def _sigterm_as_interrupt() -> Iterator[None]:
 
 
 def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
-    """``args.yml``, ``config.yml`` (the resolved entry) and ``command.txt``, each written atomically."""
+    """``args.yml``, ``config.yml`` (the resolved entry), ``command.txt`` and ``machine.yml``
+    (:func:`sb3_pm.machine.machine_record`), each written atomically."""
     recorded = {
         key: (str(value) if isinstance(value, Path) else value)
         for key, value in vars(args).items()
@@ -364,6 +367,8 @@ def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
     write_atomic(out / "config.yml", yaml.safe_dump(resolved, sort_keys=False))
     # The equivalent command (with every setting made explicit), to rerun this exact training.
     write_atomic(out / "command.txt", shlex.join(["sb3-pm", "train", *_argv_from(args, out)]) + "\n")
+    # ... and what it ran on: the same command trains another team on another kind of CPU.
+    write_atomic(out / "machine.yml", yaml.safe_dump(machine_record(), sort_keys=False))
 
 
 def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:

@@ -1,0 +1,55 @@
+"""What a run was computed on: the record ``machine.yml`` beside a run's ``config.yml``.
+
+A seeded run repeats bit for bit on the same kind of machine, but not across machines: torch
+picks its CPU kernels by the instruction sets the processor has (AVX2, AVX-512, ...), and kernels
+of different widths add in different orders, so the last bits of a forward pass differ and
+training amplifies them into another team (docs/METHOD.md, "Threads and random streams"). The
+record says which CPU, kernels and library versions a run used, so that a figure that does not
+repeat elsewhere can be told apart from a bug.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+from typing import Any
+
+
+def cpu_model() -> str:
+    """The processor's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`)."""
+    cpuinfo = Path("/proc/cpuinfo")
+    try:
+        for line in cpuinfo.read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def machine_record() -> dict[str, Any]:
+    """``{key: value}``: CPU model and count, torch's CPU kernel level and threads, and the versions
+    of Python, NumPy, torch and Stable-Baselines3 (plain strings and ints, for YAML)."""
+    import numpy as np
+    import stable_baselines3
+    import torch
+
+    from sb3_pm.version import __version__
+
+    return {
+        "sb3_pm": __version__,
+        "python": platform.python_version(),
+        "numpy": str(np.__version__),
+        "torch": str(torch.__version__),  # a str subclass YAML would not write
+        "stable_baselines3": str(stable_baselines3.__version__),
+        "platform": platform.platform(),
+        "cpu": cpu_model(),
+        "cpu_count": os.cpu_count() or 0,
+        # the widest vector instructions torch's CPU kernels use here (e.g. AVX2, AVX512)
+        "torch_cpu_capability": str(torch.backends.cpu.get_cpu_capability()),
+        "torch_threads": int(torch.get_num_threads()),
+    }
+
+
+__all__ = ["cpu_model", "machine_record"]
