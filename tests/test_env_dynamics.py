@@ -126,6 +126,15 @@ class TestIllegalActions:
         with pytest.raises(IllegalActionError, match="cannot move to node 3"):
             act(env, 3)
 
+    def test_the_core_refuses_a_destination_list_of_another_length(self) -> None:
+        from sb3_pm.envs.core import MonitoringCore
+
+        core = MonitoringCore(path_graph(4, [3]), 2)
+        core.reset(np.array([0, 3]))
+        for destinations in ([1], [1, 2, 3]):
+            with pytest.raises(ValueError, match="expected 2 destinations"):
+                core.step(np.array(destinations))
+
     @pytest.mark.parametrize("u_max", [1, 7, 100])
     def test_the_update_table_is_eq_1_with_the_cap(self, u_max: int) -> None:
         # Every level and both presences, against eq. (1) written out.

@@ -74,6 +74,8 @@ class MonitoringCore:
         self._target_idx = graph.target_indices
         self._build_legal_table()
         self.positions = np.zeros(n_agents, dtype=np.int64)
+        #: ``(N,)`` int64, every value in ``[0, u_max]`` (set it through :meth:`reset`): :meth:`step`
+        #: indexes its update table with it.
         self.uncertainty = np.zeros(graph.n_nodes, dtype=np.int64)
 
     def _build_legal_table(self) -> None:
@@ -149,6 +151,8 @@ class MonitoringCore:
             agent stays where it is and is on no node: it clears nothing and collides with nobody.
         """
         destinations = np.asarray(destinations, dtype=np.int64)
+        if destinations.shape != (self.n_agents,):  # the set check below would zip a short list
+            raise InputError(f"expected {self.n_agents} destinations, got shape {destinations.shape}")
         if active is not None:
             destinations = np.where(active, destinations, self.positions)
         n = self.n_nodes
