@@ -194,3 +194,17 @@ def test_maps_pickled_before_the_folded_positions_still_discover_edges() -> None
     env.unwrapped.maps = pickle.loads(pickle.dumps(old))
     obs, *_ = env.step({"agent_0": 1})
     assert obs["agent_0"]["adjacency"].sum() == 4  # edges 0-1 and 1-2, both ways
+
+
+def test_adjacency_observations_stay_read_only_through_a_pickle() -> None:
+    # Callers keep these arrays without copying; an unpickled map (a checkpoint) must not hand out
+    # arrays a caller could write into the map's cache through.
+    import pickle
+
+    env, obs = env_on_path([1])
+    assert not obs["agent_0"]["adjacency"].flags.writeable
+    env.unwrapped.maps = pickle.loads(pickle.dumps(env.unwrapped.maps))
+    obs, *_ = env.step({"agent_0": 1})
+    assert not obs["agent_0"]["adjacency"].flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        obs["agent_0"]["adjacency"][0, 0] = 1

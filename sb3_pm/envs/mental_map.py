@@ -102,6 +102,14 @@ class MentalMaps:
             self.explored[:] = True
             self._all_explored = True
 
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle (a checkpoint's env copy). NumPy unpickles every array writeable, so the cached
+        int8 adjacencies are marked read-only again, as :meth:`adjacency_observation` promises."""
+        self.__dict__.update(state)
+        for cached in state.get("_adjacency_int8", []):
+            if cached is not None:
+                cached.setflags(write=False)
+
     def forget_edges(self) -> None:
         """Start the known adjacency over (a new agent lifetime); no-op in ``"known"`` mode."""
         if self.graph_knowledge == "discovered":
