@@ -15,6 +15,9 @@ import platform
 from pathlib import Path
 from typing import Any
 
+#: The record's file name inside a run folder or a sweep cell.
+MACHINE_RECORD = "machine.yml"
+
 
 def cpu_model() -> str:
     """The processor's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`)."""
@@ -52,4 +55,15 @@ def machine_record() -> dict[str, Any]:
     }
 
 
-__all__ = ["cpu_model", "machine_record"]
+def write_machine_record(folder: Path) -> Path:
+    """Write :func:`machine_record` to ``folder / MACHINE_RECORD`` atomically; returns the path."""
+    import yaml
+
+    from sb3_pm.files import write_atomic
+
+    path = Path(folder) / MACHINE_RECORD
+    write_atomic(path, yaml.safe_dump(machine_record(), sort_keys=False))
+    return path
+
+
+__all__ = ["MACHINE_RECORD", "cpu_model", "machine_record", "write_machine_record"]

@@ -19,13 +19,14 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from sb3_pm.errors import Sb3PmError
+from sb3_pm.machine import MACHINE_RECORD
 
 #: The lock file inside a run folder.
 LOCK = ".lock"
 #: Files that mark a folder as a run folder.
 RUN_MARKERS = ("args.yml", "config.yml", "command.txt", "team")
 #: Everything a run writes into its folder: all that ``--overwrite`` may remove.
-RUN_ENTRIES = frozenset({*RUN_MARKERS, "machine.yml", "tb", "checkpoints", "resumed.txt", LOCK})
+RUN_ENTRIES = frozenset({*RUN_MARKERS, MACHINE_RECORD, "tb", "checkpoints", "resumed.txt", LOCK})
 
 
 class RunFolderError(Sb3PmError):

@@ -43,7 +43,7 @@ from sb3_pm.commands.run_folder import (
     locked_run_folder,
 )
 from sb3_pm.files import write_atomic
-from sb3_pm.machine import machine_record
+from sb3_pm.machine import write_machine_record
 
 
 def register(subparsers: Any) -> None:
@@ -353,7 +353,7 @@ def _sigterm_as_interrupt() -> Iterator[None]:
 
 def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
     """``args.yml``, ``config.yml`` (the resolved entry), ``command.txt`` and ``machine.yml``
-    (:func:`sb3_pm.machine.machine_record`), each written atomically."""
+    (:func:`sb3_pm.machine.write_machine_record`), each written atomically."""
     recorded = {
         key: (str(value) if isinstance(value, Path) else value)
         for key, value in vars(args).items()
@@ -368,7 +368,7 @@ def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:
     # The equivalent command (with every setting made explicit), to rerun this exact training.
     write_atomic(out / "command.txt", shlex.join(["sb3-pm", "train", *_argv_from(args, out)]) + "\n")
     # ... and what it ran on: the same command trains another team on another kind of CPU.
-    write_atomic(out / "machine.yml", yaml.safe_dump(machine_record(), sort_keys=False))
+    write_machine_record(out)
 
 
 def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:

@@ -14,11 +14,9 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 
-#: What :meth:`MonitoringCore._build_legal_table` derives from the graph (rebuilt on unpickling a
+#: What :meth:`MonitoringCore._build_tables` derives from the graph (rebuilt on unpickling a
 #: core written before one of them existed).
-_DERIVED_TABLES = frozenset(
-    {"n_nodes", "_legal_sets", "_legal_table", "_row_start", "_next_u", "_no_illegal"}
-)
+_DERIVED_TABLES = frozenset({"n_nodes", "_legal_sets", "_next_u"})
 
 
 class IllegalActionError(InputError):
@@ -72,44 +70,34 @@ class MonitoringCore:
         self.u_max = int(u_max)
         self._reachable = graph.reachable
         self._target_idx = graph.target_indices
-        self._build_legal_table()
+        self._build_tables()
         self.positions = np.zeros(n_agents, dtype=np.int64)
         #: ``(N,)`` int64, every value in ``[0, u_max]`` (set it through :meth:`reset`): :meth:`step`
         #: indexes its update table with it.
         self.uncertainty = np.zeros(graph.n_nodes, dtype=np.int64)
 
-    def _build_legal_table(self) -> None:
+    def _build_tables(self) -> None:
         """The lookup tables of :meth:`step`, derived from the graph and ``u_max``.
 
         * ``_legal_sets``: each node's reachable set as a frozenset of ints. A team of a few agents
-          checks its moves with a few set lookups, far cheaper than any NumPy call.
-        * ``_legal_table`` and ``_row_start``: the reachable matrix with a never-reachable column on
-          each side, flattened (``(N * (N + 2),)`` bool, ``(N,)`` int64): one lookup at
-          ``row_start[position] + destination`` checks every move at once, and a destination outside
-          ``0..N-1``, clipped to -1 or N first, lands in a padding column of the agent's own row.
-          Used only to name the agents whose move was illegal.
+          checks its moves with a few set lookups, far cheaper than any NumPy call; a destination
+          outside ``0..N-1`` is simply in no set.
         * ``_next_u``: eq. (1) with the cap as one ``(2 * (u_max + 1),)`` int64 table, indexed by
           ``u + (u_max + 1) * occupied``: one gather updates every target.
         """
-        n = self.graph.n_nodes
         #: ``N``, a plain attribute: the per-step code reads it where a property call would cost more.
-        self.n_nodes = n
+        self.n_nodes = self.graph.n_nodes
         self._legal_sets = [frozenset(np.flatnonzero(row).tolist()) for row in self.graph.reachable]
-        legal_table = np.zeros((n, n + 2), dtype=bool)
-        legal_table[:, 1:-1] = self.graph.reachable
-        self._legal_table = legal_table.ravel()
-        self._row_start = np.arange(n, dtype=np.int64) * (n + 2) + 1
         levels = np.arange(self.u_max + 1, dtype=np.int64)
         # empty: u + 1 up to the cap; occupied: u - 1, and 0 stays 0
         self._next_u = np.concatenate([np.minimum(levels + 1, self.u_max), np.maximum(levels - 1, 0)])
-        self._no_illegal = np.zeros(self.n_agents, dtype=bool)
 
     def __setstate__(self, state: dict) -> None:
         """Unpickle (a checkpoint's env copy), rebuilding the lookup tables that cores pickled by
         earlier versions lack."""
         self.__dict__.update(state)
         if not _DERIVED_TABLES <= state.keys():
-            self._build_legal_table()
+            self._build_tables()
 
     def reset(self, positions: np.ndarray, uncertainty: np.ndarray | None = None) -> None:
         """Place the agents and set the initial uncertainties (zeros by default; non-targets stay 0)."""
@@ -158,25 +146,22 @@ class MonitoringCore:
         n = self.n_nodes
         legal_sets = self._legal_sets
         # A few agents: set lookups on Python ints beat any vectorized check.
-        all_legal = all(
+        legal = [
             destination in legal_sets[position]
             for position, destination in zip(self.positions.tolist(), destinations.tolist())
-        )
-        if all_legal:
-            illegal_flags = self._no_illegal.copy()
-        else:
-            lookup = self._row_start[self.positions] + np.minimum(np.maximum(destinations, -1), n)
-            legal = self._legal_table[lookup]
+        ]
+        all_legal = all(legal)
+        illegal_flags = np.zeros(self.n_agents, dtype=bool) if all_legal else ~np.array(legal, dtype=bool)
+        if not all_legal:
             if illegal == "raise":
-                agent = int(np.flatnonzero(~legal)[0])
+                agent = legal.index(False)
                 name = agent_names[agent] if agent_names else f"agent {agent}"
                 raise IllegalActionError(
                     f"{name} on node {int(self.positions[agent])} "
                     f"cannot move to node {int(destinations[agent])}; "
                     f"its reachable set is {self.reachable_from(agent).tolist()}"
                 )
-            destinations = np.where(legal, destinations, self.positions)
-            illegal_flags = ~legal
+            destinations = np.where(illegal_flags, self.positions, destinations)
         self.positions = destinations
         present = destinations if active is None else destinations[active]
         counts = np.bincount(present, minlength=n)
@@ -185,7 +170,7 @@ class MonitoringCore:
         u_before = uncertainty[destinations]
         targets = self._target_idx
         target_presence = presence[targets]
-        # eq. 1 with the cap, by table (see _build_legal_table): a visited target drops by one or
+        # eq. 1 with the cap, by table (see _build_tables): a visited target drops by one or
         # stays at zero; an unvisited one grows by one up to u_max.
         u = self._next_u[uncertainty[targets] + target_presence * (self.u_max + 1)]
         uncertainty[targets] = u

@@ -103,9 +103,13 @@ class MentalMaps:
             self._all_explored = True
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (a checkpoint's env copy). NumPy unpickles every array writeable, so the cached
-        int8 adjacencies are marked read-only again, as :meth:`adjacency_observation` promises."""
+        """Unpickle (a checkpoint's env copy). Maps pickled before the discovery caches existed get
+        empty ones (so the cache is rebuilt and every position is folded again), and, since NumPy
+        unpickles every array writeable, the cached int8 adjacencies are marked read-only again,
+        as :meth:`adjacency_observation` promises."""
         self.__dict__.update(state)
+        self.__dict__.setdefault("_adjacency_cached", False)
+        self.__dict__.setdefault("_folded_positions", [set() for _ in range(self.n_agents)])
         for cached in state.get("_adjacency_int8", []):
             if cached is not None:
                 cached.setflags(write=False)
@@ -190,8 +194,8 @@ class MentalMaps:
             self._discover_edges(edge_nodes, edge_positions)
 
     def _discover_edges(self, edge_nodes: np.ndarray, edge_positions: list[int] | None = None) -> None:
-        folded = getattr(self, "_folded_positions", None)  # None: a map unpickled from before it
-        if edge_positions is not None and folded is not None:
+        folded = self._folded_positions
+        if edge_positions is not None:
             if all(position in seen for position, seen in zip(edge_positions, folded)):
                 return  # the common case once the agents walk where they have been
             for position, seen in zip(edge_positions, folded):
@@ -224,7 +228,7 @@ class MentalMaps:
     def adjacency_observations(self) -> list[np.ndarray]:
         """Every map's :meth:`adjacency_observation` (``n_agents`` read-only ``(N, N)`` int8
         arrays), in agent order."""
-        if getattr(self, "_adjacency_cached", False):  # the common case: no map gained an edge
+        if self._adjacency_cached:  # the common case: no map gained an edge
             return cast(list[np.ndarray], list(self._adjacency_int8))
         arrays = [self.adjacency_observation(i) for i in range(self.n_agents)]
         self._adjacency_cached = True

@@ -45,9 +45,9 @@ from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant
-from sb3_pm.files import move_aside, write_atomic
+from sb3_pm.files import move_aside
 from sb3_pm.graphs import graph_label
-from sb3_pm.machine import machine_record
+from sb3_pm.machine import write_machine_record
 
 #: Evaluation env seeds start here, far from the seeds training episodes use.
 EVAL_SEED_OFFSET = 1_000_000
@@ -199,7 +199,7 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
             team.learn(timesteps)
     team.save(folder / "team", overwrite=True)
     # The machine that trained the team: the same seed trains another team on another kind of CPU.
-    write_atomic(folder / "machine.yml", yaml.safe_dump(machine_record(), sort_keys=False))
+    write_machine_record(folder)
     shutil.rmtree(folder / CHECKPOINTS, ignore_errors=True)  # the saved team supersedes them
     return team
 
