@@ -72,6 +72,35 @@ def test_clearing_pays_only_for_lowering_u() -> None:
     assert rewards == {"agent_0": 0.0, "agent_1": 0.0}
 
 
+def test_urgency_pays_the_cleared_targets_uncertainty_where_clearing_pays() -> None:
+    # Path 0-1-2, target 2. agent_1 waits at 0 while u2 grows; agent_0 clears it alone.
+    env = make({"urgency": 1.0}, [0, 0])
+    for _ in range(4):  # u2 = 4, nobody on the target: nothing paid
+        _, rewards, *_ = env.step({"agent_0": 1, "agent_1": 0})
+        assert rewards == {"agent_0": 0.0, "agent_1": 0.0}
+    env.step({"agent_0": 1, "agent_1": 0})  # u2 = 5
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 0})  # found at 5 -> 4: 5 / u_max
+    assert rewards == {"agent_0": pytest.approx(5 / 100), "agent_1": 0.0}
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 1})  # found at 4 -> 3
+    assert rewards["agent_0"] == pytest.approx(4 / 100)
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 2})  # shared: clearing does not pay, nor this
+    assert rewards == {"agent_0": 0.0, "agent_1": 0.0}
+    for _ in range(3):
+        env.step({"agent_0": 2, "agent_1": 1})  # u2 -> 0
+    _, rewards, *_ = env.step({"agent_0": 2, "agent_1": 1})  # guarding a clean target: 0
+    assert rewards["agent_0"] == 0.0
+
+
+def test_urgency_adds_to_clearing_and_leaves_it_unchanged() -> None:
+    moves = [{"agent_0": d} for d in (1, 1, 1, 2, 2, 1, 2, 2, 2)]
+    plain, both = make({"clearing": 0.04}, [0]), make({"clearing": 0.04, "urgency": 0.5}, [0])
+    for move in moves:
+        u_before = int(both.core.uncertainty[2]) if move["agent_0"] == 2 else 0
+        _, r_plain, *_ = plain.step(move)
+        _, r_both, *_ = both.step(move)
+        assert r_both["agent_0"] == pytest.approx(r_plain["agent_0"] + 0.5 * u_before / 100)
+
+
 def test_change_is_paid_at_the_last_step_against_past_episodes() -> None:
     env = make({"change": 1.0}, [2], max_cycles=2)
     # Episode 1: stay on target 2. Map u sum: step 1 u2 = 0, step 2 u2 = 0 -> U = 0; no history yet.

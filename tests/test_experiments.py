@@ -601,6 +601,9 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     for key, weight in (("crowding_0002", 0.002), ("crowding_0008", 0.008)):
         assert crowding[key].env_kwargs == {"reward": {**default_reward, "crowding": weight}}
         assert not crowding[key].hyperparams and not crowding[key].policy_kwargs
+    urgency = _variants("urgency_reward")["urgency_004"]
+    assert urgency.env_kwargs == {"reward": {**default_reward, "urgency": 0.04}}
+    assert not urgency.hyperparams and not urgency.policy_kwargs
     collision = _variants("collision_reward")["collision_001"]
     assert collision.env_kwargs == {"reward": {**default_reward, "collision": 0.01}}
     assert not collision.hyperparams and not collision.policy_kwargs

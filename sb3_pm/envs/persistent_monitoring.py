@@ -41,7 +41,7 @@ initial_uncertainty (``"zero"``)
 reward (``"paper"``)
     A preset (``"paper"``: eq. 5-8; ``"reduction"``) or a ``{term: weight}`` mapping over the
     terms ``collision``, ``momentum``, ``change``, ``reduction``, ``clearing``, ``neglect``,
-    ``crowding`` (see :mod:`sb3_pm.envs.rewards`).
+    ``crowding``, ``urgency`` (see :mod:`sb3_pm.envs.rewards`).
 observation (``"map"``)
     ``"map"``: each agent's mental map (what learners and decentralized baselines use);
     ``"local"``: only this step's raw local observation.

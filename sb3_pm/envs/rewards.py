@@ -25,6 +25,12 @@ local: no agent's reward depends on another agent's observations or map. Terms:
                its own node included; a failed teammate is on no node and counts for nothing): a
                dense push to spread out, from the agent's own sensing only. Aimed at teams whose
                agents settle near the same targets and leave others unvisited (not in the paper).
+``urgency``    ``u / u_max`` of the target the agent clears this step, where ``clearing`` pays
+               (alone on a target with u > 0; ``u`` before the step), else 0. ``clearing`` pays
+               the same 1 per step for holding two adjacent targets near 0 as for clearing a
+               target left at the cap, so nothing in it draws an agent to a neglected target;
+               this term pays in proportion to how long the target was really left, as the agent
+               itself finds it on arrival (not in the paper).
 
 Presets: ``paper`` = 0.05 x (collision + change + momentum), as in the paper; ``reduction`` =
 1.0 x reduction + 0.05 x collision.
@@ -40,7 +46,7 @@ import numpy as np
 from sb3_pm.envs.core import StepOutcome
 from sb3_pm.errors import InputError
 
-TERMS = ("collision", "momentum", "change", "reduction", "clearing", "neglect", "crowding")
+TERMS = ("collision", "momentum", "change", "reduction", "clearing", "neglect", "crowding", "urgency")
 REWARD_PRESETS: dict[str, dict[str, float]] = {
     "paper": {"collision": 0.05, "change": 0.05, "momentum": 0.05},
     "reduction": {"reduction": 1.0, "collision": 0.05},
@@ -121,9 +127,13 @@ class RewardComputer:
             counterfactual = np.minimum(outcome.u_before + 1, self.u_max)
             removed = counterfactual - outcome.u_after
             terms["reduction"] = w["reduction"] * np.where(alone_on_target, removed, 0.0)
-        if "clearing" in w:
+        if "clearing" in w or "urgency" in w:
             lowered = np.maximum(outcome.u_before - outcome.u_after, 0)
-            terms["clearing"] = w["clearing"] * np.where(alone_on_target, lowered, 0.0)
+            clears = alone_on_target & (lowered > 0)
+            if "clearing" in w:
+                terms["clearing"] = w["clearing"] * np.where(clears, lowered, 0.0)
+            if "urgency" in w:
+                terms["urgency"] = w["urgency"] * np.where(clears, outcome.u_before / self.u_max, 0.0)
         if "neglect" in w:
             if worst_known is None:
                 raise InputError("the neglect reward term needs each agent's worst known projection")
