@@ -83,6 +83,17 @@ def register(subparsers: Any) -> None:
         help="with --neglect-bound: bound every known target (known, the default) or only those last "
         "seen without a teammate on them (unserved)",
     )
+    parser.add_argument(
+        "--settling",
+        nargs="?",
+        type=int,
+        const=-1,
+        default=None,
+        metavar="SINCE",
+        help="print where each agent settles in each episode (the nodes it stood on for at least 5%% "
+        "of the steps from SINCE on; default: the second half) and which targets nobody holds; "
+        "saved in --json",
+    )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
     add_compute_options(parser)
     parser.set_defaults(func=run)
@@ -96,6 +107,18 @@ def check_counts(args: argparse.Namespace) -> None:
         value = getattr(args, flag)
         if value is not None and value < 1:
             raise UsageError(f"--{flag} must be at least 1, got {value}")
+    settling = getattr(args, "settling", None)
+    if settling is not None and settling != -1 and not 0 <= settling < args.steps:
+        raise UsageError(
+            f"--settling SINCE must be in [0, {args.steps}) for {args.steps}-step episodes, got {settling}"
+        )
+
+
+def settle_since(args: argparse.Namespace) -> int | None:
+    """The harness's ``settle_since`` from ``--settling [SINCE]`` (bare: the second half)."""
+    if args.settling is None:
+        return None
+    return args.steps // 2 if args.settling == -1 else int(args.settling)
 
 
 def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
@@ -239,6 +262,7 @@ def run(args: argparse.Namespace) -> int:
         policy_name=label,
         deterministic=deterministic,
         threads=args.threads,
+        settle_since=settle_since(args),
     )
     result.config["graph"] = str(args.graph)
     if args.neglect_bound is not None:
@@ -250,6 +274,12 @@ def run(args: argparse.Namespace) -> int:
     if args.neglect_bound is not None:
         share = activity["forced"] / max(1, activity["masks"])
         print(f"neglect bound {args.neglect_bound:g}: forced {share:.1%} of {activity['masks']} agent-steps")
+    if args.settling is not None:
+        from sb3_pm.evaluation.settling import settling_table
+
+        since = result.episodes[0].settling.since  # type: ignore[union-attr]  # settle_since was set
+        print(f"where each agent settles from step {since} on (nodes held >= 5% of the steps):")
+        print(settling_table(result.episodes))
     if args.json is not None:
         args.json.write_text(json.dumps(result.to_dict(), indent=2))
         print(f"wrote {args.json}", file=sys.stderr)

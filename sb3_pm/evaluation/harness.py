@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from sb3_pm.errors import InputError
+from sb3_pm.evaluation.settling import Settling, SettlingRecorder
 from sb3_pm.graphs import GraphLike, graph_label, resolve_graph
 from sb3_pm.team_interface import Team
 
@@ -38,6 +39,7 @@ class EpisodeRecord:
     :ivar team_seed: the team's reset seed.
     :ivar metrics: the env's metrics dict (``avg_uncertainty``, ``max_neglect``, ...).
     :ivar trace: ``(K,)`` summed target uncertainty after each step.
+    :ivar settling: where each agent settled (:mod:`sb3_pm.evaluation.settling`), if recorded.
     """
 
     episode: int
@@ -45,6 +47,7 @@ class EpisodeRecord:
     team_seed: int
     metrics: dict[str, float]
     trace: np.ndarray = field(repr=False)
+    settling: Settling | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, float | int]:
         """A flat JSON-ready dict: the metrics plus ``episode``, ``seed`` and ``team_seed``."""
@@ -106,18 +109,25 @@ class EvaluationResult:
         }
         if traces:
             payload["traces"] = [record.trace.tolist() for record in self.episodes]
+        if any(record.settling is not None for record in self.episodes):
+            payload["settling"] = [
+                None if record.settling is None else record.settling.to_dict() for record in self.episodes
+            ]
         return payload
 
     @classmethod
     def from_dict(cls, payload: dict[str, Any]) -> EvaluationResult:
         """The inverse of ``to_dict(traces=True)`` (traces are empty if they were not stored)."""
         traces = payload.get("traces") or [[] for _ in payload["episodes"]]
+        settlings = payload.get("settling") or [None for _ in payload["episodes"]]
         records = []
-        for row, trace in zip(payload["episodes"], traces):
+        for row, trace, settled in zip(payload["episodes"], traces, settlings):
             metrics = {k: v for k, v in row.items() if k not in ("episode", "seed", "team_seed")}
             episode, seed, seed_of_team = int(row["episode"]), int(row["seed"]), int(row["team_seed"])
             trace_array = np.asarray(trace, dtype=float)
-            records.append(EpisodeRecord(episode, seed, seed_of_team, metrics, trace_array))
+            record = EpisodeRecord(episode, seed, seed_of_team, metrics, trace_array)
+            record.settling = None if settled is None else Settling.from_dict(settled)
+            records.append(record)
         config = payload["config"]
         return cls(policy=config["policy"], graph=config["graph"], config=config, episodes=records)
 
@@ -144,6 +154,7 @@ def evaluate(
     policy_name: str | None = None,
     deterministic: bool | None = None,
     threads: int | None = 1,
+    settle_since: int | None = None,
 ) -> EvaluationResult:
     """Run ``team`` for ``episodes`` full episodes on ``graph`` and collect their metrics.
 
@@ -168,6 +179,8 @@ def evaluate(
         ``None`` leaves torch's setting alone). A learned team's per-step forward passes are far
         too small to gain from intra-op threads: one episode took 31 s of wall time with one
         thread and 60 s with torch's default two on the 2-core development machine.
+    :param settle_since: record where each agent settles from this step on (each record's
+        ``settling``; :mod:`sb3_pm.evaluation.settling`); ``None`` (default) records nothing.
     :raises ValueError: for ``episodes < 1``, ``threads < 1`` or bad environment arguments.
     """
     from sb3_pm.envs import persistent_monitoring_v0
@@ -176,6 +189,10 @@ def evaluate(
         raise InputError(f"episodes must be at least 1, got {episodes}")
     if threads is not None and threads < 1:
         raise InputError(f"threads must be at least 1, got {threads}")
+    if settle_since is not None and not 0 <= settle_since < max_cycles:
+        raise InputError(
+            f"settle_since must be in [0, {max_cycles}) for {max_cycles}-step episodes, got {settle_since}"
+        )
     spec = resolve_graph(graph)
     deterministic = team.acts_deterministically(deterministic)
     kwargs = dict(env_kwargs or {})
@@ -190,7 +207,10 @@ def evaluate(
         with torch_threads(threads):
             for episode in range(episodes):
                 env_seed = seed + episode
-                records.append(run_episode(team, env, env_seed, bar, deterministic=deterministic))
+                recorder = None if settle_since is None else SettlingRecorder(settle_since)
+                records.append(
+                    run_episode(team, env, env_seed, bar, deterministic=deterministic, recorder=recorder)
+                )
                 records[-1].episode = episode
     finally:
         if bar is not None:
@@ -239,8 +259,10 @@ def run_episode(
     bar: Any = None,
     frames: list | None = None,
     deterministic: bool = True,
+    recorder: SettlingRecorder | None = None,
 ) -> EpisodeRecord:
-    """Play one episode of ``env`` with ``team``; append rendered frames to ``frames`` if given."""
+    """Play one episode of ``env`` with ``team``; append rendered frames to ``frames`` if given,
+    and let ``recorder`` see the env after every step (the record's ``settling`` is its result)."""
     observations, _ = env.reset(seed=env_seed)
     t_seed = team_seed(env_seed)
     team.reset(env, seed=t_seed)
@@ -254,6 +276,8 @@ def run_episode(
         if len(observations) > len(env.agents):  # agents that failed this step leave the team
             observations = {agent: obs for agent, obs in observations.items() if agent in env.agents}
         steps += 1
+        if recorder is not None:
+            recorder(env.unwrapped)
         if frames is not None:
             frames.append(env.render())
         if bar is not None and steps % 50 == 0:
@@ -267,6 +291,7 @@ def run_episode(
         team_seed=t_seed,
         metrics=dict(metrics),
         trace=env.unwrapped.uncertainty_trace(),
+        settling=None if recorder is None else recorder.result(),
     )
 
 
