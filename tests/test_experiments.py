@@ -610,6 +610,7 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     known = _variants("known_map")
     assert known["known_targets"].env_kwargs == {"target_knowledge": "known"}
     assert known["known_map"].env_kwargs == {"target_knowledge": "known", "graph_knowledge": "known"}
+    assert known["known_graph"].env_kwargs == {"graph_knowledge": "known"}
     assert not known["known_map"].hyperparams and not known["known_map"].policy_kwargs
     transfer_known = _variants("transfer_known_map")
     assert transfer_known["known_map"].env_kwargs == known["known_map"].env_kwargs
