@@ -92,13 +92,18 @@ def test_urgency_pays_the_cleared_targets_uncertainty_where_clearing_pays() -> N
 
 
 def test_urgency_adds_to_clearing_and_leaves_it_unchanged() -> None:
-    moves = [{"agent_0": d} for d in (1, 1, 1, 2, 2, 1, 2, 2, 2)]
+    # Path 0-1-2, target 2. u2 after each step: 1, 2 (walking up), found at 2 -> 1, found at 1 -> 0,
+    # away -> 1, found at 1 -> 0, guarding 0. Clearing pays 0.04 per unit lowered, urgency
+    # 0.5 * u_before / u_max on the same steps.
+    moves = (1, 1, 2, 2, 1, 2, 2)
+    clearing_by_hand = [0.0, 0.0, 0.04, 0.04, 0.0, 0.04, 0.0]
+    u_before_by_hand = [0, 0, 2, 1, 0, 1, 0]
     plain, both = make({"clearing": 0.04}, [0]), make({"clearing": 0.04, "urgency": 0.5}, [0])
-    for move in moves:
-        u_before = int(both.core.uncertainty[2]) if move["agent_0"] == 2 else 0
-        _, r_plain, *_ = plain.step(move)
-        _, r_both, *_ = both.step(move)
-        assert r_both["agent_0"] == pytest.approx(r_plain["agent_0"] + 0.5 * u_before / 100)
+    for destination, clearing, u_before in zip(moves, clearing_by_hand, u_before_by_hand, strict=True):
+        _, r_plain, *_ = plain.step({"agent_0": destination})
+        _, r_both, *_ = both.step({"agent_0": destination})
+        assert r_plain["agent_0"] == clearing  # bit for bit: 0.04 * 1.0, as before the term existed
+        assert r_both["agent_0"] == pytest.approx(clearing + 0.5 * u_before / 100)
 
 
 def test_change_is_paid_at_the_last_step_against_past_episodes() -> None:

@@ -25,9 +25,12 @@ def test_oscillation_is_two_places_and_passing_visits_are_dropped() -> None:
     assert result.places == [[3, 4], [9]]  # 0, 1, 2: one step each of 43, below 5%
     assert result.targets_left == [6]
     assert result.target_u == {4: 0.5, 6: 80.0, 9: 0.0}
-    # From step 3 on only the oscillation is looked at; with a 60% share even one of its nodes drops.
-    assert settling(positions, u, targets, since=3).places == [[3, 4], [9]]
+    # A 60% share keeps neither node of a 50/50 oscillation.
     assert settling(positions, u, targets, since=3, min_share=0.6).places == [[], [9]]
+    # The window: with a 10% share the walk's nodes count over its first 6 steps, not after them.
+    assert settling(positions, u, targets, since=37, min_share=0.1).places == [[3, 4], [9]]
+    assert settling(positions[:6], u[:6], targets, since=0, min_share=0.1).places == [[0, 1, 2, 3, 4], [9]]
+    assert settling(positions[:6], u[:6], targets, since=3, min_share=0.1).places == [[3, 4], [9]]
 
 
 def test_a_failed_agent_settles_nowhere_and_bad_windows_are_refused() -> None:
@@ -42,6 +45,10 @@ def test_a_failed_agent_settles_nowhere_and_bad_windows_are_refused() -> None:
             settling(positions, np.zeros((10, 1)), np.array([2]), since=since)
     with pytest.raises(ValueError, match="min_share"):
         settling(positions, np.zeros((10, 1)), np.array([2]), since=0, min_share=0)
+    with pytest.raises(ValueError, match="target_u must be"):
+        settling(positions, np.zeros((10, 2)), np.array([2]), since=0)
+    with pytest.raises(ValueError, match="active must have"):
+        settling(positions, np.zeros((10, 1)), np.array([2]), since=0, active=active[:, :1])
 
 
 class Bouncer(Team):
@@ -78,6 +85,22 @@ def test_the_harness_records_settling_and_json_keeps_it() -> None:
         evaluate(Bouncer(), graph, n_agents=2, episodes=1, max_cycles=40, settle_since=40)
 
 
+def test_an_agent_failing_after_a_step_stood_on_its_node_during_it() -> None:
+    # agent_1 walks 0 -> 4 and fails after step 6; from step 5 it stood on node 4 for 2 steps
+    # (steps 5 and 6) of the window's 36, 5.6% >= 5%: it settles there, then is gone.
+    graph = path_graph(6, [1, 2, 5])
+    result = evaluate(
+        Bouncer(), graph, n_agents=2, episodes=1, max_cycles=40,
+        env_kwargs={"initial_positions": [1, 0], "failures": {"agent_1": 6}}, settle_since=4,
+    )  # fmt: skip
+    assert result.episodes[0].settling.places == [[1, 2], [4]]
+    result = evaluate(
+        Bouncer(), graph, n_agents=2, episodes=1, max_cycles=40,
+        env_kwargs={"initial_positions": [1, 0], "failures": {"agent_1": 5}}, settle_since=4,
+    )  # fmt: skip
+    assert result.episodes[0].settling.places == [[1, 2], []]  # one step on node 4: 2.8%
+
+
 def test_cli_prints_each_episode_and_refuses_a_bad_window(capsys, tmp_path) -> None:
     out_json = tmp_path / "s.json"
     code = main(
@@ -86,10 +109,15 @@ def test_cli_prints_each_episode_and_refuses_a_bad_window(capsys, tmp_path) -> N
     )  # fmt: skip
     out = capsys.readouterr().out
     assert code == 0
-    assert "where each agent settles from step 15 on" in out
+    assert "where each agent settles in steps 16-30" in out
     assert out.count("episode ") >= 2 and "settles a0:" in out
     payload = json.loads(out_json.read_text())
     assert [entry["since"] for entry in payload["settling"]] == [15, 15]
-    code = main(["evaluate", "--policy", "random", "--steps", "30", "--episodes", "1", "--settling", "30"])
-    err = capsys.readouterr().err
-    assert code != 0 and "--settling SINCE must be in [0, 30)" in err and len(err.strip().splitlines()) == 1
+    for since in ("30", "-1"):
+        code = main(
+            ["evaluate", "--policy", "random", "--steps", "30", "--episodes", "1", "--settling", since]
+        )
+        err = capsys.readouterr().err
+        assert (
+            code != 0 and "--settling SINCE must be in [0, 30)" in err and len(err.strip().splitlines()) == 1
+        )

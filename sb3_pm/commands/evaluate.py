@@ -10,6 +10,10 @@ from typing import Any
 
 from sb3_pm.commands.options import add_compute_options, check_compute_options, check_writable
 
+#: ``--settling`` given without SINCE. Not a string, which argparse would pass through ``type=int``,
+#: and not an int, so that ``--settling -1`` is refused like any other value out of range.
+SECOND_HALF = object()
+
 #: Runs with at least this many steps in all report progress (a bar on a terminal, lines elsewhere).
 PROGRESS_MIN_STEPS = 5000
 
@@ -87,12 +91,12 @@ def register(subparsers: Any) -> None:
         "--settling",
         nargs="?",
         type=int,
-        const=-1,
+        const=SECOND_HALF,
         default=None,
         metavar="SINCE",
         help="print where each agent settles in each episode (the nodes it stood on for at least 5%% "
-        "of the steps from SINCE on; default: the second half) and which targets nobody holds; "
-        "saved in --json",
+        "of the steps after the first SINCE; default: the second half) and which targets nobody "
+        "holds; saved in --json",
     )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
     add_compute_options(parser)
@@ -108,7 +112,7 @@ def check_counts(args: argparse.Namespace) -> None:
         if value is not None and value < 1:
             raise UsageError(f"--{flag} must be at least 1, got {value}")
     settling = getattr(args, "settling", None)
-    if settling is not None and settling != -1 and not 0 <= settling < args.steps:
+    if settling is not None and settling is not SECOND_HALF and not 0 <= settling < args.steps:
         raise UsageError(
             f"--settling SINCE must be in [0, {args.steps}) for {args.steps}-step episodes, got {settling}"
         )
@@ -118,7 +122,7 @@ def settle_since(args: argparse.Namespace) -> int | None:
     """The harness's ``settle_since`` from ``--settling [SINCE]`` (bare: the second half)."""
     if args.settling is None:
         return None
-    return args.steps // 2 if args.settling == -1 else int(args.settling)
+    return args.steps // 2 if args.settling is SECOND_HALF else int(args.settling)
 
 
 def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
@@ -278,7 +282,7 @@ def run(args: argparse.Namespace) -> int:
         from sb3_pm.evaluation.settling import settling_table
 
         since = result.episodes[0].settling.since  # type: ignore[union-attr]  # settle_since was set
-        print(f"where each agent settles from step {since} on (nodes held >= 5% of the steps):")
+        print(f"where each agent settles in steps {since + 1}-{args.steps} (nodes held >= 5% of them):")
         print(settling_table(result.episodes))
     if args.json is not None:
         args.json.write_text(json.dumps(result.to_dict(), indent=2))

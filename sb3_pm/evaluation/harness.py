@@ -121,7 +121,7 @@ class EvaluationResult:
         traces = payload.get("traces") or [[] for _ in payload["episodes"]]
         settlings = payload.get("settling") or [None for _ in payload["episodes"]]
         records = []
-        for row, trace, settled in zip(payload["episodes"], traces, settlings):
+        for row, trace, settled in zip(payload["episodes"], traces, settlings, strict=True):
             metrics = {k: v for k, v in row.items() if k not in ("episode", "seed", "team_seed")}
             episode, seed, seed_of_team = int(row["episode"]), int(row["seed"]), int(row["team_seed"])
             trace_array = np.asarray(trace, dtype=float)
@@ -179,8 +179,9 @@ def evaluate(
         ``None`` leaves torch's setting alone). A learned team's per-step forward passes are far
         too small to gain from intra-op threads: one episode took 31 s of wall time with one
         thread and 60 s with torch's default two on the 2-core development machine.
-    :param settle_since: record where each agent settles from this step on (each record's
-        ``settling``; :mod:`sb3_pm.evaluation.settling`); ``None`` (default) records nothing.
+    :param settle_since: record where each agent settles after the episode's first
+        ``settle_since`` steps (each record's ``settling``; :mod:`sb3_pm.evaluation.settling`);
+        ``None`` (default) records nothing.
     :raises ValueError: for ``episodes < 1``, ``threads < 1`` or bad environment arguments.
     """
     from sb3_pm.envs import persistent_monitoring_v0

@@ -28,10 +28,12 @@ MIN_SHARE = 0.05
 class Settling:
     """One episode's settling places.
 
-    :ivar since: the first step looked at.
-    :ivar places: per agent, its settling nodes in increasing order.
+    :ivar since: how many of the episode's first steps were skipped (the window is steps
+        ``since + 1`` to ``K``, counting steps from 1 as ``--fail`` does).
+    :ivar places: ``K`` lists, one per agent in ``possible_agents`` order: its settling nodes in
+        increasing order (empty for an agent that failed before the window).
     :ivar targets_left: targets on no agent's list of places.
-    :ivar target_u: per target (node index), its mean uncertainty over the steps looked at.
+    :ivar target_u: ``{target node: mean uncertainty over the window}``, one entry per target.
     """
 
     since: int
@@ -50,6 +52,7 @@ class Settling:
 
     @classmethod
     def from_dict(cls, payload: dict[str, Any]) -> Settling:
+        """The inverse of :meth:`to_dict` (after a JSON round trip)."""
         return cls(
             since=int(payload["since"]),
             places=[[int(n) for n in row] for row in payload["places"]],
@@ -71,13 +74,29 @@ def settling(
     :param positions: ``(T, K)`` int, each agent's node after each step.
     :param target_u: ``(T, n_targets)`` the targets' uncertainty after each step.
     :param targets: ``(n_targets,)`` the targets' node indices, in ``target_u``'s column order.
-    :param since: the first step to look at (``0 <= since < T``).
-    :param min_share: a node counts if the agent stood on it for at least this share of the steps.
-    :param active: ``(T, K)`` bool, whether each agent was live (a failed agent stands nowhere);
-        ``None``: all live.
+    :param since: how many of the first steps to skip (``0 <= since < T``).
+    :param min_share: a node counts if the agent stood on it for at least this share of the
+        window's steps.
+    :param active: ``(T, K)`` bool, whether each agent was live during each step (a failed agent
+        stands nowhere); ``None``: all live.
+    :return: the :class:`Settling` of the window.
+    :raises InputError: for arrays of inconsistent shapes, a window outside the episode or a
+        share outside ``(0, 1]``.
     """
     positions = np.asarray(positions)
+    target_u = np.asarray(target_u, dtype=float)
+    targets = np.asarray(targets)
+    if positions.ndim != 2:
+        raise InputError(f"settling: positions must be (steps, agents), got shape {positions.shape}")
     steps = positions.shape[0]
+    if targets.ndim != 1 or target_u.shape != (steps, targets.size):
+        raise InputError(
+            f"settling: target_u must be (steps, targets) = {(steps, targets.size)}, got {target_u.shape}"
+        )
+    if active is not None and np.shape(active) != positions.shape:
+        raise InputError(
+            f"settling: active must have the positions' shape {positions.shape}, got {np.shape(active)}"
+        )
     if not 0 <= since < steps:
         raise InputError(f"settling: since must be in [0, {steps}) for a {steps}-step episode, got {since}")
     if not 0 < min_share <= 1:
@@ -93,20 +112,20 @@ def settling(
         values, counts = np.unique(nodes, return_counts=True)
         places.append(values[counts >= min_share * window.shape[0]].tolist())
     settled = {node for row in places for node in row}
-    targets = np.asarray(targets).tolist()
-    mean_u = np.asarray(target_u, dtype=float)[since:].mean(axis=0)
+    target_list = targets.tolist()
+    mean_u = target_u[since:].mean(axis=0)
     return Settling(
         since=since,
         places=places,
-        targets_left=[t for t in targets if t not in settled],
-        target_u={t: round(float(u), 2) for t, u in zip(targets, mean_u)},
+        targets_left=[t for t in target_list if t not in settled],
+        target_u={t: float(u) for t, u in zip(target_list, mean_u, strict=True)},
     )
 
 
 class SettlingRecorder:
     """Collects positions and target uncertainties step by step (a :func:`run_episode` hook).
 
-    :param since: the first step :meth:`result` looks at; ``None``: the second half of the episode.
+    :param since: how many of the first steps :meth:`result` skips; ``None``: the first half.
     """
 
     def __init__(self, since: int | None = None) -> None:
@@ -115,15 +134,19 @@ class SettlingRecorder:
         self._u: list[np.ndarray] = []
         self._active: list[np.ndarray] = []
         self._targets: np.ndarray | None = None
+        self._live: np.ndarray | None = None
 
     def __call__(self, env: Any) -> None:
         """Record the state after one step of ``env`` (the raw parallel env)."""
-        core = env.core
         if self._targets is None:
-            self._targets = np.flatnonzero(env._targets)
-        self._positions.append(core.positions.copy())
-        self._u.append(core.uncertainty[self._targets].copy())
-        self._active.append(env._active.copy())
+            self._targets = env.graph.target_indices
+        positions = env.positions
+        # An agent that fails "after step k" stood on its node during step k, and the env marks it
+        # failed at the end of that step: so this step's live mask is the one before the step.
+        self._active.append(np.ones(positions.shape, dtype=bool) if self._live is None else self._live)
+        self._live = env.active
+        self._positions.append(positions)
+        self._u.append(env.uncertainty[self._targets])
 
     def result(self) -> Settling:
         """The episode's :class:`Settling` (after the last step)."""
