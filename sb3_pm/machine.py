@@ -31,21 +31,42 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
-def machine_record() -> dict[str, Any]:
-    """``{key: value}``: CPU model and count, torch's CPU kernel level and threads, and the versions
-    of Python, NumPy, torch and Stable-Baselines3 (plain strings and ints, for YAML)."""
+def package_versions() -> dict[str, str]:
+    """Versions of sb3_pm and the packages a run or a saved team depends on, as plain strings
+    (torch's version is a ``str`` subclass that YAML would not write); ``sb3_contrib`` if installed."""
+    import gymnasium
     import numpy as np
+    import pettingzoo
     import stable_baselines3
     import torch
 
     from sb3_pm.version import __version__
 
-    return {
+    versions = {
         "sb3_pm": __version__,
-        "python": platform.python_version(),
-        "numpy": str(np.__version__),
-        "torch": str(torch.__version__),  # a str subclass YAML would not write
         "stable_baselines3": str(stable_baselines3.__version__),
+        "torch": str(torch.__version__),
+        "numpy": str(np.__version__),
+        "gymnasium": str(gymnasium.__version__),
+        "pettingzoo": str(pettingzoo.__version__),
+        "python": platform.python_version(),
+    }
+    try:
+        import sb3_contrib
+
+        versions["sb3_contrib"] = str(sb3_contrib.__version__)
+    except ImportError:  # pragma: no cover
+        pass
+    return versions
+
+
+def machine_record() -> dict[str, Any]:
+    """``{key: value}``: the :func:`package_versions`, the platform, CPU model and count, and
+    torch's CPU kernel level and threads (plain strings and ints, for YAML)."""
+    import torch
+
+    return {
+        **package_versions(),
         "platform": platform.platform(),
         "cpu": cpu_model(),
         "cpu_count": os.cpu_count() or 0,
@@ -66,4 +87,4 @@ def write_machine_record(folder: Path) -> Path:
     return path
 
 
-__all__ = ["MACHINE_RECORD", "cpu_model", "machine_record", "write_machine_record"]
+__all__ = ["MACHINE_RECORD", "cpu_model", "machine_record", "package_versions", "write_machine_record"]

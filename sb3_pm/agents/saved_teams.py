@@ -17,14 +17,11 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import platform
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_pm.errors import InputError
@@ -38,34 +35,9 @@ from sb3_pm.graphs import (
     resolve_graph,
     save_graphml,
 )
+from sb3_pm.machine import package_versions
 
 MANIFEST = "manifest.json"
-
-
-def _versions() -> dict[str, str]:
-    """Versions of the packages a saved team depends on (recorded in the manifest)."""
-    import gymnasium
-    import pettingzoo
-    import stable_baselines3
-
-    from sb3_pm.version import __version__
-
-    versions = {
-        "sb3_pm": __version__,
-        "stable_baselines3": stable_baselines3.__version__,
-        "torch": th.__version__,
-        "numpy": np.__version__,
-        "gymnasium": gymnasium.__version__,
-        "pettingzoo": pettingzoo.__version__,
-        "python": platform.python_version(),
-    }
-    try:
-        import sb3_contrib
-
-        versions["sb3_contrib"] = sb3_contrib.__version__
-    except ImportError:  # pragma: no cover
-        pass
-    return versions
 
 
 def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
@@ -82,7 +54,7 @@ def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
         "num_timesteps": team.num_timesteps,
         # how the team acts by default (None: argmax); manifests without it load as None
         "deploy_temperature": team.deploy_temperature,
-        "versions": _versions(),
+        "versions": package_versions(),
     }
 
 

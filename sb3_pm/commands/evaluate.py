@@ -94,8 +94,8 @@ def register(subparsers: Any) -> None:
         const=SECOND_HALF,
         default=None,
         metavar="SINCE",
-        help="print where each agent settles in each episode (the nodes it stood on for at least 5%% "
-        "of the steps after the first SINCE; default: the second half) and which targets nobody "
+        help="print where each agent settles in each episode (the nodes it stood on for a share of "
+        "the steps after the first SINCE; default: the second half) and which targets nobody "
         "holds; saved in --json",
     )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
@@ -279,10 +279,13 @@ def run(args: argparse.Namespace) -> int:
         share = activity["forced"] / max(1, activity["masks"])
         print(f"neglect bound {args.neglect_bound:g}: forced {share:.1%} of {activity['masks']} agent-steps")
     if args.settling is not None:
-        from sb3_pm.evaluation.settling import settling_table
+        from sb3_pm.evaluation.settling import MIN_SHARE, settling_table
 
         since = result.episodes[0].settling.since  # type: ignore[union-attr]  # settle_since was set
-        print(f"where each agent settles in steps {since + 1}-{args.steps} (nodes held >= 5% of them):")
+        print(
+            f"where each agent settles in steps {since + 1}-{args.steps} "
+            f"(nodes held >= {MIN_SHARE:.0%} of them):"
+        )
         print(settling_table(result.episodes))
     if args.json is not None:
         args.json.write_text(json.dumps(result.to_dict(), indent=2))

@@ -28,9 +28,9 @@ MIN_SHARE = 0.05
 class Settling:
     """One episode's settling places.
 
-    :ivar since: how many of the episode's first steps were skipped (the window is steps
-        ``since + 1`` to ``K``, counting steps from 1 as ``--fail`` does).
-    :ivar places: ``K`` lists, one per agent in ``possible_agents`` order: its settling nodes in
+    :ivar since: how many of the episode's first steps were skipped (the window is the steps
+        after them, counting steps from 1 as ``--fail`` does).
+    :ivar places: one list per agent, in ``possible_agents`` order: its settling nodes in
         increasing order (empty for an agent that failed before the window).
     :ivar targets_left: targets on no agent's list of places.
     :ivar target_u: ``{target node: mean uncertainty over the window}``, one entry per target.
@@ -125,10 +125,10 @@ def settling(
 class SettlingRecorder:
     """Collects positions and target uncertainties step by step (a :func:`run_episode` hook).
 
-    :param since: how many of the first steps :meth:`result` skips; ``None``: the first half.
+    :param since: how many of the first steps :meth:`result` skips.
     """
 
-    def __init__(self, since: int | None = None) -> None:
+    def __init__(self, since: int) -> None:
         self.since = since
         self._positions: list[np.ndarray] = []
         self._u: list[np.ndarray] = []
@@ -152,9 +152,13 @@ class SettlingRecorder:
         """The episode's :class:`Settling` (after the last step)."""
         if self._targets is None:
             raise InputError("settling: no step was recorded")
-        positions = np.stack(self._positions)
-        since = positions.shape[0] // 2 if self.since is None else self.since
-        return settling(positions, np.stack(self._u), self._targets, since, active=np.stack(self._active))
+        return settling(
+            np.stack(self._positions),
+            np.stack(self._u),
+            self._targets,
+            self.since,
+            active=np.stack(self._active),
+        )
 
 
 def settling_table(records: list[Any]) -> str:
