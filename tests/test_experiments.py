@@ -659,3 +659,37 @@ def test_the_transfer_experiments_train_under_the_map_knowledge_they_measured(
             assert config.env_kwargs.get(key, "discovered") == knowledge, (name, cell.variant["key"], key)
         learned += 1
     assert learned > 0
+
+
+def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(tmp_path: Path) -> None:
+    """``agents:`` in a variant reaches the training config as the file's own ``agents`` key would,
+    and a name outside the team or a team-wide key fails with the loader's one-line error."""
+    from sb3_pm.zoo.config import ConfigError
+
+    tiny_experiment(tmp_path)
+
+    def config_of(agents: str):
+        (tmp_path / "per_agent.yml").write_text(
+            "name: per_agent\ngraphs: [tiny.graphml]\nseeds: [0]\nepisodes: 1\nmax_cycles: 20\n"
+            f"n_agents: 2\nconfig: config.yml\nvariants:\n  staggered: {{agents: {agents}}}\n"
+        )
+        experiment = load_experiment(tmp_path / "per_agent.yml")
+        experiment = experiment.with_graphs([str(tmp_path / "tiny.graphml")])
+        (cell,) = [c for c in plan_cells(experiment, tmp_path / "out") if c.variant["key"] == "staggered"]
+        return runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+
+    config = config_of("{agent_1: {learning_rate: 0.0007}}")
+    assert config.agents == {"agent_1": {"learning_rate": 0.0007}}
+    assert "learning_rate" not in config.hyperparams  # the rest of the team keeps the file's
+    with pytest.raises(ConfigError, match=r"unknown agent 'agent_2' \(the team has agent_0 .. agent_1\)"):
+        config_of("{agent_2: {learning_rate: 0.0007}}")
+    with pytest.raises(ConfigError, match=r"'n_envs' is set for the whole team, not per agent"):
+        config_of("{agent_0: {n_envs: 2}}")
+    with pytest.raises(ExperimentError, match=r"agents.agent_0 must be a mapping of hyperparameters"):
+        config_of("{agent_0: 0.0007}")
+    (tmp_path / "bad.yml").write_text(
+        "graphs: [paper-50]\nseeds: [0]\n"
+        "variants: {a: {kind: baseline, policy: random, agents: {agent_0: {learning_rate: 0.1}}}}\n"
+    )
+    with pytest.raises(ExperimentError, match=r"'agents' applies to learned variants, not baselines"):
+        load_experiment(tmp_path / "bad.yml")

@@ -154,7 +154,10 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
 
     source = variant.config or cell.config
     assert source is not None
-    config = load_config(source, variant.train_env or cell.graph)
+    # Per-agent overrides go through the loader, which validates them as a file's own ``agents``
+    # (agent names against the cell's team size).
+    overrides = {"agents": variant.agents, "n_agents": cell.n_agents} if variant.agents else None
+    config = load_config(source, variant.train_env or cell.graph, overrides)
     pins = {**cell.hyperparams, **variant.hyperparams}
     config.deploy_temperature = pinned_deploy_temperature(config, pins)
     config.hyperparams.update({key: value for key, value in pins.items() if key != "deploy_temperature"})
@@ -379,7 +382,7 @@ def reproduce(
 
 
 #: Variant fields left out of the record when they hold these defaults.
-_RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None, "train_env": None, "timesteps": None}
+_RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None, "train_env": None, "timesteps": None, "agents": {}}
 
 
 def deploy_rules(experiment: Experiment) -> dict[str, Any]:

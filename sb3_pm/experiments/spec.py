@@ -34,7 +34,9 @@ one), ``label`` (the name in tables; defaults to the key), ``hyperparams: {deplo
 ``null`` by the argmax, a number by sampling at it), ``train_env`` (independent variants: train
 once per seed on this graph or graph family, e.g. ``family:er``, and evaluate that one team
 zero-shot on every graph of the experiment, instead of training on each graph), ``timesteps``
-(learned variants: this variant's budget per learner, instead of the experiment's).
+(learned variants: this variant's budget per learner, instead of the experiment's), ``agents``
+(learned variants: per-agent overrides, ``{agent_1: {learning_rate: 0.0007}}``, set as the config
+file's own ``agents`` key would be and validated the same way).
 """
 
 from __future__ import annotations
@@ -77,6 +79,7 @@ _VARIANT_KEYS = {
     "config",
     "train_env",
     "timesteps",
+    "agents",
 }
 
 
@@ -101,6 +104,8 @@ class Variant:
     train_env: str | None = None
     #: This variant's budget per learner (``None``: the experiment's).
     timesteps: int | None = None
+    #: Per-agent overrides (``agent_i -> hyperparameters``), as a config entry's ``agents`` key.
+    agents: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def learned(self) -> bool:
@@ -208,7 +213,7 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"variant {key!r}: kind must be one of {VARIANT_KINDS}, got {kind!r}")
         if kind == "baseline" and not settings.get("policy"):
             raise _fail(path, f"variant {key!r}: a baseline needs 'policy'")
-        for mapping in ("policy_kwargs", "hyperparams", "env_kwargs"):
+        for mapping in ("policy_kwargs", "hyperparams", "env_kwargs", "agents"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
         _check_deploy_pin(settings.get("hyperparams", {}), path, f"variant {key!r}: ")
@@ -224,6 +229,11 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"variant {key!r}: 'train' must be true or false, got {train!r}")
         if not train and kind == "baseline":
             raise _fail(path, f"variant {key!r}: 'train' applies to learned variants, not baselines")
+        if settings.get("agents") and kind == "baseline":
+            raise _fail(path, f"variant {key!r}: 'agents' applies to learned variants, not baselines")
+        for agent, values in settings.get("agents", {}).items():
+            if not isinstance(values, dict):
+                raise _fail(path, f"variant {key!r}: agents.{agent} must be a mapping of hyperparameters")
         variant_config = settings.get("config")
         if variant_config is not None and kind == "baseline":
             raise _fail(path, f"variant {key!r}: 'config' applies to learned variants, not baselines")
@@ -262,6 +272,7 @@ def load_experiment(path: str | Path) -> Experiment:
                 config=None if variant_config is None else str(path.parent / str(variant_config)),
                 train_env=None if train_env is None else str(train_env),
                 timesteps=timesteps,
+                agents={str(agent): dict(values) for agent, values in settings.get("agents", {}).items()},
             )
         )
     config = raw.get("config")
