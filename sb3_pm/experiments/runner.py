@@ -382,7 +382,13 @@ def reproduce(
 
 
 #: Variant fields left out of the record when they hold these defaults.
-_RECORD_DEFAULTS: dict[str, Any] = {"train": True, "config": None, "train_env": None, "timesteps": None, "agents": {}}
+_RECORD_DEFAULTS: dict[str, Any] = {
+    "train": True,
+    "config": None,
+    "train_env": None,
+    "timesteps": None,
+    "agents": {},
+}
 
 
 def deploy_rules(experiment: Experiment) -> dict[str, Any]:
