@@ -212,10 +212,11 @@ def test_ippo_transfer_is_the_default_without_the_rows_encoding_with_a_known_map
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
     d_policy = dict(d_kwargs["hyperparams"].pop("policy_kwargs"))
     assert t_policy.pop("laplacian") == "none" and "laplacian" not in d_policy
-    # A known static map: each agent's map lists the targets and edges from the first step.
+    # A known static map: each agent's map lists the targets and edges from the first step; the
+    # default knows the edges only and discovers the targets.
     t_env, d_env = dict(t_kwargs.pop("env_kwargs")), dict(d_kwargs.pop("env_kwargs"))
     assert (t_env.pop("target_knowledge"), t_env.pop("graph_knowledge")) == ("known", "known")
-    assert "target_knowledge" not in d_env and "graph_knowledge" not in d_env
+    assert "target_knowledge" not in d_env and d_env.pop("graph_knowledge") == "known"
     # Deployed by sampling at temperature 0.25, the default by its most likely actions.
     assert (t_kwargs.pop("deploy_temperature"), d_kwargs.pop("deploy_temperature")) == (0.25, None)
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
