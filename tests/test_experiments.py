@@ -681,8 +681,8 @@ def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(
     config = config_of("{agent_1: {learning_rate: 0.0007}}")
     assert config.agents == {"agent_1": {"learning_rate": 0.0007}}
     assert "learning_rate" not in config.hyperparams  # the rest of the team keeps the file's
-    with pytest.raises(ConfigError, match=r"unknown agent 'agent_2' \(the team has agent_0 .. agent_1\)"):
-        config_of("{agent_2: {learning_rate: 0.0007}}")
+    with pytest.raises(ExperimentError, match=r"unknown agent 'agent_2' \(the team has agent_0 .. agent_1\)"):
+        config_of("{agent_2: {learning_rate: 0.0007}}")  # at load, before any cell trains
     with pytest.raises(ConfigError, match=r"'n_envs' is set for the whole team, not per agent"):
         config_of("{agent_0: {n_envs: 2}}")
     with pytest.raises(ExperimentError, match=r"agents.agent_0 must be a mapping of hyperparameters"):
@@ -691,5 +691,34 @@ def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(
         "graphs: [paper-50]\nseeds: [0]\n"
         "variants: {a: {kind: baseline, policy: random, agents: {agent_0: {learning_rate: 0.1}}}}\n"
     )
-    with pytest.raises(ExperimentError, match=r"'agents' applies to learned variants, not baselines"):
+    with pytest.raises(ExperimentError, match=r"'agents' applies to independent variants only"):
         load_experiment(tmp_path / "bad.yml")
+
+
+PREVIOUS_DEFAULT_FILES = sorted(
+    path.stem
+    for path in (ZOO / "experiments").glob("*.yml")
+    if "\nconfig: ../ippo.yml\n" in path.read_text()
+)
+
+
+@pytest.mark.parametrize("name", PREVIOUS_DEFAULT_FILES)
+def test_experiments_measured_on_the_previous_default_train_with_the_topology_discovered(
+    tmp_path: Path, name: str
+) -> None:
+    """zoo/ippo.yml knows the road network; the files measured before it did pin it discovered, so
+    their learned variants train as recorded unless a variant sets ``known`` itself (and baselines,
+    which read the same maps, are evaluated on discovered maps too)."""
+    experiment = load_experiment(name)
+    assert experiment.env_kwargs.get("graph_knowledge") == "discovered", name
+    for cell in plan_cells(experiment, tmp_path):
+        own = cell.variant["env_kwargs"].get("graph_knowledge", "discovered")
+        if cell.variant["kind"] == "baseline":
+            assert {**cell.env_kwargs, **cell.variant["env_kwargs"]}["graph_knowledge"] == own
+            continue
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        assert config.env_kwargs["graph_knowledge"] == own, (name, cell.variant["key"])
+
+
+def test_the_default_config_knows_the_road_network() -> None:
+    assert load_config("ippo", "paper-50").env_kwargs["graph_knowledge"] == "known"

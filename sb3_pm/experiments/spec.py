@@ -35,8 +35,8 @@ one), ``label`` (the name in tables; defaults to the key), ``hyperparams: {deplo
 once per seed on this graph or graph family, e.g. ``family:er``, and evaluate that one team
 zero-shot on every graph of the experiment, instead of training on each graph), ``timesteps``
 (learned variants: this variant's budget per learner, instead of the experiment's), ``agents``
-(learned variants: per-agent overrides, ``{agent_1: {learning_rate: 0.0007}}``, set as the config
-file's own ``agents`` key would be and validated the same way).
+(independent variants: per-agent overrides, ``{agent_1: {learning_rate: 0.0007}}``, set as the
+config file's own ``agents`` key would be, replacing it, and validated the same way).
 """
 
 from __future__ import annotations
@@ -229,9 +229,17 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"variant {key!r}: 'train' must be true or false, got {train!r}")
         if not train and kind == "baseline":
             raise _fail(path, f"variant {key!r}: 'train' applies to learned variants, not baselines")
-        if settings.get("agents") and kind == "baseline":
-            raise _fail(path, f"variant {key!r}: 'agents' applies to learned variants, not baselines")
+        if settings.get("agents") and kind != "independent":
+            raise _fail(path, f"variant {key!r}: 'agents' applies to independent variants only")
+        team_size = raw.get("n_agents", 4)
         for agent, values in settings.get("agents", {}).items():
+            # Checked here, not only when a cell starts training, so a typo fails before the sweep.
+            if isinstance(team_size, int) and agent not in {f"agent_{i}" for i in range(team_size)}:
+                raise _fail(
+                    path,
+                    f"variant {key!r}: agents: unknown agent {agent!r} "
+                    f"(the team has agent_0 .. agent_{team_size - 1})",
+                )
             if not isinstance(values, dict):
                 raise _fail(path, f"variant {key!r}: agents.{agent} must be a mapping of hyperparameters")
         variant_config = settings.get("config")
