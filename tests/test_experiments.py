@@ -696,9 +696,7 @@ def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(
 
 
 PREVIOUS_DEFAULT_FILES = sorted(
-    path.stem
-    for path in (ZOO / "experiments").glob("*.yml")
-    if "\nconfig: ../ippo.yml\n" in path.read_text()
+    path.stem for path in (ZOO / "experiments").glob("*.yml") if "\nconfig: ../ippo.yml\n" in path.read_text()
 )
 
 
