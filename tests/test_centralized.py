@@ -9,9 +9,11 @@ import pytest
 import torch as th
 
 from sb3_pm.envs import persistent_monitoring_v0
+from sb3_pm.errors import InputError
 from sb3_pm.evaluation import resolve_team
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.sharing.centralized import CentralizedPPO
+from sb3_pm.zoo import load_config
 
 GRAPH = erdos_renyi(12, 0.3, n_targets=3, seed=1, name="tiny")
 HYPER = {"n_steps": 16, "batch_size": 32, "n_epochs": 1, "policy_kwargs": {"hidden_dim": 8, "gat_heads": 1}}
@@ -75,3 +77,15 @@ def test_logs_episode_metrics_like_the_decentralized_team(tmp_path: Path) -> Non
     team.learn(40)  # two 20-step episodes per agent
     [(steps, values)] = read_scalars(tmp_path, "metrics/avg_uncertainty")
     assert len(steps) >= 1 and (values >= 0).all()
+
+
+def test_a_config_that_sets_learners_apart_is_refused() -> None:
+    """One network has one learning rate: the default's spread and per-agent blocks are errors."""
+    config = load_config("ippo", "paper-50")
+    assert config.learning_rate_spread != 1.0
+    with pytest.raises(InputError, match="learning_rate_spread makes no sense for a centralized team"):
+        CentralizedPPO.from_config(config, "paper-50")
+    config.learning_rate_spread = 1.0
+    config.agents = {"agent_1": {"learning_rate": 1e-4}}
+    with pytest.raises(InputError, match="per-agent overrides make no sense for a centralized team"):
+        CentralizedPPO.from_config(config, "paper-50")

@@ -695,9 +695,25 @@ def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(
         load_experiment(tmp_path / "bad.yml")
 
 
+#: The experiment that measures the default as it is now, for the README's headline table.
+HEADLINE = "headline"
 PREVIOUS_DEFAULT_FILES = sorted(
-    path.stem for path in (ZOO / "experiments").glob("*.yml") if "\nconfig: ../ippo.yml\n" in path.read_text()
+    path.stem
+    for path in (ZOO / "experiments").glob("*.yml")
+    if "\nconfig: ../ippo.yml\n" in path.read_text() and path.stem != HEADLINE
 )
+
+
+def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path) -> None:
+    experiment = load_experiment(HEADLINE)
+    assert not experiment.env_kwargs and not experiment.hyperparams
+    default = load_config("ippo", "paper-50")
+    learned = [cell for cell in plan_cells(experiment, tmp_path) if cell.variant["kind"] != "baseline"]
+    assert learned
+    for cell in learned:
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        assert config.team_kwargs() == {**default.team_kwargs(), "env_kwargs": config.env_kwargs}
+        assert config.env_kwargs == default.env_kwargs
 
 
 @pytest.mark.parametrize("name", PREVIOUS_DEFAULT_FILES)
@@ -716,7 +732,32 @@ def test_experiments_measured_on_the_previous_default_train_with_the_topology_di
             continue
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
         assert config.env_kwargs["graph_knowledge"] == own, (name, cell.variant["key"])
+        # one learning rate for every learner, as when they were measured (an agents block, as in
+        # staggered_lr.yml, is written out in full)
+        assert config.learning_rate_spread == 1.0, (name, cell.variant["key"])
 
 
 def test_the_default_config_knows_the_road_network() -> None:
     assert load_config("ippo", "paper-50").env_kwargs["graph_knowledge"] == "known"
+
+
+def test_a_variant_pins_the_learning_rate_spread_as_a_team_key(tmp_path: Path) -> None:
+    """``hyperparams: {learning_rate_spread: ...}`` sets the team's spread; it never reaches the
+    algorithm, and a bad value fails when the file is read."""
+    (tmp_path / "spread.yml").write_text(
+        "graphs: [paper-50]\nseeds: [0]\nconfig: " + str(ZOO / "ippo.yml") + "\n"
+        "variants:\n  flat: {hyperparams: {learning_rate_spread: 1}}\n  default: {}\n"
+    )
+    experiment = load_experiment(tmp_path / "spread.yml")
+    spreads = {}
+    for cell in plan_cells(experiment, tmp_path):
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        assert "learning_rate_spread" not in config.hyperparams
+        spreads[cell.variant["key"]] = config.learning_rate_spread
+    assert spreads == {"flat": 1.0, "default": 2.0}
+    (tmp_path / "bad.yml").write_text(
+        "graphs: [paper-50]\nseeds: [0]\nconfig: " + str(ZOO / "ippo.yml") + "\n"
+        "variants:\n  wide: {hyperparams: {learning_rate_spread: -2}}\n"
+    )
+    with pytest.raises(ExperimentError, match=r"'wide': hyperparams.learning_rate_spread: expected"):
+        load_experiment(tmp_path / "bad.yml")

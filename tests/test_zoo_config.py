@@ -115,6 +115,18 @@ def test_config_builds_team_with_overrides(tmp_path) -> None:
             "default: {algo: maskable_ppo, agents: {agent_1: {n_envs: 2}}}\n",
             "'n_envs' is set for the whole team",
         ),
+        (
+            "default: {algo: maskable_ppo, learning_rate_spread: 0}\n",
+            r"default.learning_rate_spread: expected a positive number",
+        ),
+        (
+            "default: {algo: maskable_ppo, learning_rate_spread: wide}\n",
+            r"default.learning_rate_spread: expected a positive number",
+        ),
+        (
+            "default: {algo: maskable_ppo, agents: {agent_1: {learning_rate_spread: 2}}}\n",
+            "'learning_rate_spread' is set for the whole team",
+        ),
     ],
 )
 def test_malformed_configs_name_file_and_key(tmp_path, text: str, message: str) -> None:
@@ -169,3 +181,68 @@ def test_overrides_merge_kwargs_and_replace_the_rest(tmp_path) -> None:
     assert config.hyperparams["policy_kwargs"] == {"gat_heads": 1, "dcbf_barrier": False}
     with pytest.raises(ConfigError, match="command-line overrides"):
         load_config(path, "paper-50", {"n_stepz": 3})
+
+
+SPREAD = """
+default:
+  algo: maskable_ppo
+  n_agents: 4
+  n_steps: 16
+  batch_size: 16
+  n_epochs: 1
+  learning_rate: 0.001
+  learning_rate_spread: 2
+  policy_kwargs: {net_arch: [8]}
+  env_kwargs: {max_cycles: 20}
+"""
+
+
+def test_a_learning_rate_spread_staggers_the_learners_geometrically(tmp_path) -> None:
+    config = load_config(write(tmp_path, SPREAD), "paper-50")
+    rates = [config.per_agent()[f"agent_{i}"]["learning_rate"] for i in range(4)]
+    # the fastest learner twice the slowest, evenly spaced on a log scale, geometric mean 1e-3
+    assert rates == pytest.approx([1e-3 * 2 ** (0.5 - i / 3) for i in range(4)])
+    assert rates[0] / rates[-1] == pytest.approx(2.0)
+    assert float(th.tensor(rates).log().mean().exp()) == pytest.approx(1e-3)
+    assert config.to_dict()["learning_rate_spread"] == 2.0
+    # the team size is read when the team is built (an experiment may change it after loading)
+    config.n_agents = 8
+    eight = [config.per_agent()[f"agent_{i}"]["learning_rate"] for i in range(8)]
+    assert eight[0] == pytest.approx(rates[0]) and eight[-1] == pytest.approx(rates[-1])
+    team = IndependentPPO.from_config(config, erdos_renyi(14, 0.3, n_targets=3, seed=1), seed=0)
+    try:
+        learned = [team.models[f"agent_{i}"].lr_schedule(1.0) for i in range(8)]
+    finally:
+        team.close()
+    assert learned == pytest.approx(eight)
+
+
+def test_an_agent_block_wins_over_the_spread_and_a_spread_of_one_changes_nothing(tmp_path) -> None:
+    text = SPREAD + "  agents:\n    agent_2: {learning_rate: 0.005}\n"
+    config = load_config(write(tmp_path, text), "paper-50")
+    assert config.per_agent()["agent_2"] == {"learning_rate": 0.005}
+    assert config.per_agent()["agent_1"]["learning_rate"] == pytest.approx(1e-3 * 2 ** (1 / 6))
+    config.learning_rate_spread = 1.0
+    assert config.per_agent() == {"agent_2": {"learning_rate": 0.005}}
+    assert "learning_rate_spread" not in config.to_dict()
+
+
+def test_a_spread_scales_a_linear_schedule_and_needs_a_learning_rate(tmp_path) -> None:
+    linear = SPREAD.replace("learning_rate: 0.001", "learning_rate: lin_1e-3")
+    config = load_config(write(tmp_path, linear), "x")
+    first = parse_schedule(config.per_agent()["agent_0"]["learning_rate"])
+    assert first(1.0) == pytest.approx(2**0.5 * 1e-3) and first(0.0) == 0
+    config = load_config(write(tmp_path, SPREAD.replace("  learning_rate: 0.001\n", "")), "x")
+    with pytest.raises(ConfigError, match="learning_rate_spread needs the entry's learning_rate"):
+        config.team_kwargs()
+
+
+def test_the_default_config_staggers_its_learners() -> None:
+    config = load_config("ippo", "paper-50")
+    assert config.learning_rate_spread == 2.0 and config.hyperparams["learning_rate"] == 1e-3
+    assert [round(config.per_agent()[f"agent_{i}"]["learning_rate"], 6) for i in range(4)] == [
+        0.001414,
+        0.001122,
+        0.000891,
+        0.000707,
+    ]

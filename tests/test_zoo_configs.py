@@ -206,7 +206,7 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
     assert model.num_timesteps == 128
 
 
-def test_ippo_transfer_is_the_default_without_the_rows_encoding_with_a_known_map_sampled_at_0_25() -> None:
+def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_sampled_at_0_25() -> None:
     transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo", "paper-50")
     t_kwargs, d_kwargs = transfer.team_kwargs(), default.team_kwargs()
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
@@ -219,6 +219,10 @@ def test_ippo_transfer_is_the_default_without_the_rows_encoding_with_a_known_map
     assert "target_knowledge" not in d_env and d_env.pop("graph_knowledge") == "known"
     # Deployed by sampling at temperature 0.25, the default by its most likely actions.
     assert (t_kwargs.pop("deploy_temperature"), d_kwargs.pop("deploy_temperature")) == (0.25, None)
+    # One learning rate for every learner, as the transfer figures were measured; the default
+    # staggers them (learning_rate_spread: 2, not yet measured for the size-independent team).
+    assert transfer.learning_rate_spread == 1.0 and default.learning_rate_spread == 2.0
+    assert t_kwargs.pop("per_agent") == {} and len(d_kwargs.pop("per_agent")) == default.n_agents
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
     # It names the graph it trains on without --env; the default trains on the command line's.
     assert (transfer.env, default.env) == ("paper-50", None)

@@ -150,7 +150,7 @@ def train_shared_team(cell: Cell) -> str:
 def cell_config(cell: Cell, variant: Variant) -> Any:
     """The training config of a learned cell: the base config's entry for the cell's graph, with the
     experiment's and then the variant's overrides merged over it (``policy_kwargs`` key by key)."""
-    from sb3_pm.zoo.config import load_config
+    from sb3_pm.zoo.config import check_learning_rate_spread, load_config
 
     source = variant.config or cell.config
     assert source is not None
@@ -160,7 +160,12 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     config = load_config(source, variant.train_env or cell.graph, overrides)
     pins = {**cell.hyperparams, **variant.hyperparams}
     config.deploy_temperature = pinned_deploy_temperature(config, pins)
-    config.hyperparams.update({key: value for key, value in pins.items() if key != "deploy_temperature"})
+    if "learning_rate_spread" in pins:  # a team key too, never passed to the algorithm
+        config.learning_rate_spread = check_learning_rate_spread(
+            pins["learning_rate_spread"], f"variant {variant.key!r}: hyperparams"
+        )
+    team_pins = ("deploy_temperature", "learning_rate_spread")
+    config.hyperparams.update({key: value for key, value in pins.items() if key not in team_pins})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
     if variant.policy_kwargs:
         config.hyperparams["policy_kwargs"] = {

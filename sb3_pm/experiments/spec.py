@@ -164,8 +164,16 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
     return out
 
 
-def _check_deploy_pin(hyperparams: dict[str, Any], source: Path, where: str = "") -> None:
-    """A ``deploy_temperature`` among ``hyperparams`` must be null or a positive number."""
+def _check_team_pins(hyperparams: dict[str, Any], source: Path, where: str = "") -> None:
+    """The team keys among ``hyperparams``: a ``deploy_temperature`` must be null or a positive
+    number, a ``learning_rate_spread`` a positive number."""
+    if "learning_rate_spread" in hyperparams:
+        from sb3_pm.zoo.config import check_learning_rate_spread
+
+        try:
+            check_learning_rate_spread(hyperparams["learning_rate_spread"], f"{where}hyperparams")
+        except InputError as error:
+            raise _fail(source, str(error)) from None
     if "deploy_temperature" not in hyperparams:
         return
     from sb3_pm.policies.sampling import check_deploy_temperature
@@ -216,7 +224,7 @@ def load_experiment(path: str | Path) -> Experiment:
         for mapping in ("policy_kwargs", "hyperparams", "env_kwargs", "agents"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
-        _check_deploy_pin(settings.get("hyperparams", {}), path, f"variant {key!r}: ")
+        _check_team_pins(settings.get("hyperparams", {}), path, f"variant {key!r}: ")
         clash = sorted(_EXPERIMENT_ENV_KEYS & set(settings.get("env_kwargs", {})))
         if kind == "baseline" and clash:
             raise _fail(
@@ -292,7 +300,7 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"training config not found: {config_path}")
     if not isinstance(raw.get("hyperparams", {}) or {}, dict):
         raise _fail(path, "'hyperparams' must be a mapping")
-    _check_deploy_pin(raw.get("hyperparams", {}) or {}, path)
+    _check_team_pins(raw.get("hyperparams", {}) or {}, path)
     quick = raw.get("quick", {}) or {}
     if not isinstance(quick, dict):
         raise _fail(path, "'quick' must be a mapping")

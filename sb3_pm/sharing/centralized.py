@@ -111,6 +111,11 @@ class CentralizedPPO(LearnedTeam):
         """The config entry's team arguments; per-agent overrides are refused (there is one network)."""
         if config.agents:
             raise InputError(f"{config.source}: per-agent overrides make no sense for a centralized team")
+        if config.learning_rate_spread != 1.0:
+            raise InputError(
+                f"{config.source}: learning_rate_spread makes no sense for a centralized team (one "
+                "network, one learning rate); set it to 1"
+            )
         options = super()._config_options(config)
         options.pop("per_agent", None)
         return options

@@ -43,12 +43,22 @@ from sb3_pm.zoo.registry import (
     resolve_algo,
     resolve_policy_kwargs,
 )
-from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
+from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule, staggered_learning_rates
 from sb3_pm.zoo.shipped import resolve_config_path
 
 DEFAULT_ENTRY = "default"
 #: Keys that belong to the team, not to one learner's algorithm.
-TEAM_KEYS = ("n_timesteps", "n_envs", "n_agents", "algo", "env_kwargs", "agents", "env", "deploy_temperature")
+TEAM_KEYS = (
+    "n_timesteps",
+    "n_envs",
+    "n_agents",
+    "algo",
+    "env_kwargs",
+    "agents",
+    "env",
+    "deploy_temperature",
+    "learning_rate_spread",
+)
 #: Algorithm arguments the team sets itself (never from a config).
 MANAGED_ARGS = {"self", "policy", "env", "seed", "tensorboard_log", "verbose", "device", "_init_setup_model"}
 #: Keys allowed in a per-agent override: learner hyperparameters, but not the team's own keys
@@ -84,6 +94,35 @@ class TrainConfig:
     #: How the trained team acts by default: ``None`` by the argmax, a number by sampling at that
     #: temperature (saved with the team; training never reads it).
     deploy_temperature: float | None = None
+    #: Ratio between consecutive learners' learning rates (1: every learner the same); see
+    #: :meth:`per_agent`.
+    learning_rate_spread: float = 1.0
+
+    def per_agent(self) -> dict[str, dict[str, Any]]:
+        """Each learner's overrides: the ``agents`` block, plus, with a ``learning_rate_spread``
+        other than 1, a ``learning_rate`` for every learner whose block does not set one.
+
+        Computed here, from the final team size and learning rate, because an experiment or the
+        command line may change either after the file is read.
+
+        :raises ConfigError: for a spread without a numeric (or ``lin_``) ``learning_rate``.
+        """
+        per_agent = {agent: dict(values) for agent, values in self.agents.items()}
+        if self.learning_rate_spread == 1.0:
+            return per_agent
+        if "learning_rate" not in self.hyperparams:
+            raise ConfigError(
+                f"{self.source}: {self.entry}.learning_rate_spread needs the entry's learning_rate"
+            )
+        try:
+            rates = staggered_learning_rates(
+                self.hyperparams["learning_rate"], self.learning_rate_spread, self.n_agents
+            )
+        except InputError as error:
+            raise ConfigError(f"{self.source}: {self.entry}.{error}") from None
+        for i, rate in enumerate(rates):
+            per_agent.setdefault(f"agent_{i}", {}).setdefault("learning_rate", rate)
+        return per_agent
 
     def team_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of ``IndependentPPO`` (all but ``graph``, ``seed`` and logging)."""
@@ -94,7 +133,7 @@ class TrainConfig:
             "policy": self.policy,
             "n_envs": self.n_envs,
             "hyperparams": dict(self.hyperparams),
-            "per_agent": {agent: dict(values) for agent, values in self.agents.items()},
+            "per_agent": self.per_agent(),
             "deploy_temperature": self.deploy_temperature,
         }
 
@@ -115,6 +154,8 @@ class TrainConfig:
             data["env"] = self.env
         if self.deploy_temperature is not None:
             data["deploy_temperature"] = self.deploy_temperature
+        if self.learning_rate_spread != 1.0:
+            data["learning_rate_spread"] = self.learning_rate_spread
         return data
 
 
@@ -324,6 +365,7 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
     except InputError as error:
         raise ConfigError(f"{where}.deploy_temperature: {error} (null acts by the argmax)") from None
     hyperparams = _hyperparams(raw, allowed, where, set(TEAM_KEYS) | {"policy"})
+    learning_rate_spread = check_learning_rate_spread(raw.get("learning_rate_spread", 1.0), where)
     n_agents = _as_int(raw.get("n_agents", 4), f"{where}.n_agents")
     agents_raw = raw.get("agents") or {}
     if not isinstance(agents_raw, dict):
@@ -357,7 +399,26 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
         agents=agents,
         env=train_env,
         deploy_temperature=deploy_temperature,
+        learning_rate_spread=learning_rate_spread,
     )
+
+
+def check_learning_rate_spread(value: Any, where: str = "config") -> float:
+    """A ``learning_rate_spread`` as a float: a positive number (1 switches the spread off).
+
+    :raises ConfigError: for anything else, naming ``where``.
+    """
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            pass
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
+        raise ConfigError(
+            f"{where}.learning_rate_spread: expected a positive number "
+            f"(1 = every learner the same), got {value!r}"
+        )
+    return float(value)
 
 
 def default_env(path: str | Path) -> str | None:
@@ -378,6 +439,7 @@ __all__ = [
     "ConfigError",
     "TrainConfig",
     "apply_overrides",
+    "check_learning_rate_spread",
     "default_env",
     "entry_for",
     "load_config",

@@ -40,4 +40,37 @@ def parse_schedule(value: Any, key: str = "value") -> Any:
     return value
 
 
-__all__ = ["SCHEDULE_KEYS", "parse_schedule"]
+def staggered_learning_rates(learning_rate: Any, spread: float, n_agents: int) -> list[Any]:
+    """Each learner's learning rate when a team spreads them geometrically around ``learning_rate``.
+
+    Learner ``i`` of ``K`` gets ``learning_rate * spread ** (1/2 - i / (K - 1))``: ``agent_0`` the
+    fastest, the last learner ``spread`` times slower, the others evenly spaced on a log scale
+    between them, and the geometric mean of the team's rates ``learning_rate`` itself. The range,
+    not the step, is fixed, so a larger team stays within the rates a smaller one was tuned with.
+    ``spread = 1`` (or a single learner) gives every learner ``learning_rate``.
+
+    :param learning_rate: a number, or a ``lin_<x>`` string (the schedule's start is scaled).
+    :returns: ``K`` values of the same kind (floats, or ``lin_<x>`` strings).
+    :raises InputError: for a spread that is not a positive number, or a learning rate that is
+        neither a number nor ``lin_<x>`` (a Python schedule cannot be scaled from a config).
+    """
+    if isinstance(spread, bool) or not isinstance(spread, (int, float)) or not 0 < spread < float("inf"):
+        raise InputError(f"learning_rate_spread: expected a positive number (1 = no spread), got {spread!r}")
+    if n_agents == 1:
+        factors = [1.0]
+    else:
+        factors = [float(spread) ** (0.5 - i / (n_agents - 1)) for i in range(n_agents)]
+    text = learning_rate.strip() if isinstance(learning_rate, str) else None
+    if text is not None and text.startswith("lin_"):
+        start = parse_schedule(text, "learning_rate").start
+        return [f"lin_{start * factor!r}" for factor in factors]
+    value = parse_schedule(learning_rate, "learning_rate")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(
+            "learning_rate_spread needs a learning_rate that is a number or lin_<number>, "
+            f"got {learning_rate!r}"
+        )
+    return [float(value) * factor for factor in factors]
+
+
+__all__ = ["SCHEDULE_KEYS", "parse_schedule", "staggered_learning_rates"]
