@@ -122,8 +122,9 @@ def team_speed(
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.zoo.config import load_config
 
-    options = load_config(config, graph).team_kwargs()
-    options["n_agents"] = 4
+    entry = load_config(config, graph)
+    entry.n_agents = 4  # before team_kwargs(): per-agent learning rates follow the team size
+    options = entry.team_kwargs()
     options["env_kwargs"] = {**options["env_kwargs"], "max_cycles": 500}
     if algo is not None:
         options["algo"], options["policy"] = algo, None

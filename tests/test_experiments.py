@@ -716,15 +716,20 @@ def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path) -
         assert config.env_kwargs == default.env_kwargs
 
 
+@pytest.mark.parametrize("quick", [False, True])
 @pytest.mark.parametrize("name", PREVIOUS_DEFAULT_FILES)
-def test_experiments_measured_on_the_previous_default_train_with_the_topology_discovered(
-    tmp_path: Path, name: str
+def test_experiments_measured_on_the_previous_default_train_as_they_were_measured(
+    tmp_path: Path, name: str, quick: bool
 ) -> None:
-    """zoo/ippo.yml knows the road network; the files measured before it did pin it discovered, so
-    their learned variants train as recorded unless a variant sets ``known`` itself (and baselines,
-    which read the same maps, are evaluated on discovered maps too)."""
+    """zoo/ippo.yml knows the road network and staggers the learning rates; the files measured
+    before pin the topology discovered and one learning rate, so their learned variants train as
+    recorded unless a variant sets ``known`` itself (and baselines, which read the same maps, are
+    evaluated on discovered maps too). ``--quick`` keeps the pins: its hyperparams merge over the
+    file's."""
     experiment = load_experiment(name)
     assert experiment.env_kwargs.get("graph_knowledge") == "discovered", name
+    if quick:
+        experiment = experiment.quick()
     for cell in plan_cells(experiment, tmp_path):
         own = cell.variant["env_kwargs"].get("graph_knowledge", "discovered")
         if cell.variant["kind"] == "baseline":
@@ -761,3 +766,21 @@ def test_a_variant_pins_the_learning_rate_spread_as_a_team_key(tmp_path: Path) -
     )
     with pytest.raises(ExperimentError, match=r"'wide': hyperparams.learning_rate_spread: expected"):
         load_experiment(tmp_path / "bad.yml")
+
+
+def test_the_spread_is_recorded_and_a_centralized_variant_with_one_fails_before_training(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "spread.yml").write_text(
+        "graphs: [paper-50]\nseeds: [0]\nconfig: " + str(ZOO / "ippo.yml") + "\n"
+        "variants:\n  flat: {hyperparams: {learning_rate_spread: 1}}\n  default: {}\n"
+    )
+    record = runner_module.experiment_record(load_experiment(tmp_path / "spread.yml"))
+    assert record["learning_rate_spread"] == {"default": 2.0}  # an edited default is another experiment
+    (tmp_path / "central.yml").write_text(
+        "graphs: [paper-50]\nseeds: [0]\nconfig: " + str(ZOO / "ippo.yml") + "\n"
+        "variants:\n  central: {kind: centralized}\n"
+    )
+    with pytest.raises(ExperimentError, match=r"'central': a centralized team has one learning rate"):
+        reproduce(load_experiment(tmp_path / "central.yml"), tmp_path / "out", progress=False)
+    assert not (tmp_path / "out" / "cells").exists()

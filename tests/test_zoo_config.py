@@ -117,11 +117,19 @@ def test_config_builds_team_with_overrides(tmp_path) -> None:
         ),
         (
             "default: {algo: maskable_ppo, learning_rate_spread: 0}\n",
-            r"default.learning_rate_spread: expected a positive number",
+            r"default.learning_rate_spread: expected a number >= 1",
+        ),
+        (
+            "default: {algo: maskable_ppo, learning_rate: 0.001, learning_rate_spread: 0.5}\n",
+            r"default.learning_rate_spread: expected a number >= 1",
         ),
         (
             "default: {algo: maskable_ppo, learning_rate_spread: wide}\n",
-            r"default.learning_rate_spread: expected a positive number",
+            r"default.learning_rate_spread: expected a number >= 1",
+        ),
+        (
+            "default: {algo: maskable_ppo, learning_rate_spread: 2}\n",
+            "learning_rate_spread needs the entry's learning_rate",
         ),
         (
             "default: {algo: maskable_ppo, agents: {agent_1: {learning_rate_spread: 2}}}\n",
@@ -232,7 +240,7 @@ def test_a_spread_scales_a_linear_schedule_and_needs_a_learning_rate(tmp_path) -
     config = load_config(write(tmp_path, linear), "x")
     first = parse_schedule(config.per_agent()["agent_0"]["learning_rate"])
     assert first(1.0) == pytest.approx(2**0.5 * 1e-3) and first(0.0) == 0
-    config = load_config(write(tmp_path, SPREAD.replace("  learning_rate: 0.001\n", "")), "x")
+    config.hyperparams.pop("learning_rate")  # as a later override might: built teams check again
     with pytest.raises(ConfigError, match="learning_rate_spread needs the entry's learning_rate"):
         config.team_kwargs()
 

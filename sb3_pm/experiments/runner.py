@@ -44,7 +44,7 @@ from sb3_pm.experiments.backends import run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.report import code_version, write_report
-from sb3_pm.experiments.spec import Experiment, Variant
+from sb3_pm.experiments.spec import Experiment, ExperimentError, Variant
 from sb3_pm.files import move_aside
 from sb3_pm.graphs import graph_label
 from sb3_pm.machine import write_machine_record
@@ -421,16 +421,56 @@ def deploy_rules(experiment: Experiment) -> dict[str, Any]:
     return rules
 
 
+def spread_rules(experiment: Experiment) -> dict[str, Any]:
+    """``{variant: learning_rate_spread}`` of the learned variants whose learners' rates differ, as
+    their configs and pins resolve (one value, or ``{graph: value}`` where the entries differ).
+
+    Recorded like :func:`deploy_rules`, so that a folder started before a config's spread changed
+    does not resume into cells trained both ways.
+
+    :raises ExperimentError: for a centralized variant with a spread (one network, one rate), here
+        rather than when its first cell trains.
+    """
+    from sb3_pm.zoo.config import check_learning_rate_spread, load_config
+
+    rules: dict[str, Any] = {}
+    for variant in experiment.variants:
+        source = variant.config or experiment.config
+        if not variant.learned or source is None:
+            continue
+        pins = {**experiment.hyperparams, **variant.hyperparams}
+        per_graph = {
+            graph: check_learning_rate_spread(pins["learning_rate_spread"], f"variant {variant.key!r}")
+            if "learning_rate_spread" in pins
+            else load_config(source, graph).learning_rate_spread
+            for graph in ([variant.train_env] if variant.train_env else experiment.graphs)
+        }
+        values = set(per_graph.values())
+        if values == {1.0}:
+            continue
+        if variant.kind == "centralized":
+            raise ExperimentError(
+                f"{experiment.source}: variant {variant.key!r}: a centralized team has one learning "
+                f"rate, but its config spreads them ({source}); pin hyperparams: "
+                "{learning_rate_spread: 1}"
+            )
+        rules[variant.key] = values.pop() if len(values) == 1 else per_graph
+    return rules
+
+
 def experiment_record(experiment: Experiment) -> dict[str, Any]:
     # eval_env_kwargs is recorded only when set (folders written before it existed resume), so a
     # changed deployment condition is a different experiment and never reuses finished cells;
-    # likewise the learned variants' sampling rules (deploy_rules).
+    # likewise the learned variants' sampling rules (deploy_rules) and learning-rate spreads.
     extra: dict[str, Any] = (
         {"eval_env_kwargs": experiment.eval_env_kwargs} if experiment.eval_env_kwargs else {}
     )
     rules = deploy_rules(experiment)
     if rules:
         extra["deploy_temperature"] = rules
+    spreads = spread_rules(experiment)
+    if spreads:
+        extra["learning_rate_spread"] = spreads
     return {
         **extra,
         "name": experiment.name,

@@ -136,6 +136,8 @@ class Experiment:
     def quick(self) -> Experiment:
         """The ``--quick`` version: smaller budgets for smoke tests (its numbers are not results)."""
         overrides = _coerce_top(self.quick_overrides, self.source, base=self.source)
+        if "hyperparams" in overrides:  # merged, so the file's pins (learning_rate_spread) hold
+            overrides["hyperparams"] = {**self.hyperparams, **overrides["hyperparams"]}
         if "timesteps" in overrides:  # the smoke-test budget wins over every variant's own
             overrides["variants"] = tuple(replace(v, timesteps=None) for v in self.variants)
         return replace(self, **overrides)

@@ -114,7 +114,8 @@ class CentralizedPPO(LearnedTeam):
         if config.learning_rate_spread != 1.0:
             raise InputError(
                 f"{config.source}: learning_rate_spread makes no sense for a centralized team (one "
-                "network, one learning rate); set it to 1"
+                "network, one learning rate); set it to 1 (an experiment variant: hyperparams: "
+                "{learning_rate_spread: 1}; sb3-pm train: --hyperparams learning_rate_spread:1)"
             )
         options = super()._config_options(config)
         options.pop("per_agent", None)

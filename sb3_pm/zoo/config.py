@@ -386,7 +386,7 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
             )
         agents[agent] = _hyperparams(overrides, allowed, f"{where}.agents.{agent}", set())
 
-    return TrainConfig(
+    config = TrainConfig(
         source=source,
         entry=entry,
         n_timesteps=_as_int(raw.get("n_timesteps", 50_000), f"{where}.n_timesteps"),
@@ -401,10 +401,12 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
         deploy_temperature=deploy_temperature,
         learning_rate_spread=learning_rate_spread,
     )
+    config.per_agent()  # a spread without a learning rate fails here, not when a sweep's cell trains
+    return config
 
 
 def check_learning_rate_spread(value: Any, where: str = "config") -> float:
-    """A ``learning_rate_spread`` as a float: a positive number (1 switches the spread off).
+    """A ``learning_rate_spread`` as a float: a number >= 1 (1 switches the spread off).
 
     :raises ConfigError: for anything else, naming ``where``.
     """
@@ -413,10 +415,10 @@ def check_learning_rate_spread(value: Any, where: str = "config") -> float:
             value = float(value)
         except ValueError:
             pass
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 1 <= value < float("inf"):
         raise ConfigError(
-            f"{where}.learning_rate_spread: expected a positive number "
-            f"(1 = every learner the same), got {value!r}"
+            f"{where}.learning_rate_spread: expected a number >= 1 (the fastest learner's rate over "
+            f"the slowest's; 1 = every learner the same), got {value!r}"
         )
     return float(value)
 

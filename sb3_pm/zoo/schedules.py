@@ -51,11 +51,11 @@ def staggered_learning_rates(learning_rate: Any, spread: float, n_agents: int) -
 
     :param learning_rate: a number, or a ``lin_<x>`` string (the schedule's start is scaled).
     :returns: ``K`` values of the same kind (floats, or ``lin_<x>`` strings).
-    :raises InputError: for a spread that is not a positive number, or a learning rate that is
+    :raises InputError: for a spread that is not a number >= 1, or a learning rate that is
         neither a number nor ``lin_<x>`` (a Python schedule cannot be scaled from a config).
     """
-    if isinstance(spread, bool) or not isinstance(spread, (int, float)) or not 0 < spread < float("inf"):
-        raise InputError(f"learning_rate_spread: expected a positive number (1 = no spread), got {spread!r}")
+    if isinstance(spread, bool) or not isinstance(spread, (int, float)) or not 1 <= spread < float("inf"):
+        raise InputError(f"learning_rate_spread: expected a number >= 1 (1 = no spread), got {spread!r}")
     if n_agents == 1:
         factors = [1.0]
     else:
