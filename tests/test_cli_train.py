@@ -162,3 +162,19 @@ def test_a_family_run_refuses_what_cannot_transfer_and_a_stray_env_override(tiny
     assert not out.exists()
     assert main([*argv, "--hyperparams", "env:karate"]) == 2
     assert "--hyperparams env:... is not read; name the graph or family with --env" in capsys.readouterr().err
+
+
+def test_a_run_folders_config_retrains_the_same_team(tiny_train) -> None:
+    """``--config RUN/config.yml`` (one resolved entry) retrains that run bit for bit, on the graph
+    it recorded, whatever the config it came from says now."""
+    import zipfile
+
+    config, graph, out = tiny_train
+    args = ["--timesteps", "32", "--seed", "5", "--no-progress"]
+    assert main(["train", "--config", str(config), "--env", str(graph), *args, "--out", str(out / "a")]) == 0
+    config.write_text("default: {algo: nope}\n")  # the original is gone: the record must suffice
+    assert main(["train", "--config", str(out / "a" / "config.yml"), *args, "--out", str(out / "b")]) == 0
+    for agent in ("agent_0", "agent_1"):
+        saved = [zipfile.ZipFile(out / name / "team" / f"{agent}.zip").read("policy.pth") for name in "ab"]
+        assert saved[0] == saved[1]
+    assert yaml.safe_load((out / "b" / "config.yml").read_text())["env"] == str(graph)

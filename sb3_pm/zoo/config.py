@@ -66,6 +66,10 @@ MANAGED_ARGS = {"self", "policy", "env", "seed", "tensorboard_log", "verbose", "
 AGENT_FORBIDDEN = set(TEAM_KEYS)
 
 
+#: Provenance keys of a run folder's ``config.yml`` (not settings; skipped when it is read back).
+RUN_RECORD_KEYS = ("entry", "source")
+
+
 class ConfigError(InputError):
     """A malformed config; the message names the file, the entry and the key."""
 
@@ -175,6 +179,12 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(
             f"{file}: expected a mapping of entries (graph name -> settings), got {type(data).__name__}"
         )
+    if isinstance(data.get("algo"), str):
+        # A run folder's config.yml: one resolved entry, as ``sb3-pm train`` recorded it (with its
+        # provenance, ``entry`` and ``source``, and the graph it trained on as ``env``). It is its
+        # own default entry, so ``--config RUN/config.yml`` retrains what that run trained even
+        # after the shipped config it came from has changed.
+        data = {DEFAULT_ENTRY: {key: value for key, value in data.items() if key not in RUN_RECORD_KEYS}}
     for entry, value in data.items():
         if not isinstance(value, dict):
             raise ConfigError(f"{file}: entry {entry!r} must be a mapping, got {type(value).__name__}")
