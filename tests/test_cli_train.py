@@ -178,3 +178,21 @@ def test_a_run_folders_config_retrains_the_same_team(tiny_train) -> None:
         saved = [zipfile.ZipFile(out / name / "team" / f"{agent}.zip").read("policy.pth") for name in "ab"]
         assert saved[0] == saved[1]
     assert yaml.safe_load((out / "b" / "config.yml").read_text())["env"] == str(graph)
+
+
+def test_train_prints_and_records_staggered_learning_rates(tiny_train, capsys) -> None:
+    config, graph, out = tiny_train
+    argv = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "16", "--out", str(out)]
+    assert main([*argv, "--hyperparams", "learning_rate_spread:4", "--no-progress"]) == 0
+    # two learners, the fastest 4x the slowest around the file's lin_1e-3: starts 2e-3 and 5e-4
+    assert "learning rates (learning_rate_spread 4): agent_0 lin_0.002, agent_1 lin_0.0005" in (
+        capsys.readouterr().out
+    )
+    assert yaml.safe_load((out / "config.yml").read_text())["learning_rate_spread"] == 4.0
+    from sb3_pm.agents.team import IndependentPPO
+
+    team = IndependentPPO.load(out)
+    try:
+        assert [team.models[a].lr_schedule(1.0) for a in team.agents] == [2e-3, 5e-4]
+    finally:
+        team.close()

@@ -216,6 +216,14 @@ def run(args: argparse.Namespace) -> int:
                 f"training {config.n_agents} x {config.algo} on {graph.name} ({size}), "
                 f"{config.n_timesteps} steps per learner, config entry {config.entry!r} -> {out}"
             )
+            if config.learning_rate_spread != 1.0:
+                rates = ", ".join(
+                    f"{agent} {values['learning_rate']:.3g}"
+                    if isinstance(values["learning_rate"], float)
+                    else f"{agent} {values['learning_rate']}"
+                    for agent, values in config.per_agent().items()
+                )
+                print(f"learning rates (learning_rate_spread {config.learning_rate_spread:g}): {rates}")
             return _learn_and_save(team, config.n_timesteps, args, out, args.checkpoint_every, args.env)
     except RunFolderError as error:
         raise UsageError(str(error)) from None
