@@ -33,6 +33,7 @@ import shlex
 import shutil
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -150,7 +151,7 @@ def train_shared_team(cell: Cell) -> str:
 def cell_config(cell: Cell, variant: Variant) -> Any:
     """The training config of a learned cell: the base config's entry for the cell's graph, with the
     experiment's and then the variant's overrides merged over it (``policy_kwargs`` key by key)."""
-    from sb3_pm.zoo.config import check_learning_rate_spread, load_config
+    from sb3_pm.zoo.config import load_config
 
     source = variant.config or cell.config
     assert source is not None
@@ -160,10 +161,7 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     config = load_config(source, variant.train_env or cell.graph, overrides)
     pins = {**cell.hyperparams, **variant.hyperparams}
     config.deploy_temperature = pinned_deploy_temperature(config, pins)
-    if "learning_rate_spread" in pins:  # a team key too, never passed to the algorithm
-        config.learning_rate_spread = check_learning_rate_spread(
-            pins["learning_rate_spread"], f"variant {variant.key!r}: hyperparams"
-        )
+    config.learning_rate_spread = pinned_learning_rate_spread(config, pins)
     team_pins = ("deploy_temperature", "learning_rate_spread")
     config.hyperparams.update({key: value for key, value in pins.items() if key not in team_pins})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
@@ -396,6 +394,37 @@ _RECORD_DEFAULTS: dict[str, Any] = {
 }
 
 
+def pinned_learning_rate_spread(config: Any, hyperparams: dict[str, Any]) -> float:
+    """The config's ``learning_rate_spread``, unless the experiment's or the variant's
+    ``hyperparams`` pin it (a team key, never passed to the algorithm)."""
+    if "learning_rate_spread" not in hyperparams:
+        return float(config.learning_rate_spread)
+    from sb3_pm.zoo.config import check_learning_rate_spread
+
+    return check_learning_rate_spread(hyperparams["learning_rate_spread"], "hyperparams")
+
+
+def _resolved_team_key(
+    experiment: Experiment, resolve: Any
+) -> Iterator[tuple[Variant, str | Path, dict[str, Any]]]:
+    """``(variant, config, {graph: resolve(config entry, pins)})`` for each learned variant, with
+    the experiment's and the variant's ``hyperparams`` as the pins."""
+    from sb3_pm.zoo.config import load_config
+
+    for variant in experiment.variants:
+        source = variant.config or experiment.config
+        if not variant.learned or source is None:
+            continue
+        pins = {**experiment.hyperparams, **variant.hyperparams}
+        graphs = [variant.train_env] if variant.train_env else experiment.graphs
+        yield variant, source, {graph: resolve(load_config(source, graph), pins) for graph in graphs}
+
+
+def _one_or_per_graph(per_graph: dict[str, Any]) -> Any:
+    values = set(per_graph.values())
+    return values.pop() if len(values) == 1 else per_graph
+
+
 def deploy_rules(experiment: Experiment) -> dict[str, Any]:
     """``{variant: deploy_temperature}`` of the learned variants that sample at deployment, as their
     configs and pins resolve (one value, or ``{graph: value}`` where the entries differ).
@@ -403,22 +432,11 @@ def deploy_rules(experiment: Experiment) -> dict[str, Any]:
     The record names a config by its path only, so without this an edited ``deploy_temperature``
     would let a resumed folder mix cells evaluated both ways.
     """
-    from sb3_pm.zoo.config import load_config
-
-    rules: dict[str, Any] = {}
-    for variant in experiment.variants:
-        source = variant.config or experiment.config
-        if not variant.learned or source is None:
-            continue
-        pins = {**experiment.hyperparams, **variant.hyperparams}
-        per_graph = {
-            graph: pinned_deploy_temperature(load_config(source, graph), pins)
-            for graph in ([variant.train_env] if variant.train_env else experiment.graphs)
-        }
-        values = set(per_graph.values())
-        if values != {None}:
-            rules[variant.key] = values.pop() if len(values) == 1 else per_graph
-    return rules
+    return {
+        variant.key: _one_or_per_graph(per_graph)
+        for variant, _, per_graph in _resolved_team_key(experiment, pinned_deploy_temperature)
+        if set(per_graph.values()) != {None}
+    }
 
 
 def spread_rules(experiment: Experiment) -> dict[str, Any]:
@@ -431,22 +449,9 @@ def spread_rules(experiment: Experiment) -> dict[str, Any]:
     :raises ExperimentError: for a centralized variant with a spread (one network, one rate), here
         rather than when its first cell trains.
     """
-    from sb3_pm.zoo.config import check_learning_rate_spread, load_config
-
     rules: dict[str, Any] = {}
-    for variant in experiment.variants:
-        source = variant.config or experiment.config
-        if not variant.learned or source is None:
-            continue
-        pins = {**experiment.hyperparams, **variant.hyperparams}
-        per_graph = {
-            graph: check_learning_rate_spread(pins["learning_rate_spread"], f"variant {variant.key!r}")
-            if "learning_rate_spread" in pins
-            else load_config(source, graph).learning_rate_spread
-            for graph in ([variant.train_env] if variant.train_env else experiment.graphs)
-        }
-        values = set(per_graph.values())
-        if values == {1.0}:
+    for variant, source, per_graph in _resolved_team_key(experiment, pinned_learning_rate_spread):
+        if set(per_graph.values()) == {1.0}:
             continue
         if variant.kind == "centralized":
             raise ExperimentError(
@@ -454,7 +459,7 @@ def spread_rules(experiment: Experiment) -> dict[str, Any]:
                 f"rate, but its config spreads them ({source}); pin hyperparams: "
                 "{learning_rate_spread: 1}"
             )
-        rules[variant.key] = values.pop() if len(values) == 1 else per_graph
+        rules[variant.key] = _one_or_per_graph(per_graph)
     return rules
 
 
