@@ -737,9 +737,10 @@ def test_experiments_measured_on_the_previous_default_train_as_they_were_measure
             continue
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
         assert config.env_kwargs["graph_knowledge"] == own, (name, cell.variant["key"])
-        # one learning rate for every learner, as when they were measured (an agents block, as in
-        # staggered_lr.yml, is written out in full)
-        assert config.learning_rate_spread == 1.0, (name, cell.variant["key"])
+        # one learning rate for every learner, as when they were measured, unless the variant sets
+        # its own spread (an agents block, as in staggered_lr.yml, is written out in full)
+        own_spread = cell.variant["hyperparams"].get("learning_rate_spread", 1.0)
+        assert config.learning_rate_spread == own_spread, (name, cell.variant["key"])
 
 
 def test_the_default_config_knows_the_road_network() -> None:
