@@ -168,7 +168,7 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
 
 def _check_team_pins(hyperparams: dict[str, Any], source: Path, where: str = "") -> None:
     """The team keys among ``hyperparams``: a ``deploy_temperature`` must be null or a positive
-    number, a ``learning_rate_spread`` a positive number."""
+    number, a ``learning_rate_spread`` a number >= 1."""
     if "learning_rate_spread" in hyperparams:
         from sb3_pm.zoo.config import check_learning_rate_spread
 

@@ -43,7 +43,7 @@ from sb3_pm.zoo.registry import (
     resolve_algo,
     resolve_policy_kwargs,
 )
-from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule, staggered_learning_rates
+from sb3_pm.zoo.schedules import SCHEDULE_KEYS, check_spread, parse_schedule, staggered_learning_rates
 from sb3_pm.zoo.shipped import resolve_config_path
 
 DEFAULT_ENTRY = "default"
@@ -98,7 +98,7 @@ class TrainConfig:
     #: How the trained team acts by default: ``None`` by the argmax, a number by sampling at that
     #: temperature (saved with the team; training never reads it).
     deploy_temperature: float | None = None
-    #: Ratio between consecutive learners' learning rates (1: every learner the same); see
+    #: The fastest learner's learning rate over the slowest's (1: every learner the same); see
     #: :meth:`per_agent`.
     learning_rate_spread: float = 1.0
 
@@ -425,12 +425,10 @@ def check_learning_rate_spread(value: Any, where: str = "config") -> float:
             value = float(value)
         except ValueError:
             pass
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 1 <= value < float("inf"):
-        raise ConfigError(
-            f"{where}.learning_rate_spread: expected a number >= 1 (the fastest learner's rate over "
-            f"the slowest's; 1 = every learner the same), got {value!r}"
-        )
-    return float(value)
+    try:
+        return check_spread(value)
+    except InputError as error:
+        raise ConfigError(f"{where}.{error}") from None
 
 
 def default_env(path: str | Path) -> str | None:

@@ -40,6 +40,20 @@ def parse_schedule(value: Any, key: str = "value") -> Any:
     return value
 
 
+def check_spread(spread: Any) -> float:
+    """A learning-rate spread as a float: a finite number >= 1 (the fastest learner's rate over the
+    slowest's; 1 = every learner the same).
+
+    :raises InputError: for anything else (a bool, a string, below 1, infinite or NaN).
+    """
+    if isinstance(spread, bool) or not isinstance(spread, (int, float)) or not 1 <= spread < float("inf"):
+        raise InputError(
+            "learning_rate_spread: expected a number >= 1 (the fastest learner's rate over the "
+            f"slowest's; 1 = every learner the same), got {spread!r}"
+        )
+    return float(spread)
+
+
 def staggered_learning_rates(learning_rate: Any, spread: float, n_agents: int) -> list[Any]:
     """Each learner's learning rate when a team spreads them geometrically around ``learning_rate``.
 
@@ -54,12 +68,11 @@ def staggered_learning_rates(learning_rate: Any, spread: float, n_agents: int) -
     :raises InputError: for a spread that is not a number >= 1, or a learning rate that is
         neither a number nor ``lin_<x>`` (a Python schedule cannot be scaled from a config).
     """
-    if isinstance(spread, bool) or not isinstance(spread, (int, float)) or not 1 <= spread < float("inf"):
-        raise InputError(f"learning_rate_spread: expected a number >= 1 (1 = no spread), got {spread!r}")
+    spread = check_spread(spread)
     if n_agents == 1:
         factors = [1.0]
     else:
-        factors = [float(spread) ** (0.5 - i / (n_agents - 1)) for i in range(n_agents)]
+        factors = [spread ** (0.5 - i / (n_agents - 1)) for i in range(n_agents)]
     text = learning_rate.strip() if isinstance(learning_rate, str) else None
     if text is not None and text.startswith("lin_"):
         start = parse_schedule(text, "learning_rate").start
@@ -73,4 +86,4 @@ def staggered_learning_rates(learning_rate: Any, spread: float, n_agents: int) -
     return [float(value) * factor for factor in factors]
 
 
-__all__ = ["SCHEDULE_KEYS", "parse_schedule", "staggered_learning_rates"]
+__all__ = ["SCHEDULE_KEYS", "check_spread", "parse_schedule", "staggered_learning_rates"]
