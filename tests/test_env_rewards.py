@@ -179,3 +179,19 @@ def test_crowding_ignores_a_failed_teammate() -> None:
     assert rewards["agent_0"] == -1.0
     _, rewards, *_ = env.step({"agent_0": 0})
     assert rewards["agent_0"] == 0.0  # the failed agent is on no node
+
+
+def test_territory_pays_only_on_the_agents_own_targets() -> None:
+    # Path 0-1-2-3-4, targets 0 and 4: territories split them one each, agent_0 owning the target
+    # with the lower index (0) and agent_1 the other (4).
+    reward = {"clearing": 0.04, "territory": 0.5}
+    crossed = make(reward, [3, 1], n_nodes=5, targets=(0, 4))
+    crossed.step({"agent_0": 3, "agent_1": 1})  # u0 = u4 = 1
+    _, rewards, *_ = crossed.step({"agent_0": 4, "agent_1": 0})  # each clears the other's target
+    assert rewards == {"agent_0": 0.04, "agent_1": 0.04}
+    own = make(reward, [1, 3], n_nodes=5, targets=(0, 4))
+    own.step({"agent_0": 1, "agent_1": 3})
+    _, rewards, *_ = own.step({"agent_0": 0, "agent_1": 4})  # each clears its own target
+    assert rewards == {"agent_0": pytest.approx(0.54), "agent_1": pytest.approx(0.54)}
+    _, rewards, *_ = own.step({"agent_0": 0, "agent_1": 4})  # guarding a clean target pays nothing
+    assert rewards == {"agent_0": 0.0, "agent_1": 0.0}

@@ -41,7 +41,7 @@ initial_uncertainty (``"zero"``)
 reward (``"paper"``)
     A preset (``"paper"``: eq. 5-8; ``"reduction"``) or a ``{term: weight}`` mapping over the
     terms ``collision``, ``momentum``, ``change``, ``reduction``, ``clearing``, ``neglect``,
-    ``crowding``, ``urgency`` (see :mod:`sb3_pm.envs.rewards`).
+    ``crowding``, ``urgency``, ``territory`` (see :mod:`sb3_pm.envs.rewards`).
 observation (``"map"``)
     ``"map"``: each agent's mental map (what learners and decentralized baselines use);
     ``"local"``: only this step's raw local observation.
@@ -123,6 +123,7 @@ from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
+from sb3_pm.graphs.territories import territory_nodes
 
 OBSERVATION_MODES = ("map", "local")
 INITIAL_UNCERTAINTY = ("zero", "random")
@@ -251,6 +252,13 @@ class PersistentMonitoringEnv(ParallelEnv):
             self.n_agents, graph.adjacency, self.graph_knowledge, self.target_knowledge, graph.targets
         )
         self.maps.track_uncertainty_sum = "change" in self.reward_weights
+        #: ``(n_agents, N)`` bool, the targets of each agent's territory (``territory`` reward only).
+        self._territory = (
+            territory_nodes(hops, graph.target_indices, self.n_agents, graph.n_nodes)
+            if "territory" in self.reward_weights
+            else None
+        )
+        self._rows = np.arange(self.n_agents)
         self.metrics = EpisodeMetrics(graph.target_indices, self.u_max, self.max_cycles, self.n_agents)
         self.metrics.track_failures = bool(self.failures) or self.failure_rate > 0
         self._last_outcome_counts = np.zeros(graph.n_nodes, dtype=np.int64)
@@ -269,6 +277,8 @@ class PersistentMonitoringEnv(ParallelEnv):
             self.failures, self.failure_rate = {}, 0.0
             self._fail_at = np.full(self.n_agents, self.max_cycles + 1, dtype=np.int64)
             self._active = np.ones(self.n_agents, dtype=bool)
+        if "_territory" not in state:  # written before the territory reward existed
+            self._territory, self._rows = None, np.arange(self.n_agents)
         if "target_knowledge" not in state:  # written before known targets existed
             self.target_knowledge = "discovered"
             self.maps.target_knowledge, self.maps._known_targets = "discovered", None
@@ -427,6 +437,7 @@ class PersistentMonitoringEnv(ParallelEnv):
             self.maps.episode_uncertainty_sum,
             self.maps.worst_known_projection(self.u_max) if "neglect" in self.reward_weights else None,
             self._teammates_seen() if "crowding" in self.reward_weights else None,
+            self._territory[self._rows, positions] if self._territory is not None else None,
         )
 
         failed = self._draw_failures(last) if failures_on else []

@@ -31,6 +31,12 @@ local: no agent's reward depends on another agent's observations or map. Terms:
                target left at the cap, so nothing in it draws an agent to a neglected target;
                this term pays in proportion to how long the target was really left, as the agent
                itself finds it on arrival (not in the paper).
+``territory``  what ``clearing`` pays, but only on the targets of the agent's own territory: a
+               fixed, balanced split of the site's targets among the agents, which every agent
+               derives from the road network, the target list and its own index
+               (:mod:`sb3_pm.graphs.territories`), so no communication is needed. A convention that
+               tells otherwise identical learners apart, aimed at runs in which two learners
+               contest the same targets (not in the paper).
 
 Presets: ``paper`` = 0.05 x (collision + change + momentum), as in the paper; ``reduction`` =
 1.0 x reduction + 0.05 x collision.
@@ -46,7 +52,17 @@ import numpy as np
 from sb3_pm.envs.core import StepOutcome
 from sb3_pm.errors import InputError
 
-TERMS = ("collision", "momentum", "change", "reduction", "clearing", "neglect", "crowding", "urgency")
+TERMS = (
+    "collision",
+    "momentum",
+    "change",
+    "reduction",
+    "clearing",
+    "neglect",
+    "crowding",
+    "urgency",
+    "territory",
+)
 REWARD_PRESETS: dict[str, dict[str, float]] = {
     "paper": {"collision": 0.05, "change": 0.05, "momentum": 0.05},
     "reduction": {"reduction": 1.0, "collision": 0.05},
@@ -102,6 +118,7 @@ class RewardComputer:
         map_sums: np.ndarray,
         worst_known: np.ndarray | None = None,
         teammates_seen: np.ndarray | None = None,
+        on_own_territory: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Rewards for one step.
 
@@ -114,6 +131,8 @@ class RewardComputer:
             agent's map knows (needed by ``neglect`` only).
         :param teammates_seen: ``(n_agents,)`` how many teammates each agent observes now (needed
             by ``crowding`` only).
+        :param on_own_territory: ``(n_agents,)`` bool, the agent's node is a target of its own
+            territory (needed by ``territory`` only).
         :return: ``(n_agents,)`` float rewards and each weighted term's ``(n_agents,)`` values.
         """
         terms: dict[str, np.ndarray] = {}
@@ -127,11 +146,15 @@ class RewardComputer:
             counterfactual = np.minimum(outcome.u_before + 1, self.u_max)
             removed = counterfactual - outcome.u_after
             terms["reduction"] = w["reduction"] * np.where(alone_on_target, removed, 0.0)
-        if "clearing" in w or "urgency" in w:
+        if "clearing" in w or "urgency" in w or "territory" in w:
             lowered = np.maximum(outcome.u_before - outcome.u_after, 0)
             clears = alone_on_target & (lowered > 0)
             if "clearing" in w:
                 terms["clearing"] = w["clearing"] * np.where(clears, lowered, 0.0)
+            if "territory" in w:
+                if on_own_territory is None:
+                    raise InputError("the territory reward term needs each agent's territory")
+                terms["territory"] = w["territory"] * np.where(clears & on_own_territory, lowered, 0.0)
             if "urgency" in w:
                 terms["urgency"] = w["urgency"] * np.where(clears, outcome.u_before / self.u_max, 0.0)
         if "neglect" in w:
