@@ -30,7 +30,14 @@ def play(team: Team, env, seed: int = 0, options: dict | None = None):
 
 class TestRegistry:
     def test_names(self) -> None:
-        assert list(BASELINES) == ["random", "sit_on_nodes", "grazing", "local_greedy", "tour_patrol"]
+        assert list(BASELINES) == [
+            "random",
+            "sit_on_nodes",
+            "grazing",
+            "local_greedy",
+            "tour_patrol",
+            "territory_patrol",
+        ]
         for name, cls in BASELINES.items():
             team = make_team(name)
             assert isinstance(team, cls) and isinstance(team, Team) and team.name == name
@@ -159,6 +166,24 @@ class TestTourPatrol:
         list(play(team, env))
         # Both targets visited regularly: nobody neglects a target for the whole episode.
         assert env.episode_metrics()["max_neglect"] < 30
+
+
+class TestTerritoryPatrol:
+    def test_each_agent_keeps_to_its_own_targets(self) -> None:
+        # Path 0-...-9, targets {0, 1} and {8, 9}: agent_0 owns the pair with the lower index.
+        env = make_env(path_graph(10, [0, 1, 8, 9]), n_agents=2, max_cycles=80, initial_positions=[5, 4])
+        positions = [before for _, before, _ in play(make_team("territory_patrol"), env)]
+        walked = np.array(positions[10:])  # (steps, agents), once both have crossed over
+        assert walked[:, 0].max() <= 1 and walked[:, 1].min() >= 8
+        assert env.episode_metrics()["max_neglect"] < 15  # each agent alternates its two targets
+
+    def test_an_agent_without_a_territory_acts_as_local_greedy(self) -> None:
+        env = make_env(path_graph(6, [2]), n_agents=2, max_cycles=20, initial_positions=[2, 5])
+        greedy = LocalGreedyTeam()
+        greedy.reset(env, seed=0)
+        for observations, _, actions in play(make_team("territory_patrol"), env):
+            assert actions["agent_0"] == 2  # its one target: hold it
+            assert actions["agent_1"] == greedy.act("agent_1", observations["agent_1"])
 
 
 class TestLocalGreedy:

@@ -104,7 +104,9 @@ class TestEnvironment:
                 graph=path_graph(5, [0]), n_agents=2, max_cycles=10, **kwargs
             )
 
-    @pytest.mark.parametrize("baseline", ["grazing", "local_greedy", "random", "sit_on_nodes", "tour_patrol"])
+    @pytest.mark.parametrize(
+        "baseline", ["grazing", "local_greedy", "random", "sit_on_nodes", "tour_patrol", "territory_patrol"]
+    )
     def test_baselines_run_under_failures(self, baseline: str) -> None:
         result = evaluate(
             resolve_team(baseline),

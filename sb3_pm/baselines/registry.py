@@ -8,13 +8,15 @@ from sb3_pm.baselines.grazing import GrazingTeam
 from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.baselines.random_walk import RandomTeam
 from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
+from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.baselines.tour_patrol import TourPatrolTeam
 from sb3_pm.errors import InputError
 from sb3_pm.team_interface import Team
 
 #: Baseline name -> team class, in the order reports list them.
 BASELINES: dict[str, type[Team]] = {
-    cls.name: cls for cls in (RandomTeam, SitOnNodesTeam, GrazingTeam, LocalGreedyTeam, TourPatrolTeam)
+    cls.name: cls
+    for cls in (RandomTeam, SitOnNodesTeam, GrazingTeam, LocalGreedyTeam, TourPatrolTeam, TerritoryPatrolTeam)
 }
 
 
