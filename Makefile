@@ -36,5 +36,5 @@ bench:
 # The README's main job: train a team briefly on paper-50, then evaluate it next to the baselines.
 demo:
 	sb3-pm train --config $(DEMO_CONFIG) --env paper-50 --seed 0 --timesteps $(DEMO_STEPS) --out $(DEMO) --overwrite
-	sb3-pm compare --policies $(DEMO) random local_greedy sit_on_nodes grazing --graphs paper-50 --seeds 0 --episodes 5 \
+	sb3-pm compare --policies $(DEMO) random local_greedy sit_on_nodes grazing territory_patrol --graphs paper-50 --seeds 0 --episodes 5 \
 		--out $(DEMO)/report --overwrite
