@@ -597,7 +597,7 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert radius["radius_2"].env_kwargs == {"obs_radius": 2}
     assert not radius["radius_2"].hyperparams and not radius["radius_2"].policy_kwargs
     crowding = _variants("crowding_reward")
-    default_reward = load_config("ippo", "paper-50").env_kwargs["reward"]
+    default_reward = REWARD_BEFORE_TERRITORY  # the default's reward when these were measured
     for key, weight in (("crowding_0002", 0.002), ("crowding_0008", 0.008)):
         assert crowding[key].env_kwargs == {"reward": {**default_reward, "crowding": weight}}
         assert not crowding[key].hyperparams and not crowding[key].policy_kwargs
@@ -697,11 +697,17 @@ def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(
 
 #: The experiment that measures the default as it is now, for the README's headline table.
 HEADLINE = "headline"
+#: Files measured on the default of its time with the topology known and staggered rates, before
+#: the territory reward: they pin only the reward.
+STAGGERED_DEFAULT_FILES = ("territory_reward",)
 PREVIOUS_DEFAULT_FILES = sorted(
     path.stem
     for path in (ZOO / "experiments").glob("*.yml")
-    if "\nconfig: ../ippo.yml\n" in path.read_text() and path.stem != HEADLINE
+    if "\nconfig: ../ippo.yml\n" in path.read_text()
+    and path.stem != HEADLINE
+    and path.stem not in STAGGERED_DEFAULT_FILES
 )
+REWARD_BEFORE_TERRITORY = {"clearing": 0.04, "collision": 0.001}
 
 
 def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path) -> None:
@@ -741,6 +747,25 @@ def test_experiments_measured_on_the_previous_default_train_as_they_were_measure
         # its own spread (an agents block, as in staggered_lr.yml, is written out in full)
         own_spread = cell.variant["hyperparams"].get("learning_rate_spread", 1.0)
         assert config.learning_rate_spread == own_spread, (name, cell.variant["key"])
+        # and no territory reward, unless the variant sets its own reward
+        own_reward = cell.variant["env_kwargs"].get("reward", REWARD_BEFORE_TERRITORY)
+        assert config.env_kwargs["reward"] == own_reward, (name, cell.variant["key"])
+
+
+@pytest.mark.parametrize("name", STAGGERED_DEFAULT_FILES)
+def test_experiments_measured_on_the_staggered_default_pin_its_reward(tmp_path: Path, name: str) -> None:
+    """Files measured against the default before the territory reward train that default as their
+    ``default`` variant: the topology known, staggered rates, the reward without the term."""
+    experiment = load_experiment(name)
+    today = load_config("ippo", "paper-50")
+    cells = {cell.variant["key"]: cell for cell in plan_cells(experiment, tmp_path)}
+    config = runner_module.cell_config(cells["default"], runner_module.Variant(**cells["default"].variant))
+    assert config.env_kwargs["reward"] == REWARD_BEFORE_TERRITORY
+    assert config.env_kwargs["graph_knowledge"] == "known" and config.learning_rate_spread == 2.0
+    territory = cells["territory"]
+    config = runner_module.cell_config(territory, runner_module.Variant(**territory.variant))
+    assert config.team_kwargs() == {**today.team_kwargs(), "env_kwargs": config.env_kwargs}
+    assert config.env_kwargs == today.env_kwargs  # the variant that became the default
 
 
 def test_the_default_config_knows_the_road_network() -> None:

@@ -82,7 +82,7 @@ def test_the_default_config_is_the_measured_best_and_the_paper_one_is_kept() -> 
     published graphs; zoo/ippo_paper.yml keeps the paper's reward and DCBF rules."""
     default = load_config(DEFAULT_CONFIG, "paper-50")
     assert default.n_timesteps == 50_000 and default.entry == "paper-50"
-    assert default.env_kwargs["reward"] == {"clearing": 0.04, "collision": 0.001}
+    assert default.env_kwargs["reward"] == {"clearing": 0.04, "territory": 0.04, "collision": 0.001}
     kwargs = default.hyperparams["policy_kwargs"]
     assert kwargs["dcbf_barrier"] is False and kwargs["avoid_collisions"] is True
     # The published graph by file path finds the same entry as by preset name.
@@ -98,7 +98,7 @@ def test_train_with_no_config_from_outside_the_repository(tmp_path, monkeypatch,
     assert main(["train", "--env", "paper-50", "--timesteps", "500", "--out", "run", "--no-progress"]) == 0
     resolved = yaml.safe_load(Path("run/config.yml").read_text())
     assert Path(resolved["source"]).name == "ippo.yml" and resolved["env"] == "paper-50"
-    assert resolved["env_kwargs"]["reward"] == {"clearing": 0.04, "collision": 0.001}
+    assert resolved["env_kwargs"]["reward"] == {"clearing": 0.04, "territory": 0.04, "collision": 0.001}
     assert Path("run/team/manifest.json").exists()
 
 

@@ -223,6 +223,9 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_sa
     # staggers them (learning_rate_spread: 2, not yet measured for the size-independent team).
     assert transfer.learning_rate_spread == 1.0 and default.learning_rate_spread == 2.0
     assert t_kwargs.pop("per_agent") == {} and len(d_kwargs.pop("per_agent")) == default.n_agents
+    # No territory reward: a team meant for graphs it never saw cannot learn a territory of one
+    # (the territory term is a convention of one site; RESULTS 3h, "The territory reward").
+    assert "territory" not in t_env["reward"] and d_env["reward"].pop("territory") == 0.04
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
     # It names the graph it trains on without --env; the default trains on the command line's.
     assert (transfer.env, default.env) == ("paper-50", None)
