@@ -89,3 +89,6 @@ def test_a_config_that_sets_learners_apart_is_refused() -> None:
     config.agents = {"agent_1": {"learning_rate": 1e-4}}
     with pytest.raises(InputError, match="per-agent overrides make no sense for a centralized team"):
         CentralizedPPO.from_config(config, "paper-50")
+    config.agents = {}
+    with pytest.raises(InputError, match="territory reward makes no sense for a centralized team"):
+        CentralizedPPO.from_config(config, "paper-50")

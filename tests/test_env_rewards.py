@@ -6,6 +6,7 @@ import pytest
 
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.envs.rewards import REWARD_PRESETS, resolve_reward
+from sb3_pm.errors import InputError
 from tests.conftest import path_graph
 
 
@@ -195,3 +196,8 @@ def test_territory_pays_only_on_the_agents_own_targets() -> None:
     assert rewards == {"agent_0": pytest.approx(0.54), "agent_1": pytest.approx(0.54)}
     _, rewards, *_ = own.step({"agent_0": 0, "agent_1": 4})  # guarding a clean target pays nothing
     assert rewards == {"agent_0": 0.0, "agent_1": 0.0}
+
+
+def test_the_territory_reward_is_refused_on_a_graph_family() -> None:
+    with pytest.raises(InputError, match="territory reward needs one graph"):
+        persistent_monitoring_v0.parallel_env(graph="family:er", reward={"clearing": 0.04, "territory": 0.04})

@@ -44,6 +44,8 @@ def run_episode(
     positions: list[int],
     steps: int,
     seed: int = 0,
+    territories: list[tuple[int, ...]] | None = None,
+    graph_knowledge: str = "discovered",
 ) -> tuple[np.ndarray, int]:
     """Play one episode with ``actor`` under the filter (no barrier, no freeze, so the actor decides
     whenever rule 8 does not); return the true target uncertainties ``(steps, T)`` and the number of
@@ -51,19 +53,35 @@ def run_episode(
 
     ``actor``: ``"flee"`` always takes the lowest-index allowed node (on a path graph: away from a
     target at the high end, then stays at node 0); ``"random"`` samples uniformly among the allowed.
+    ``territories``: one per agent, to bound each agent's own targets (scope ``"territory"``).
     """
     env = persistent_monitoring_v0.parallel_env(
-        graph=graph, n_agents=len(positions), max_cycles=steps, initial_positions=positions
+        graph=graph,
+        n_agents=len(positions),
+        max_cycles=steps,
+        initial_positions=positions,
+        graph_knowledge=graph_knowledge,
     )
     config = DCBFConfig(freeze_steps=0, barrier=False, neglect_bound=bound)
+    own = {
+        f"agent_{i}": DCBFConfig(
+            freeze_steps=0, barrier=False, neglect_bound=bound, neglect_scope="territory", territory=t
+        )
+        for i, t in enumerate(territories or [])
+    }
     rng = np.random.default_rng(seed)
     observations, _ = env.reset(seed=seed)
     targets = graph.target_indices
     trace, forced_total = [], 0
     while env.agents:
         agents = list(env.agents)
-        batch = map_tensors(observations, agents)
-        mask, forced = dcbf_filter_from_map(batch, batch["nodes"][..., U], config, U_MAX)
+        if own:  # each agent its own filter: one batch of one per agent
+            rows = [map_tensors(observations, [agent]) for agent in agents]
+            pairs = [dcbf_filter_from_map(b, b["nodes"][..., U], own[a], U_MAX) for b, a in zip(rows, agents)]
+            mask, forced = th.cat([m for m, _ in pairs]), th.cat([f for _, f in pairs])
+        else:
+            batch = map_tensors(observations, agents)
+            mask, forced = dcbf_filter_from_map(batch, batch["nodes"][..., U], config, U_MAX)
         forced_total += int(forced.sum())
         actions = {}
         for row, agent in enumerate(agents):
@@ -112,6 +130,52 @@ class TestGuarantee:
         graph = path_graph(10, targets=[0, 9])
         filtered, forced = run_episode(graph, "flee", 8.0, positions=[8], steps=200)
         assert forced > 0 and filtered.max() > 8.0
+
+
+class TestTerritoryScope:
+    """Scope ``"territory"``: each agent bounds the targets of its own territory, from the site's
+    target list, whether or not its map has seen them, and no others."""
+
+    def test_every_target_has_an_owner_who_keeps_it_below_the_bound(self) -> None:
+        # Path 0-...-9, targets 0 and 9, agent_0 owning 0 and agent_1 owning 9 (the split of
+        # sb3_pm.graphs.territories). Both actors flee to node 0: unfiltered, target 9 saturates;
+        # with the scope, agent_1 comes back to its own target, and target 0 is agent_0's.
+        graph = path_graph(10, targets=[0, 9])
+        unfiltered, _ = run_episode(graph, "flee", None, positions=[1, 8], steps=300)
+        assert unfiltered[:, 1].max() == U_MAX
+        for bound in (15.0, 40.0):
+            filtered, forced = run_episode(
+                graph, "flee", bound, positions=[1, 8], steps=300, territories=[(0,), (9,)]
+            )
+            assert filtered.max() <= bound and forced > 0
+
+    def test_a_target_the_map_never_saw_is_bounded_from_the_episode_start(self) -> None:
+        # The agent starts 9 hops from its target and never sees it, its map knowing the road network
+        # (as the default's does); the map-based scope cannot bound a target it has not seen, the
+        # territory can (u = 0 at the start, and u + age bounds it since).
+        graph = path_graph(10, targets=[9])
+        known, forced_known = run_episode(
+            graph, "flee", 30.0, positions=[0], steps=300, graph_knowledge="known"
+        )
+        assert known.max() == U_MAX and forced_known == 0
+        own, forced = run_episode(
+            graph, "flee", 30.0, positions=[0], steps=300, territories=[(9,)], graph_knowledge="known"
+        )
+        assert own.max() <= 30.0 and forced > 0
+
+    def test_a_teammates_target_is_left_to_the_teammate(self) -> None:
+        # One agent whose territory is target 0, standing on it; target 9 belongs to nobody here:
+        # the filter never sends it there, so target 9 saturates while target 0 stays bounded.
+        graph = path_graph(10, targets=[0, 9])
+        filtered, _ = run_episode(graph, "flee", 20.0, positions=[0], steps=300, territories=[(0,)])
+        assert filtered[:, 0].max() <= 20.0 and filtered[:, 1].max() == U_MAX
+
+    def test_a_territory_outside_the_graph_is_an_error(self) -> None:
+        graph = path_graph(5, targets=[4])
+        with pytest.raises(InputError, match="territory names node 7"):
+            run_episode(graph, "flee", 10.0, positions=[0], steps=5, territories=[(7,)])
+        with pytest.raises(InputError, match="territory must list node indices"):
+            DCBFConfig(neglect_scope="territory", territory=(-1,))
 
 
 class TestHopDistances:
@@ -285,6 +349,27 @@ class TestDeployment:
         loaded = IndependentPPO.load(tmp_path / "t")
         assert loaded.models["agent_0"].policy.dcbf_config.neglect_bound == 15.0
         assert result.mean["steps"] == 200
+
+    def test_the_territory_scope_gives_each_learner_its_agents_territory(self, tmp_path) -> None:
+        from sb3_pm.agents.team import IndependentPPO
+
+        graph = path_graph(10, targets=[0, 1, 8, 9])
+        team = IndependentPPO(
+            graph,
+            n_agents=2,
+            seed=0,
+            env_kwargs={"max_cycles": 20},
+            hyperparams={"n_steps": 10, "batch_size": 10, "n_epochs": 1},
+        )
+        with pytest.raises(InputError, match="territory is set by neglect_scope"):
+            team.set_filter(territory=(0,))
+        team.set_filter(neglect_bound=15.0, neglect_scope="territory")
+        configs = {a: team.models[a].policy.dcbf_config for a in team.agents}
+        assert configs["agent_0"].territory == (0, 1) and configs["agent_1"].territory == (8, 9)
+        team.save(tmp_path / "t")
+        loaded = IndependentPPO.load(tmp_path / "t")
+        assert loaded.models["agent_1"].policy.dcbf_config.territory == (8, 9)
+        assert loaded.models["agent_1"].policy.dcbf_config.neglect_scope == "territory"
 
     def test_the_command_line_refuses_it_for_a_baseline(self, capsys) -> None:
         from sb3_pm.cli import main

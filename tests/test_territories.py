@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sb3_pm.graphs import erdos_renyi, resolve_graph
+from sb3_pm.graphs import GraphError, erdos_renyi, resolve_graph
 from sb3_pm.graphs.territories import target_territories, territory_nodes
 from tests.conftest import path_graph
 
@@ -29,7 +29,7 @@ def test_territories_are_balanced_deterministic_and_ordered(seed: int, n_agents:
     np.testing.assert_array_equal(owner, again)
     k = min(n_agents, targets.size)
     sizes = np.bincount(owner, minlength=k)
-    assert sizes.size == k and sizes.min() >= 1 and sizes.max() <= math.ceil(targets.size / k)
+    assert sizes.size == k and sizes.min() >= targets.size // k and sizes.max() <= math.ceil(targets.size / k)
     # Agent i owns the territory with the i-th lowest target index.
     firsts = [targets[owner == i].min() for i in range(k)]
     assert firsts == sorted(firsts)
@@ -51,7 +51,20 @@ def test_near_targets_share_a_territory() -> None:
     assert owner.tolist() == [0, 0, 1, 1]
 
 
+def test_the_published_100_node_graph_splits_evenly_among_8_agents() -> None:
+    # 17 targets: one territory of 3 and seven of 2, none of 1.
+    graph = resolve_graph("paper-100")
+    owner = target_territories(graph.hop_distances, graph.target_indices, 8)
+    assert sorted(np.bincount(owner).tolist()) == [2] * 7 + [3]
+
+
+def test_territories_are_ordered_by_their_lowest_target_node_whatever_the_input_order() -> None:
+    graph = path_graph(10, [0, 1, 8, 9])
+    owner = target_territories(graph.hop_distances, np.array([9, 8, 1, 0]), 2)
+    assert owner.tolist() == [1, 1, 0, 0]  # agent 0 owns the territory holding node 0
+
+
 def test_no_agents_is_an_error() -> None:
     graph = path_graph(4, [1])
-    with pytest.raises(ValueError, match="at least one agent"):
+    with pytest.raises(GraphError, match="at least one agent"):
         target_territories(graph.hop_distances, graph.target_indices, 0)

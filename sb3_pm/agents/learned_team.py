@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
@@ -33,7 +34,7 @@ from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_fa
 from sb3_pm.team_interface import Team
 
 #: DCBFConfig field -> the DCBF policy's keyword for it (where they differ).
-_POLICY_KWARG = {"barrier": "dcbf_barrier"}
+_POLICY_KWARG = {"barrier": "dcbf_barrier", "territory": "neglect_territory"}
 
 
 class LearnedTeam(DeploymentRule, Team):
@@ -139,6 +140,8 @@ class LearnedTeam(DeploymentRule, Team):
 
         The filter has no parameters, so a trained team can be deployed with another filter (the
         actor then meets masks it was not trained under). A saved team keeps the new settings.
+        ``neglect_scope="territory"`` gives each learner its own agent's territory on the team's
+        graph (:mod:`sb3_pm.graphs.territories`); it needs one learner per agent and one graph.
 
         :raises InputError: a learner without the DCBF filter, or an unknown or invalid setting.
         """
@@ -153,16 +156,39 @@ class LearnedTeam(DeploymentRule, Team):
         bound = changes.get("neglect_bound")
         if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float))):
             raise InputError(f"neglect_bound must be a number (or None), got {bound!r}")
+        if "territory" in changes:
+            raise InputError("territory is set by neglect_scope='territory', from the team's graph")
+        territories = self._territories() if changes.get("neglect_scope") == "territory" else {}
         for name, model in self.model_files().items():
             policy = model.policy
             if not getattr(policy, "use_dcbf", False):
                 raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
-            policy.dcbf_config = replace(policy.dcbf_config, **changes)  # type: ignore[union-attr,type-var]
+            own = {"territory": territories[name]} if territories else {}
+            policy.dcbf_config = replace(policy.dcbf_config, **changes, **own)  # type: ignore[union-attr,type-var]
             if "avoid_collisions" in changes:
                 policy.avoid_collisions = bool(changes["avoid_collisions"])  # type: ignore[assignment]
             # SB3 saves (and rebuilds the policy from) the model's policy_kwargs.
-            kwargs = {_POLICY_KWARG.get(key, key): value for key, value in changes.items()}
+            kwargs = {_POLICY_KWARG.get(key, key): value for key, value in {**changes, **own}.items()}
             model.policy_kwargs = {**model.policy_kwargs, **kwargs}
+
+    def _territories(self) -> dict[str, tuple[int, ...]]:
+        """``{model file: the target nodes of its agent's territory}`` on the team's graph."""
+        from sb3_pm.graphs.territories import territory_nodes
+
+        files = list(self.model_files())
+        if len(files) != self.n_agents:
+            raise InputError(
+                f"neglect_scope='territory' needs one learner per agent; this team has {len(files)} "
+                f"model(s) for {self.n_agents} agents"
+            )
+        if not isinstance(self.graph, GraphSpec):
+            raise InputError(
+                "neglect_scope='territory' needs the team on one graph, not a graph family: "
+                "deploy it with team.on_graph(graph) first"
+            )
+        graph = self.graph
+        owns = territory_nodes(graph.hop_distances, graph.target_indices, self.n_agents, graph.n_nodes)
+        return {name: tuple(int(node) for node in np.flatnonzero(owns[i])) for i, name in enumerate(files)}
 
     def filter_activity(self) -> dict[str, int]:
         """Summed over learners since they were built: masks computed with the neglect bound on

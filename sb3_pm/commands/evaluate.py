@@ -82,10 +82,11 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--neglect-scope",
-        choices=["known", "unserved"],
+        choices=["known", "unserved", "territory"],
         default=None,
-        help="with --neglect-bound: bound every known target (known, the default) or only those last "
-        "seen without a teammate on them (unserved)",
+        help="with --neglect-bound: bound every known target (known, the default), only those last "
+        "seen without a teammate on them (unserved), or the targets of each agent's own territory "
+        "(territory)",
     )
     parser.add_argument(
         "--settling",

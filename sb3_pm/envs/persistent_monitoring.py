@@ -171,6 +171,11 @@ class PersistentMonitoringEnv(ParallelEnv):
                 raise InputError(_FAMILY_POSITIONS)
             if observation != "map":
                 raise InputError("a graph family needs observation='map' (padded mental maps)")
+            if not isinstance(reward, str) and "territory" in dict(reward):
+                raise InputError(
+                    "the territory reward needs one graph: a graph family's territories change every "
+                    "episode, so no learner could settle in one; drop the term for family training"
+                )
             if n_agents > self.family.min_nodes:
                 raise InputError(
                     f"{n_agents} agents do not fit the graph family {self.family.name!r}: "

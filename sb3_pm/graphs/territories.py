@@ -13,12 +13,12 @@ and ``K``:
 1. initial medoids by farthest-point selection among the targets (the first is the target with the
    largest summed distance to the others; ties go to the lower node index);
 2. each target goes to a territory by a min-cost assignment (``scipy.optimize.linear_sum_assignment``)
-   in which every territory holds at most ``ceil(T / K)`` targets, the cost being the hop distance
-   to the territory's medoid;
+   in which every territory holds at least ``floor(T / K)`` and at most ``ceil(T / K)`` targets,
+   the cost being the hop distance to the territory's medoid;
 3. each medoid moves to the member with the smallest summed distance to its members; repeat 2-3
    until nothing changes.
 
-Territories are then ordered by their lowest target index: agent ``i`` owns territory ``i``. With
+Territories are then ordered by their lowest target node: agent ``i`` owns territory ``i``. With
 fewer targets than agents the last agents own none.
 """
 
@@ -29,8 +29,13 @@ import math
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from sb3_pm.graphs.spec import GraphError
+
 _MAX_ROUNDS = 50
 _FORBIDDEN = 1e9
+#: Subtracted from the cost of each territory's first ``floor(T / K)`` slots, so that every optimal
+#: assignment fills them: larger than any sum of hop distances.
+_REQUIRED = 1e6
 
 
 def target_territories(hop_distances: np.ndarray, target_indices: np.ndarray, n_agents: int) -> np.ndarray:
@@ -42,7 +47,7 @@ def target_territories(hop_distances: np.ndarray, target_indices: np.ndarray, n_
     :return: ``(T,)`` int, the agent that owns each target of ``target_indices`` (in ``0..K-1``).
     """
     if n_agents < 1:
-        raise ValueError(f"territories need at least one agent, got {n_agents}")
+        raise GraphError(f"territories need at least one agent, got {n_agents}")
     targets = np.asarray(target_indices, dtype=np.int64)
     n_targets = targets.size
     if n_targets == 0:
@@ -50,17 +55,17 @@ def target_territories(hop_distances: np.ndarray, target_indices: np.ndarray, n_
     k = min(n_agents, n_targets)
     distances = np.asarray(hop_distances, dtype=np.float64)[np.ix_(targets, targets)]  # (T, T)
     medoids = _farthest_points(distances, k)
-    capacity = math.ceil(n_targets / k)
+    capacity, required = math.ceil(n_targets / k), n_targets // k
     owner = np.full(n_targets, -1, dtype=np.int64)
     for _ in range(_MAX_ROUNDS):
-        new_owner = _assign(distances, medoids, capacity)
+        new_owner = _assign(distances, medoids, capacity, required)
         new_medoids = [_medoid(distances, np.flatnonzero(new_owner == c)) for c in range(k)]
         if np.array_equal(new_owner, owner) and new_medoids == medoids:
             break
         owner, medoids = new_owner, new_medoids
-    # Agent i owns the territory with the i-th lowest target index: an order every agent derives
+    # Agent i owns the territory with the i-th lowest target node: an order every agent derives
     # from the site alone.
-    first_member = [int(np.flatnonzero(owner == c).min()) for c in range(k)]
+    first_member = [int(targets[owner == c].min()) for c in range(k)]
     rank = np.empty(k, dtype=np.int64)
     rank[np.argsort(first_member, kind="stable")] = np.arange(k)
     return rank[owner]
@@ -88,11 +93,12 @@ def _farthest_points(distances: np.ndarray, k: int) -> list[int]:
     return chosen
 
 
-def _assign(distances: np.ndarray, medoids: list[int], capacity: int) -> np.ndarray:
-    """``(T,)`` territory of each target: the least total distance to medoids, at most ``capacity``
-    targets per territory."""
+def _assign(distances: np.ndarray, medoids: list[int], capacity: int, required: int) -> np.ndarray:
+    """``(T,)`` territory of each target: the least total distance to medoids, at least
+    ``required`` and at most ``capacity`` targets per territory."""
     slot_medoid = np.repeat(np.arange(len(medoids)), capacity)  # (K * capacity,) territory of a slot
     cost = distances[:, np.asarray(medoids)][:, slot_medoid]  # (T, K * capacity)
+    cost[:, (np.arange(slot_medoid.size) % capacity) < required] -= _REQUIRED
     # Each medoid stays in its own territory, so no territory is ever left empty.
     for territory, medoid in enumerate(medoids):
         cost[medoid, slot_medoid != territory] = _FORBIDDEN

@@ -45,7 +45,7 @@ from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.neglect_bound import neglect_deadline
 
-NEGLECT_SCOPES = ("known", "unserved")
+NEGLECT_SCOPES = ("known", "unserved", "territory")
 
 
 @dataclass(frozen=True)
@@ -58,9 +58,12 @@ class DCBFConfig:
     :param gamma_threshold: the activation threshold ``γ`` of rule 7, in units of ``u``.
     :param barrier: apply rules 2-4 (off: ``S = R`` before the freeze and rule 6).
     :param neglect_bound: rule 8's bound ``B`` in units of ``u`` (``None``: rule 8 off).
-    :param neglect_scope: the targets rule 8 bounds: ``"known"`` (every target in the map) or
+    :param neglect_scope: the targets rule 8 bounds: ``"known"`` (every target in the map),
         ``"unserved"`` (those last observed with no other agent on them: a target last seen held
-        by a teammate is left to that teammate).
+        by a teammate is left to that teammate) or ``"territory"`` (the targets of the agent's own
+        territory, :attr:`territory`, whether or not its map has seen them yet).
+    :param territory: with ``neglect_scope="territory"``, the agent's own targets (node indices):
+        its share of the site's targets under the split of :mod:`sb3_pm.graphs.territories`.
     """
 
     eta: float = 0.1
@@ -70,6 +73,7 @@ class DCBFConfig:
     barrier: bool = True
     neglect_bound: float | None = None
     neglect_scope: str = "known"
+    territory: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
@@ -82,6 +86,20 @@ class DCBFConfig:
             )
         if self.neglect_scope not in NEGLECT_SCOPES:
             raise InputError(f"neglect_scope must be one of {NEGLECT_SCOPES}, got {self.neglect_scope!r}")
+        if any(isinstance(node, bool) or not isinstance(node, int) or node < 0 for node in self.territory):
+            raise InputError(f"territory must list node indices (ints >= 0), got {self.territory!r}")
+
+
+def territory_mask(territory: tuple[int, ...], batch: int, n_nodes: int, device: th.device) -> th.Tensor:
+    """``(batch, n_nodes)`` bool, True on the territory's nodes (rule 8's scope ``"territory"``)."""
+    if territory and max(territory) >= n_nodes:
+        raise InputError(
+            f"the neglect bound's territory names node {max(territory)}, but the graph has {n_nodes} nodes"
+        )
+    mask = th.zeros((batch, n_nodes), dtype=th.bool, device=device)
+    if territory:
+        mask[:, list(territory)] = True
+    return mask
 
 
 def _non_empty(mask: th.Tensor, fallback: th.Tensor) -> th.Tensor:
@@ -184,7 +202,10 @@ def dcbf_filter_from_map(
     reachable = observations["action_mask"] > 0.5
     deadline = None
     if config.neglect_bound is not None:
-        bounded = nodes[..., TARGET] > 0.5
+        if config.neglect_scope == "territory":
+            bounded = territory_mask(config.territory, nodes.shape[0], nodes.shape[1], nodes.device)
+        else:
+            bounded = nodes[..., TARGET] > 0.5
         if config.neglect_scope == "unserved":
             bounded = bounded & ~(nodes[..., OCCUPIED] > 0.5)
         deadline = neglect_deadline(

@@ -23,6 +23,7 @@ exactly like training; a mask given by the caller is intersected with it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import partial
 from itertools import islice
 from typing import Any
@@ -105,8 +106,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param neglect_bound: the DCBF's neglect bound ``B`` (rule 8, :mod:`sb3_pm.policies.neglect_bound`):
         a known target whose worst-case uncertainty could pass ``B`` before the agent arrives
         forces the next hop towards it. ``None`` (default) turns it off; it needs ``use_dcbf``.
-    :param neglect_scope: which targets the bound covers, ``"known"`` or ``"unserved"``
-        (:class:`~sb3_pm.policies.dcbf.DCBFConfig`).
+    :param neglect_scope: which targets the bound covers, ``"known"``, ``"unserved"`` or
+        ``"territory"`` (:class:`~sb3_pm.policies.dcbf.DCBFConfig`).
+    :param neglect_territory: the agent's own targets, for ``neglect_scope="territory"``.
     :param laplacian: ``"rows"``, ``"eigen"`` or ``"none"``.
     :param derived_features: feed the encoder each node's projected uncertainty and hop closeness
         (:mod:`sb3_pm.policies.features`; not in the paper).
@@ -157,6 +159,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         dcbf_barrier: bool = True,
         neglect_bound: float | None = None,
         neglect_scope: str = "known",
+        neglect_territory: Sequence[int] = (),
         laplacian: str = "rows",
         derived_features: bool = False,
         gat_heads: int = 4,
@@ -200,6 +203,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             bool(dcbf_barrier),
             None if neglect_bound is None else float(neglect_bound),
             str(neglect_scope),
+            tuple(int(node) for node in neglect_territory),
         )
         #: Masks the filter computed with rule 8 (the neglect bound) on, and how many it forced: a
         #: diagnostic read by ``LearnedTeam.filter_activity()``, never saved. ``forced`` is summed
@@ -310,6 +314,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             dcbf_barrier=self.dcbf_config.barrier,
             neglect_bound=self.dcbf_config.neglect_bound,
             neglect_scope=self.dcbf_config.neglect_scope,
+            neglect_territory=list(self.dcbf_config.territory),
             laplacian=self._encoder_kwargs["laplacian"],
             derived_features=self._encoder_kwargs["derived_features"],
             gat_heads=self._encoder_kwargs["gat_heads"],

@@ -117,6 +117,13 @@ class CentralizedPPO(LearnedTeam):
                 "network, one learning rate); set it to 1 (an experiment variant: hyperparams: "
                 "{learning_rate_spread: 1}; sb3-pm train: --hyperparams learning_rate_spread:1)"
             )
+        reward = config.env_kwargs.get("reward")
+        if isinstance(reward, Mapping) and "territory" in reward:
+            raise InputError(
+                f"{config.source}: the territory reward makes no sense for a centralized team (one "
+                "network acts for every agent and cannot tell whose territory a target is); give it "
+                "a reward without the term (e.g. --env-kwargs 'reward:{clearing: 0.04, collision: 0.001}')"
+            )
         options = super()._config_options(config)
         options.pop("per_agent", None)
         return options
