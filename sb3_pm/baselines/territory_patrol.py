@@ -40,13 +40,19 @@ class TerritoryPatrolTeam(Team):
 
     def __init__(self) -> None:
         self._fallback = LocalGreedyTeam()
+        #: ``(graph fingerprint, team size)`` -> each target's territory (the split depends on nothing
+        #: else, so it is computed once per graph, as ``tour_patrol`` caches its tour).
+        self._owners: dict[tuple[str, int], np.ndarray] = {}
 
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
         self._fallback.reset(env, seed)
         graph = env_graph(env)
         agents = list(env.unwrapped.possible_agents)
-        owner = target_territories(graph.hop_distances, graph.target_indices, len(agents))
+        key = (graph.fingerprint, len(agents))
+        if key not in self._owners:
+            self._owners[key] = target_territories(graph.hop_distances, graph.target_indices, len(agents))
+        owner = self._owners[key]
         #: Each agent's own targets, ``(T_i,)`` int node indices.
         self.territory = {agent: graph.target_indices[owner == i] for i, agent in enumerate(agents)}
         self.distances = graph.hop_distances

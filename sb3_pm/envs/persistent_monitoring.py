@@ -233,6 +233,8 @@ class PersistentMonitoringEnv(ParallelEnv):
 
         self.rewards_computer = RewardComputer(self.reward_weights, n_agents, self.u_max)
         self._renderer: Any = None
+        #: ``(n_agents,)`` row index of each agent, for per-agent gathers such as the territory's.
+        self._rows = np.arange(self.n_agents)
         self._use_graph(self.graph)
         self._rng = np.random.default_rng()
         self._step_count = 0
@@ -263,7 +265,6 @@ class PersistentMonitoringEnv(ParallelEnv):
             if "territory" in self.reward_weights
             else None
         )
-        self._rows = np.arange(self.n_agents)
         self.metrics = EpisodeMetrics(graph.target_indices, self.u_max, self.max_cycles, self.n_agents)
         self.metrics.track_failures = bool(self.failures) or self.failure_rate > 0
         self._last_outcome_counts = np.zeros(graph.n_nodes, dtype=np.int64)
