@@ -750,6 +750,8 @@ def test_experiments_measured_on_the_previous_default_train_as_they_were_measure
         # and no territory reward, unless the variant sets its own reward
         own_reward = cell.variant["env_kwargs"].get("reward", REWARD_BEFORE_TERRITORY)
         assert config.env_kwargs["reward"] == own_reward, (name, cell.variant["key"])
+        # and acting under the filter they trained under, not paper-50's deploy bound
+        assert config.deploy_filter is None, (name, cell.variant["key"])
 
 
 @pytest.mark.parametrize("name", STAGGERED_DEFAULT_FILES)
@@ -764,8 +766,20 @@ def test_experiments_measured_on_the_staggered_default_pin_its_reward(tmp_path: 
     assert config.env_kwargs["graph_knowledge"] == "known" and config.learning_rate_spread == 2.0
     territory = cells["territory"]
     config = runner_module.cell_config(territory, runner_module.Variant(**territory.variant))
-    assert config.team_kwargs() == {**today.team_kwargs(), "env_kwargs": config.env_kwargs}
-    assert config.env_kwargs == today.env_kwargs  # the variant that became the default
+    # the variant that became the default, measured before paper-50's deploy bound
+    expected = {**today.team_kwargs(), "env_kwargs": config.env_kwargs, "deploy_filter": None}
+    assert config.team_kwargs() == expected
+    assert config.env_kwargs == today.env_kwargs
+    assert config.deploy_filter is None and today.deploy_filter is not None
+
+
+def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path) -> None:
+    """The headline measures the default as a user gets it: trained unfiltered, acting under
+    paper-50's deploy filter (the neglect bound on each agent's own territory)."""
+    cells = [c for c in plan_cells(load_experiment(HEADLINE), tmp_path) if c.variant["kind"] != "baseline"]
+    for cell in cells:
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        assert config.deploy_filter == {"neglect_bound": 50.0, "neglect_scope": "territory"}
 
 
 def test_the_default_config_knows_the_road_network() -> None:
@@ -810,3 +824,18 @@ def test_the_spread_is_recorded_and_a_centralized_variant_with_one_fails_before_
     with pytest.raises(ExperimentError, match=r"'central': a centralized team has one learning rate"):
         reproduce(load_experiment(tmp_path / "central.yml"), tmp_path / "out", progress=False)
     assert not (tmp_path / "out" / "cells").exists()
+
+
+ALL_BUT_HEADLINE = sorted(path.stem for path in (ZOO / "experiments").glob("*.yml") if path.stem != HEADLINE)
+
+
+@pytest.mark.parametrize("name", ALL_BUT_HEADLINE)
+def test_only_the_headline_acts_under_paper_50s_deploy_filter(tmp_path: Path, name: str) -> None:
+    """Every other file was measured before the default's deploy filter: its learned cells, whatever
+    config a variant names, act under the filter they trained under."""
+    experiment = load_experiment(name)
+    for cell in plan_cells(experiment, tmp_path):
+        if cell.variant["kind"] == "baseline" or not (cell.variant.get("config") or cell.config):
+            continue
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        assert config.deploy_filter is None, (name, cell.variant["key"], cell.graph)

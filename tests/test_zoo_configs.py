@@ -226,6 +226,9 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_sa
     # No territory reward: a team meant for graphs it never saw cannot learn a territory of one
     # (the territory term is a convention of one site; RESULTS 3h, "The territory reward").
     assert "territory" not in t_env["reward"] and d_env["reward"].pop("territory") == 0.04
+    # Nor the territory bound the default deploys on paper-50, for the same reason.
+    assert t_kwargs.pop("deploy_filter") is None
+    assert d_kwargs.pop("deploy_filter") == {"neglect_bound": 50.0, "neglect_scope": "territory"}
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
     # It names the graph it trains on without --env; the default trains on the command line's.
     assert (transfer.env, default.env) == ("paper-50", None)

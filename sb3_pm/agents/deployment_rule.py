@@ -48,6 +48,15 @@ class DeploymentRule:
         if temperature is not None or self.sampling_temperature not in (None, 1.0):
             self.set_sampling_temperature(1.0 if temperature is None else temperature)
 
+    def acting_filter(self) -> dict[str, Any] | None:
+        """The DCBF neglect bound the policies act under now, ``{"neglect_bound": B,
+        "neglect_scope": S}`` (the first bounded policy's), or ``None`` if no policy has one."""
+        for policy in self.acting_policies().values():
+            config = getattr(policy, "dcbf_config", None)
+            if config is not None and config.neglect_bound is not None:
+                return {"neglect_bound": config.neglect_bound, "neglect_scope": config.neglect_scope}
+        return None
+
     @property
     def sampling_temperature(self) -> float | None:
         """The temperature sampled actions are drawn at (:meth:`set_sampling_temperature`): the

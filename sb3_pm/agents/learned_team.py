@@ -57,6 +57,11 @@ class LearnedTeam(DeploymentRule, Team):
     algo: str
     policy: str | type
     env_kwargs: dict[str, Any]
+    #: see :attr:`deploy_filter`
+    _deploy_filter: dict[str, Any] | None = None
+    #: whether this kind of team can act under a deploy filter (each learner must train with the
+    #: bound off and act with it on)
+    accepts_deploy_filter: ClassVar[bool] = True
 
     def _set_problem(
         self,
@@ -189,6 +194,92 @@ class LearnedTeam(DeploymentRule, Team):
         graph = self.graph
         owns = territory_nodes(graph.hop_distances, graph.target_indices, self.n_agents, graph.n_nodes)
         return {name: tuple(int(node) for node in np.flatnonzero(owns[i])) for i, name in enumerate(files)}
+
+    @property
+    def deploy_filter(self) -> dict[str, Any] | None:
+        """The DCBF neglect bound the trained team acts under, ``{"neglect_bound": B,
+        "neglect_scope": S}``, or ``None``: it acts under the filter it trained under.
+
+        Set by the config's ``deploy_filter`` and saved with the team. Training never reads it:
+        :meth:`learn` trains with the bound off and switches it on again when it returns, so the
+        policies, the saved team and everything that evaluates it act under it.
+        """
+        return None if self._deploy_filter is None else dict(self._deploy_filter)
+
+    @deploy_filter.setter
+    def deploy_filter(self, deploy_filter: Mapping[str, Any] | None) -> None:
+        previous = self._deploy_filter
+        self._check_deploy_filter(deploy_filter)  # first: a bad one leaves the team as it was
+        new, self._deploy_filter = self._deploy_filter, previous
+        if previous is None and new is not None:
+            self._check_training_bound()  # a bound trained in is not a deploy filter's to replace
+        self._training_filter()  # the previous rule off (nothing to do without one)
+        self._deploy_filter = new
+        try:
+            self._apply_deploy_filter()
+        except InputError:  # e.g. learners without the DCBF filter: back to the previous rule
+            self._training_filter()
+            self._deploy_filter = previous
+            self._apply_deploy_filter()
+            raise
+
+    def _check_deploy_filter(self, deploy_filter: Mapping[str, Any] | None) -> None:
+        """Keep a checked ``deploy_filter``; the models need not exist yet.
+
+        :raises InputError: a malformed one, or scope ``territory`` where no territory can be given.
+        """
+        from sb3_pm.policies.dcbf import check_deploy_filter
+
+        checked = check_deploy_filter(None if deploy_filter is None else dict(deploy_filter))
+        if checked is not None and not self.accepts_deploy_filter:
+            raise InputError(
+                f"deploy_filter is not available for a {type(self).__name__} team (its one network "
+                "trains and acts through the same filter); set it to null"
+            )
+        territorial = checked is not None and checked["neglect_scope"] == "territory"
+        if territorial and isinstance(self.graph, GraphFamily):
+            raise InputError(
+                "deploy_filter scope 'territory' needs one graph: a team trained on the graph family "
+                f"{self.graph.name!r} has no territories"
+            )
+        self._deploy_filter = checked
+
+    def _check_training_bound(self) -> None:
+        """A deploy filter replaces the bound at deployment only, so training must have none.
+
+        :raises InputError: a ``deploy_filter`` on learners that train with a neglect bound.
+        """
+        for name, model in self.model_files().items():
+            if (model.policy_kwargs or {}).get("neglect_bound") is not None:
+                raise InputError(
+                    f"{name} trains with a neglect bound (policy_kwargs.neglect_bound) and the team has a "
+                    "deploy_filter: keep one of them (the deploy filter switches the bound on after training)"
+                )
+
+    def _apply_deploy_filter(self) -> None:
+        """Switch the :attr:`deploy_filter` on (nothing without one)."""
+        if self._deploy_filter is not None:
+            self.set_filter(**self._deploy_filter)
+
+    def _training_filter(self) -> None:
+        """Switch the :attr:`deploy_filter` off: every learner's bound as trained, that is none
+        (a team with a deploy filter trains without a bound; nothing to do without one)."""
+        from dataclasses import replace
+
+        if self._deploy_filter is None:
+            return
+        for model in self.model_files().values():
+            policy = model.policy
+            if getattr(policy, "dcbf_config", None) is None:
+                continue  # no DCBF filter, so no bound to switch off
+            policy.dcbf_config = replace(  # type: ignore[union-attr,type-var]
+                policy.dcbf_config, neglect_bound=None, neglect_scope="known", territory=()
+            )
+            model.policy_kwargs = {
+                key: value
+                for key, value in model.policy_kwargs.items()
+                if key not in ("neglect_bound", "neglect_scope", "neglect_territory")
+            }
 
     def filter_activity(self) -> dict[str, int]:
         """Summed over learners since they were built: masks computed with the neglect bound on

@@ -54,6 +54,8 @@ def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
         "num_timesteps": team.num_timesteps,
         # how the team acts by default (None: argmax); manifests without it load as None
         "deploy_temperature": team.deploy_temperature,
+        # the neglect bound it acts under once trained (None: as trained); older manifests load as None
+        "deploy_filter": getattr(team, "deploy_filter", None),
         "versions": package_versions(),
     }
 

@@ -98,6 +98,9 @@ class IndependentPPO(LearnedTeam):
     :param deploy_temperature: how the trained team acts by default (:attr:`deploy_temperature`):
         ``None`` by the argmax, a positive number by sampling at that temperature. Saved with the
         team; training never reads it.
+    :param deploy_filter: the DCBF neglect bound the trained team acts under
+        (:attr:`~sb3_pm.agents.learned_team.LearnedTeam.deploy_filter`), ``{"neglect_bound": B,
+        "neglect_scope": S}``, or ``None``. Saved with the team; :meth:`learn` trains without it.
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
         before training stops with :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
         ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (under a
@@ -133,9 +136,11 @@ class IndependentPPO(LearnedTeam):
         wait_timeout: float | None = DEFAULT_WAIT_TIMEOUT,
         concurrent_updates: bool = True,
         deploy_temperature: float | None = None,
+        deploy_filter: Mapping[str, Any] | None = None,
         _init_models: bool = True,
     ) -> None:
         self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs, deploy_temperature)
+        self._check_deploy_filter(deploy_filter)
         self._stacker = PrunedInference()  # the stacked acting pass, pruned to the allowed nodes
         self.verbose = verbose
         self.device = device
@@ -178,7 +183,10 @@ class IndependentPPO(LearnedTeam):
             self.hub.seed(self.seed)
             try:
                 self._apply_deploy_temperature(self.deploy_temperature)
-            except InputError:  # a sampling rule for learners without the DCBF policy
+                if self._deploy_filter is not None:
+                    self._check_training_bound()
+                self._apply_deploy_filter()  # here too, so a filter it cannot take fails before training
+            except InputError:  # a deployment rule for learners without the DCBF policy
                 self.close()
                 raise
             if isinstance(self.graph, GraphFamily):
@@ -263,6 +271,27 @@ class IndependentPPO(LearnedTeam):
         if total_timesteps < 1:
             raise InputError(f"total_timesteps must be positive, got {total_timesteps}")
         self._validate_learners(reset_num_timesteps)
+        self._training_filter()  # the deploy filter is for acting: off while the learners train
+        try:
+            return self._learn_unfiltered(
+                total_timesteps, callback, progress_bar, reset_num_timesteps, log_interval, tb_log_name,
+                checkpoints, on_interrupt,
+            )
+        finally:
+            self._apply_deploy_filter()  # on again, whether training ended or failed
+
+    def _learn_unfiltered(
+        self,
+        total_timesteps: int,
+        callback: CallbackArg,
+        progress_bar: bool,
+        reset_num_timesteps: bool,
+        log_interval: int,
+        tb_log_name: str | None,
+        checkpoints: CheckpointSchedule | None,
+        on_interrupt: Callable[[], None] | None,
+    ) -> IndependentPPO:
+        """:meth:`learn`'s body, run with the deploy filter off."""
         if not reset_num_timesteps and any(m._last_obs is None for m in self.models.values()):
             # All learners must reset together (the multiplexer steps them as one).
             for model in self.models.values():
@@ -452,6 +481,7 @@ class IndependentPPO(LearnedTeam):
             concurrent_updates=concurrent_updates,
             wait_timeout=wait_timeout,
             deploy_temperature=manifest.get("deploy_temperature"),
+            deploy_filter=manifest.get("deploy_filter"),
             _init_models=False,
         )
         for i, agent in enumerate(team.agents):
@@ -469,6 +499,7 @@ class IndependentPPO(LearnedTeam):
                 model.verbose = verbose
             team.models[agent] = model
         team._apply_deploy_temperature(team.deploy_temperature)
+        team._apply_deploy_filter()  # the zips hold it already; this checks it against the team
         return team
 
     @classmethod

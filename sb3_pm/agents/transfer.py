@@ -83,6 +83,30 @@ def rebuild_policy(policy: Any, observation_space: Any, action_space: Any) -> An
     return rebuilt.to(policy.device)
 
 
+def retarget_territories(policies: dict[str, Any], graph: GraphSpec) -> None:
+    """Give each rebuilt policy whose neglect bound has scope ``territory`` its territory on ``graph``.
+
+    The bound names its territory's nodes on the graph it was set for, which mean nothing on
+    another graph. Learner ``i`` of ``K`` (``policies`` in the team's agent order) takes the
+    ``i``-th territory of ``graph``'s ``K``-way split, as on its own graph.
+    """
+    from dataclasses import replace
+
+    from sb3_pm.graphs.territories import territory_nodes
+
+    def scoped(policy: Any) -> bool:
+        config = getattr(policy, "dcbf_config", None)
+        return config is not None and config.neglect_bound is not None and config.neglect_scope == "territory"
+
+    if not any(scoped(policy) for policy in policies.values()):
+        return
+    owns = territory_nodes(graph.hop_distances, graph.target_indices, len(policies), graph.n_nodes)
+    for i, policy in enumerate(policies.values()):
+        if scoped(policy):
+            territory = tuple(int(node) for node in np.flatnonzero(owns[i]))
+            policy.dcbf_config = replace(policy.dcbf_config, territory=territory)
+
+
 class TransferredTeam(DeploymentRule, Team):
     """A trained team's policies rebuilt for another graph; acts like the team it came from.
 
@@ -113,6 +137,7 @@ class TransferredTeam(DeploymentRule, Team):
         self.policies = {
             agent: rebuild_policy(source.models[agent].policy, space, action) for agent in self.agents
         }
+        retarget_territories(self.policies, graph)
         #: how the team acts by default, as the source team's (rebuild_policy kept its temperature)
         self._deploy_temperature = getattr(source, "deploy_temperature", None)
 

@@ -61,10 +61,11 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--neglect-bound",
-        type=float,
+        type=neglect_bound_option,
         metavar="B",
         help="deploy a trained DCBF team with the filter's neglect bound B (rule 8) instead of its own "
-        "setting; prints how often it forced the agents' moves",
+        "setting (its config's deploy_filter, saved with it), or 'off' to act with none; prints how "
+        "often the bound forced the agents' moves",
     )
     parser.add_argument(
         "--fail",
@@ -84,9 +85,9 @@ def register(subparsers: Any) -> None:
         "--neglect-scope",
         choices=["known", "unserved", "territory"],
         default=None,
-        help="with --neglect-bound: bound every known target (known, the default), only those last "
-        "seen without a teammate on them (unserved), or the targets of each agent's own territory "
-        "(territory)",
+        help="with --neglect-bound: bound every known target (known), only those last seen without a "
+        "teammate on them (unserved), or the targets of each agent's own territory (territory); "
+        "default: the scope of the team's own bound (its deploy_filter's), else known",
     )
     parser.add_argument(
         "--settling",
@@ -146,9 +147,23 @@ def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     return kwargs
 
 
-def apply_neglect_bound(team: Any, bound: float | None, scope: str | None = None) -> None:
-    """``--neglect-bound`` (and ``--neglect-scope``): set the filter's bound on a trained team; a
-    baseline has no filter."""
+#: ``--neglect-bound off``: act with no bound, whatever the team's deploy_filter says.
+BOUND_OFF = "off"
+
+
+def neglect_bound_option(text: str) -> float | str:
+    """``--neglect-bound``'s value: a number, or ``off``."""
+    if text.strip().lower() == BOUND_OFF:
+        return BOUND_OFF
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or 'off', got {text!r}") from None
+
+
+def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None = None) -> None:
+    """``--neglect-bound`` (and ``--neglect-scope``): set the filter's bound on a trained team, or
+    switch it off (``"off"``); a baseline has no filter."""
     from sb3_pm.errors import UsageError
 
     if bound is None:
@@ -157,7 +172,12 @@ def apply_neglect_bound(team: Any, bound: float | None, scope: str | None = None
         raise UsageError(
             f"--neglect-bound needs a trained DCBF team on its own graph; {team.name!r} is not one"
         )
-    team.set_filter(neglect_bound=bound, **({} if scope is None else {"neglect_scope": scope}))
+    if bound == BOUND_OFF:
+        team.set_filter(neglect_bound=None)
+        return
+    if scope is None:  # the team's own scope (its deploy_filter's), else known: said, not implied
+        scope = (team.acting_filter() or {}).get("neglect_scope", "known")
+    team.set_filter(neglect_bound=bound, neglect_scope=scope)
 
 
 def apply_temperature(team: Any, temperature: float | None, stochastic: bool = False) -> None:
@@ -220,8 +240,8 @@ def run(args: argparse.Namespace) -> int:
     graph = resolve_graph(args.graph)  # fail on a bad graph before loading a model
     check_writable(args.json, "--json")  # before the evaluation, whose result it would lose
     check_writable(args.gif, "--gif")
-    if args.neglect_scope is not None and args.neglect_bound is None:
-        raise UsageError("--neglect-scope needs --neglect-bound")
+    if args.neglect_scope is not None and args.neglect_bound in (None, BOUND_OFF):
+        raise UsageError("--neglect-scope needs --neglect-bound B")
     if args.temperature is not None:
         from sb3_pm.policies.sampling import check_temperature
 
@@ -245,9 +265,27 @@ def run(args: argparse.Namespace) -> int:
             f"learner agent_(i mod {trained_agents})",
             file=sys.stderr,
         )
+        bound = team.acting_filter() if hasattr(team, "acting_filter") else None
+        if bound is not None and bound["neglect_scope"] == "territory":
+            print(
+                f"its territory bound keeps the {trained_agents}-way split: "
+                + (
+                    "the territories of the missing learners have no bound"
+                    if args.agents < trained_agents
+                    else "agents that share a learner share its territory"
+                ),
+                file=sys.stderr,
+            )
     env_kwargs = {**team_env_kwargs(team), **failure_kwargs(args)}
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     deterministic = acting_rule(args)
+    acting_filter = team.acting_filter() if hasattr(team, "acting_filter") else None
+    if args.neglect_bound is None and acting_filter is not None and hasattr(team, "set_filter"):
+        print(
+            f"the team acts under its deploy_filter: neglect bound {acting_filter['neglect_bound']:g}, scope "
+            f"{acting_filter['neglect_scope']} (--neglect-bound off to act without it)",
+            file=sys.stderr,
+        )
     own_temperature = getattr(team, "deploy_temperature", None)
     if deterministic is None and own_temperature is not None:
         print(
@@ -270,15 +308,16 @@ def run(args: argparse.Namespace) -> int:
         settle_since=settle_since(args),
     )
     result.config["graph"] = str(args.graph)
-    if args.neglect_bound is not None:
-        activity = team.filter_activity()  # type: ignore[attr-defined]  # apply_neglect_bound checked
-        result.config["neglect_bound"] = args.neglect_bound
-        result.config["neglect_scope"] = args.neglect_scope or "known"
+    # evaluate() recorded the bound the team acted under (neglect_bound, neglect_scope), if any
+    counts = acting_filter is not None and hasattr(team, "filter_activity")
+    activity = team.filter_activity() if counts else None  # type: ignore[attr-defined]  # checked
+    if activity is not None:
         result.config["filter_activity"] = activity
     print_summary(result)
-    if args.neglect_bound is not None:
+    if activity is not None:
         share = activity["forced"] / max(1, activity["masks"])
-        print(f"neglect bound {args.neglect_bound:g}: forced {share:.1%} of {activity['masks']} agent-steps")
+        bound = result.config["neglect_bound"]
+        print(f"neglect bound {bound:g}: forced {share:.1%} of {activity['masks']} agent-steps")
     if args.settling is not None:
         from sb3_pm.evaluation.settling import MIN_SHARE, settling_table
 

@@ -393,8 +393,10 @@ def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:
             parsed[key.strip()] = yaml.safe_load(text) if text.strip() else None
         except yaml.YAMLError as error:
             raise UsageError(f"{flag}: the value of {key!r} is not valid YAML ({error})") from None
-        # deploy_temperature:null is the argmax rule; an empty value is a slip anywhere
-        if parsed[key.strip()] is None and not (key.strip() == "deploy_temperature" and text.strip()):
+        # deploy_temperature:null is the argmax rule and deploy_filter:null the filter as trained;
+        # an empty value is a slip anywhere
+        nullable = key.strip() in ("deploy_temperature", "deploy_filter")
+        if parsed[key.strip()] is None and not (nullable and text.strip()):
             raise UsageError(f"{flag}: {key!r} has no value")
     return parsed
 

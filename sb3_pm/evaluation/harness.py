@@ -231,6 +231,10 @@ def evaluate(
     temperature = getattr(team, "sampling_temperature", None)
     if not deterministic and temperature is not None:  # what the learned team sampled at
         config["temperature"] = temperature
+    acting_filter = getattr(team, "acting_filter", None)
+    bound = acting_filter() if callable(acting_filter) else None
+    if bound is not None:  # the neglect bound the learned team acted under (rule 8)
+        config["neglect_bound"], config["neglect_scope"] = bound["neglect_bound"], bound["neglect_scope"]
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
 
 

@@ -162,7 +162,8 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     pins = {**cell.hyperparams, **variant.hyperparams}
     config.deploy_temperature = pinned_deploy_temperature(config, pins)
     config.learning_rate_spread = pinned_learning_rate_spread(config, pins)
-    team_pins = ("deploy_temperature", "learning_rate_spread")
+    config.deploy_filter = pinned_deploy_filter(config, pins)
+    team_pins = ("deploy_temperature", "learning_rate_spread", "deploy_filter")
     config.hyperparams.update({key: value for key, value in pins.items() if key not in team_pins})
     config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
     if variant.policy_kwargs:
@@ -183,6 +184,16 @@ def pinned_deploy_temperature(config: Any, hyperparams: dict[str, Any]) -> float
     from sb3_pm.policies.sampling import check_deploy_temperature
 
     return check_deploy_temperature(hyperparams["deploy_temperature"])
+
+
+def pinned_deploy_filter(config: Any, hyperparams: dict[str, Any]) -> dict[str, Any] | None:
+    """The config's ``deploy_filter``, unless the experiment's or the variant's ``hyperparams`` pin
+    it (a team key, never passed to the algorithm; ``null``: the filter as trained)."""
+    if "deploy_filter" not in hyperparams:
+        return config.deploy_filter  # type: ignore[no-any-return]
+    from sb3_pm.policies.dcbf import check_deploy_filter
+
+    return check_deploy_filter(hyperparams["deploy_filter"])
 
 
 def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
@@ -303,7 +314,10 @@ def run_cell(cell: Cell) -> dict[str, Any]:
     if variant.learned:
         # The experiment file's rule (config, then the variant's pin), also for a team trained by
         # an earlier run or copied in, whose manifest may hold another.
-        team.deploy_temperature = cell_config(cell, variant).deploy_temperature
+        config = cell_config(cell, variant)
+        team.deploy_temperature = config.deploy_temperature
+        if hasattr(team, "deploy_filter"):  # a trained team; a transferred one keeps its source's
+            team.deploy_filter = config.deploy_filter
     result = evaluate(
         team,
         cell.graph,
@@ -439,6 +453,22 @@ def deploy_rules(experiment: Experiment) -> dict[str, Any]:
     }
 
 
+def filter_rules(experiment: Experiment) -> dict[str, Any]:
+    """``{variant: deploy_filter}`` of the learned variants that act under a deploy filter, as their
+    configs and pins resolve (one mapping, or ``{graph: mapping or None}`` where the entries differ).
+
+    Recorded like :func:`deploy_rules`: a folder evaluated without the filter does not resume into
+    cells evaluated with it.
+    """
+    rules: dict[str, Any] = {}
+    for variant, _, per_graph in _resolved_team_key(experiment, pinned_deploy_filter):
+        values = list(per_graph.values())
+        if all(value is None for value in values):
+            continue
+        rules[variant.key] = values[0] if all(value == values[0] for value in values) else per_graph
+    return rules
+
+
 def spread_rules(experiment: Experiment) -> dict[str, Any]:
     """``{variant: learning_rate_spread}`` of the learned variants whose learners' rates differ, as
     their configs and pins resolve (one value, or ``{graph: value}`` where the entries differ).
@@ -476,6 +506,9 @@ def experiment_record(experiment: Experiment) -> dict[str, Any]:
     spreads = spread_rules(experiment)
     if spreads:
         extra["learning_rate_spread"] = spreads
+    filters = filter_rules(experiment)
+    if filters:
+        extra["deploy_filter"] = filters
     return {
         **extra,
         "name": experiment.name,

@@ -168,7 +168,14 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
 
 def _check_team_pins(hyperparams: dict[str, Any], source: Path, where: str = "") -> None:
     """The team keys among ``hyperparams``: a ``deploy_temperature`` must be null or a positive
-    number, a ``learning_rate_spread`` a number >= 1."""
+    number, a ``learning_rate_spread`` a number >= 1, a ``deploy_filter`` null or a neglect bound."""
+    if "deploy_filter" in hyperparams:
+        from sb3_pm.policies.dcbf import check_deploy_filter
+
+        try:
+            check_deploy_filter(hyperparams["deploy_filter"])
+        except InputError as error:
+            raise _fail(source, f"{where}hyperparams.deploy_filter: {error}") from None
     if "learning_rate_spread" in hyperparams:
         from sb3_pm.zoo.config import check_learning_rate_spread
 

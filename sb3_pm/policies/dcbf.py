@@ -37,6 +37,7 @@ guard makes every row non-empty even for malformed input (falls back to ``R``, t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch as th
@@ -88,6 +89,34 @@ class DCBFConfig:
             raise InputError(f"neglect_scope must be one of {NEGLECT_SCOPES}, got {self.neglect_scope!r}")
         if any(isinstance(node, bool) or not isinstance(node, int) or node < 0 for node in self.territory):
             raise InputError(f"territory must list node indices (ints >= 0), got {self.territory!r}")
+
+
+#: The DCBF settings a trained team may switch on for deployment (a config's ``deploy_filter``).
+DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope")
+
+
+def check_deploy_filter(value: object) -> dict[str, object] | None:
+    """A team's deployment filter: ``None`` (act with the filter it trained under) or a mapping
+    ``{neglect_bound: B, neglect_scope: known | unserved | territory}`` (scope optional, ``known``
+    by default), checked as :class:`DCBFConfig` checks them.
+
+    :raises InputError: anything else, naming the problem.
+    """
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise InputError(f"expected null or a mapping {{neglect_bound: B, neglect_scope: S}}, got {value!r}")
+    unknown = sorted(set(value) - set(DEPLOY_FILTER_KEYS))
+    if unknown:
+        raise InputError(f"unknown key {unknown[0]!r} (known: {', '.join(DEPLOY_FILTER_KEYS)})")
+    bound = value.get("neglect_bound")
+    if bound is None or isinstance(bound, bool) or not isinstance(bound, (int, float)):
+        raise InputError(f"neglect_bound must be a number (the bound B), got {bound!r}")
+    if not math.isfinite(bound):
+        raise InputError(f"neglect_bound must be finite, got {bound!r}")
+    scope = value.get("neglect_scope", "known")
+    DCBFConfig(neglect_bound=float(bound), neglect_scope=scope)  # the filter's own checks
+    return {"neglect_bound": float(bound), "neglect_scope": scope}
 
 
 def territory_mask(territory: tuple[int, ...], batch: int, n_nodes: int, device: th.device) -> th.Tensor:

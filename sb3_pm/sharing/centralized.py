@@ -53,6 +53,7 @@ class CentralizedPPO(LearnedTeam):
 
     name = "centralized"
     MANIFEST_FORMAT = MANIFEST_FORMAT
+    accepts_deploy_filter = False  # its learn() trains through whatever filter it acts under
     omniscient = False  # it sees only what its agents observe, pooled
 
     def __init__(
@@ -124,8 +125,15 @@ class CentralizedPPO(LearnedTeam):
                 "network acts for every agent and cannot tell whose territory a target is); give it "
                 "a reward without the term (e.g. --env-kwargs 'reward:{clearing: 0.04, collision: 0.001}')"
             )
+        if config.deploy_filter is not None:
+            raise InputError(
+                f"{config.source}: deploy_filter is not available for a centralized team (one network "
+                "trains and acts through the same filter); set deploy_filter: null (an experiment "
+                "variant: hyperparams: {deploy_filter: null}; sb3-pm train: --hyperparams deploy_filter:null)"
+            )
         options = super()._config_options(config)
         options.pop("per_agent", None)
+        options.pop("deploy_filter", None)
         return options
 
     @property

@@ -57,6 +57,7 @@ TEAM_KEYS = (
     "agents",
     "env",
     "deploy_temperature",
+    "deploy_filter",
     "learning_rate_spread",
 )
 #: Algorithm arguments the team sets itself (never from a config).
@@ -98,6 +99,9 @@ class TrainConfig:
     #: How the trained team acts by default: ``None`` by the argmax, a number by sampling at that
     #: temperature (saved with the team; training never reads it).
     deploy_temperature: float | None = None
+    #: The DCBF neglect bound the trained team acts under (``{neglect_bound, neglect_scope}``), or
+    #: ``None``: the filter it trained under (saved with the team; training never reads it).
+    deploy_filter: dict[str, Any] | None = None
     #: The fastest learner's learning rate over the slowest's (1: every learner the same); see
     #: :meth:`per_agent`.
     learning_rate_spread: float = 1.0
@@ -139,6 +143,7 @@ class TrainConfig:
             "hyperparams": dict(self.hyperparams),
             "per_agent": self.per_agent(),
             "deploy_temperature": self.deploy_temperature,
+            "deploy_filter": None if self.deploy_filter is None else dict(self.deploy_filter),
         }
 
     def to_dict(self) -> dict[str, Any]:
@@ -158,6 +163,8 @@ class TrainConfig:
             data["env"] = self.env
         if self.deploy_temperature is not None:
             data["deploy_temperature"] = self.deploy_temperature
+        if self.deploy_filter is not None:
+            data["deploy_filter"] = dict(self.deploy_filter)
         if self.learning_rate_spread != 1.0:
             data["learning_rate_spread"] = self.learning_rate_spread
         return data
@@ -374,6 +381,12 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
         deploy_temperature = check_deploy_temperature(deploy_temperature)
     except InputError as error:
         raise ConfigError(f"{where}.deploy_temperature: {error} (null acts by the argmax)") from None
+    from sb3_pm.policies.dcbf import check_deploy_filter
+
+    try:
+        deploy_filter = check_deploy_filter(raw.get("deploy_filter"))
+    except InputError as error:
+        raise ConfigError(f"{where}.deploy_filter: {error} (null: the filter as trained)") from None
     hyperparams = _hyperparams(raw, allowed, where, set(TEAM_KEYS) | {"policy"})
     learning_rate_spread = check_learning_rate_spread(raw.get("learning_rate_spread", 1.0), where)
     n_agents = _as_int(raw.get("n_agents", 4), f"{where}.n_agents")
@@ -409,6 +422,7 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
         agents=agents,
         env=train_env,
         deploy_temperature=deploy_temperature,
+        deploy_filter=deploy_filter,
         learning_rate_spread=learning_rate_spread,
     )
     config.per_agent()  # a spread without a learning rate fails here, not when a sweep's cell trains

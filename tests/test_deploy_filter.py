@@ -1,0 +1,336 @@
+"""A team's ``deploy_filter``: the DCBF neglect bound a trained team acts under, never trained under.
+
+It is a config key (``zoo/ippo.yml``'s ``paper-50`` entry sets it), saved with the team, switched off
+while :meth:`IndependentPPO.learn` runs and on again when it returns, and followed by everything that
+evaluates the team unless ``sb3-pm evaluate --neglect-bound`` says otherwise.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_pm.errors import InputError
+from sb3_pm.policies.dcbf import DCBFConfig, check_deploy_filter
+from sb3_pm.zoo.config import ConfigError, load_config
+from tests.conftest import path_graph
+
+TINY = {"n_steps": 10, "batch_size": 10, "n_epochs": 1}
+TERRITORY_BOUND = {"neglect_bound": 15.0, "neglect_scope": "territory"}
+
+
+def tiny_team(deploy_filter=TERRITORY_BOUND, **hyperparams):
+    from sb3_pm.agents.team import IndependentPPO
+
+    return IndependentPPO(
+        path_graph(10, targets=[0, 1, 8, 9]),
+        n_agents=2,
+        seed=0,
+        env_kwargs={"max_cycles": 20},
+        hyperparams={**TINY, **hyperparams},
+        deploy_filter=deploy_filter,
+    )
+
+
+class BoundsSeen(BaseCallback):
+    """Records the neglect bound of the learner's policy at every training step."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.bounds: set[float | None] = set()
+
+    def _on_step(self) -> bool:
+        self.bounds.add(self.model.policy.dcbf_config.neglect_bound)
+        return True
+
+
+class TestCheck:
+    def test_a_bound_with_or_without_a_scope(self) -> None:
+        assert check_deploy_filter(None) is None
+        assert check_deploy_filter({"neglect_bound": 50}) == {"neglect_bound": 50.0, "neglect_scope": "known"}
+        territory = check_deploy_filter({"neglect_bound": 50, "neglect_scope": "territory"})
+        assert territory == {"neglect_bound": 50.0, "neglect_scope": "territory"}
+
+    @pytest.mark.parametrize(
+        ("value", "message"),
+        [
+            (50, "expected null or a mapping"),
+            ({"neglect_bound": 50, "scope": "known"}, "unknown key 'scope'"),
+            ({"neglect_scope": "known"}, "neglect_bound must be a number"),
+            ({"neglect_bound": True}, "neglect_bound must be a number"),
+            ({"neglect_bound": 0.5}, "neglect_bound must be at least 1"),
+            ({"neglect_bound": 50, "neglect_scope": "mine"}, "neglect_scope must be one of"),
+        ],
+    )
+    def test_anything_else_is_refused_by_name(self, value, message) -> None:
+        with pytest.raises(InputError, match=message):
+            check_deploy_filter(value)
+
+
+class TestConfig:
+    def test_the_shipped_default_bounds_paper_50_only(self) -> None:
+        """The bound was measured on paper-50 (B = 50, about the grazing baseline's worst neglect
+        there); other graphs keep the filter as trained until a bound is measured for them."""
+        paper = load_config("ippo", "paper-50")
+        assert paper.deploy_filter == {"neglect_bound": 50.0, "neglect_scope": "territory"}
+        assert paper.team_kwargs()["deploy_filter"] == paper.deploy_filter
+        assert paper.to_dict()["deploy_filter"] == paper.deploy_filter
+        for graph in ("paper-100", "rgg-60", "karate"):
+            assert load_config("ippo", graph).deploy_filter is None
+        assert load_config("ippo_paper", "paper-50").deploy_filter is None
+
+    def test_an_override_can_switch_it_off(self) -> None:
+        assert load_config("ippo", "paper-50", overrides={"deploy_filter": None}).deploy_filter is None
+
+    def test_a_malformed_one_names_the_file_entry_and_key(self, tmp_path: Path) -> None:
+        path = tmp_path / "c.yml"
+        path.write_text("default:\n  n_envs: 1\n  deploy_filter: {neglect_bound: fifty}\n")
+        message = r"c\.yml: default\.deploy_filter: neglect_bound must be a number"
+        with pytest.raises(ConfigError, match=message):
+            load_config(path, "paper-50")
+
+    def test_a_centralized_team_refuses_it(self) -> None:
+        from sb3_pm.sharing.centralized import CentralizedPPO
+
+        config = load_config("ippo", "paper-50", overrides={"learning_rate_spread": 1.0})
+        config.env_kwargs["reward"] = {"clearing": 0.04}
+        with pytest.raises(InputError, match="deploy_filter is not available for a centralized team"):
+            CentralizedPPO.from_config(config, "paper-50")
+
+
+class TestTeam:
+    def test_it_acts_under_the_bound_but_trains_without_it(self, tmp_path: Path) -> None:
+        team = tiny_team()
+        try:
+            configs = {a: team.models[a].policy.dcbf_config for a in team.agents}
+            assert configs["agent_0"].neglect_bound == 15.0 and configs["agent_1"].territory == (8, 9)
+            seen = {a: BoundsSeen() for a in team.agents}
+            team.learn(20, callback=seen)
+            assert all(s.bounds == {None} for s in seen.values())  # every training step unbounded
+            after = team.models["agent_1"].policy.dcbf_config
+            assert (after.neglect_bound, after.neglect_scope, after.territory) == (15.0, "territory", (8, 9))
+            team.save(tmp_path / "t")
+        finally:
+            team.close()
+        manifest = json.loads((tmp_path / "t" / "manifest.json").read_text())
+        assert manifest["deploy_filter"] == TERRITORY_BOUND
+
+        from sb3_pm.agents.team import IndependentPPO
+
+        loaded = IndependentPPO.load(tmp_path / "t")
+        try:
+            assert loaded.deploy_filter == TERRITORY_BOUND
+            assert loaded.acting_filter() == TERRITORY_BOUND
+            assert loaded.models["agent_0"].policy.dcbf_config.territory == (0, 1)
+            # Further training is unbounded too, and the bound is back afterwards.
+            seen = {a: BoundsSeen() for a in loaded.agents}
+            loaded.learn(10, callback=seen, reset_num_timesteps=False)
+            assert all(s.bounds == {None} for s in seen.values())
+            assert loaded.acting_filter() == TERRITORY_BOUND
+        finally:
+            loaded.close()
+
+    def test_the_same_seed_trains_the_same_parameters_with_or_without_it(self) -> None:
+        """Training never reads the deploy filter: the parameters match a team without one."""
+        import torch as th
+
+        teams = [tiny_team(), tiny_team(deploy_filter=None)]
+        try:
+            for team in teams:
+                team.learn(20)
+            for agent in teams[0].agents:
+                a, b = (t.models[agent].policy.state_dict() for t in teams)
+                assert all(th.equal(a[key], b[key]) for key in a)
+        finally:
+            for team in teams:
+                team.close()
+
+    def test_training_with_a_bound_and_a_deploy_filter_is_refused(self) -> None:
+        with pytest.raises(InputError, match="trains with a neglect bound .* keep one of them"):
+            tiny_team(policy_kwargs={"neglect_bound": 20.0})
+
+    def test_a_graph_family_has_no_territories(self) -> None:
+        from sb3_pm.agents.team import IndependentPPO
+
+        with pytest.raises(InputError, match="scope 'territory' needs one graph"):
+            IndependentPPO("family:er", n_agents=2, deploy_filter=TERRITORY_BOUND)
+
+
+class TestTransfer:
+    def test_a_moved_bound_takes_the_new_graphs_territories(self) -> None:
+        from sb3_pm.agents.transfer import retarget_territories
+        from sb3_pm.graphs.territories import target_territories
+
+        graph = path_graph(12, targets=[0, 2, 9, 11])
+        bounded = DCBFConfig(neglect_bound=20.0, neglect_scope="territory", territory=(0, 1))
+        policies = {f"agent_{i}": SimpleNamespace(dcbf_config=bounded) for i in range(2)}
+        retarget_territories(policies, graph)
+        owner = target_territories(graph.hop_distances, graph.target_indices, 2)
+        for i, policy in enumerate(policies.values()):
+            expected = tuple(int(t) for t, o in zip(graph.target_indices, owner) if o == i)
+            assert policy.dcbf_config.territory == expected
+        assert {t for p in policies.values() for t in p.dcbf_config.territory} == {0, 2, 9, 11}
+
+    def test_policies_without_a_territory_bound_are_left_alone(self) -> None:
+        from sb3_pm.agents.transfer import retarget_territories
+
+        known = DCBFConfig(neglect_bound=20.0, neglect_scope="known")
+        policies = {"agent_0": SimpleNamespace(dcbf_config=known)}
+        retarget_territories(policies, path_graph(6, targets=[0, 5]))
+        assert policies["agent_0"].dcbf_config is known
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> Path:
+    """A trained two-agent team saved with a territory deploy filter."""
+    team = tiny_team()
+    folder = tmp_path_factory.mktemp("deploy") / "team"
+    try:
+        team.learn(10)
+        team.save(folder)
+    finally:
+        team.close()
+    return folder
+
+
+class TestCommandLine:
+    def evaluate(self, saved: Path, tmp_path: Path, *flags: str) -> dict:
+        from sb3_pm.cli import main
+
+        out = tmp_path / "e.json"
+        graph = saved / "graph.graphml"
+        argv = ["evaluate", "--policy", str(saved), "--graph", str(graph), "--agents", "2", "--episodes", "1"]
+        assert main([*argv, "--steps", "20", "--json", str(out), *flags]) == 0
+        return json.loads(out.read_text())["config"]
+
+    def test_evaluate_follows_the_saved_filter_and_says_so(self, saved, tmp_path, capsys) -> None:
+        config = self.evaluate(saved, tmp_path)
+        assert (config["neglect_bound"], config["neglect_scope"]) == (15.0, "territory")
+        assert config["filter_activity"]["masks"] > 0
+        assert "acts under its deploy_filter: neglect bound 15, scope territory" in capsys.readouterr().err
+
+    def test_off_acts_without_it(self, saved, tmp_path) -> None:
+        config = self.evaluate(saved, tmp_path, "--neglect-bound", "off")
+        assert "neglect_bound" not in config and "filter_activity" not in config
+
+    def test_off_takes_no_scope_and_a_word_is_refused(self, saved, tmp_path, capsys) -> None:
+        from sb3_pm.cli import main
+
+        base = ["evaluate", "--policy", str(saved), "--graph", str(saved / "graph.graphml"), "--agents", "2"]
+        assert main([*base, "--neglect-bound", "off", "--neglect-scope", "known"]) == 2
+        assert "--neglect-scope needs --neglect-bound B" in capsys.readouterr().err
+        with pytest.raises(SystemExit):
+            main([*base, "--neglect-bound", "fifty"])
+        assert "expected a number or 'off'" in capsys.readouterr().err
+
+
+class TestSetting:
+    def test_a_new_rule_replaces_the_old_and_null_restores_the_trained_filter(self) -> None:
+        team = tiny_team()
+        try:
+            team.deploy_filter = {"neglect_bound": 30, "neglect_scope": "known"}
+            assert team.acting_filter() == {"neglect_bound": 30.0, "neglect_scope": "known"}
+            assert team.models["agent_0"].policy.dcbf_config.territory == ()
+            with pytest.raises(InputError, match="neglect_scope must be one of"):
+                team.deploy_filter = {"neglect_bound": 30, "neglect_scope": "mine"}
+            assert team.deploy_filter == {"neglect_bound": 30.0, "neglect_scope": "known"}  # unchanged
+            team.deploy_filter = None
+            assert team.acting_filter() is None
+            assert "neglect_bound" not in team.models["agent_0"].policy_kwargs
+        finally:
+            team.close()
+
+
+class TestExperiments:
+    def test_the_record_names_the_rule_so_a_folder_never_mixes_cells(self) -> None:
+        from sb3_pm.experiments import load_experiment
+        from sb3_pm.experiments.runner import experiment_record
+
+        assert experiment_record(load_experiment("headline"))["deploy_filter"] == {
+            "default": {"neglect_bound": 50.0, "neglect_scope": "territory"}
+        }
+        assert "deploy_filter" not in experiment_record(load_experiment("territory_reward"))
+        assert "deploy_filter" not in experiment_record(load_experiment("families"))
+
+    def test_a_malformed_pin_names_the_file(self, tmp_path: Path) -> None:
+        from sb3_pm.experiments import load_experiment
+        from sb3_pm.experiments.spec import ExperimentError
+        from sb3_pm.zoo.shipped import resolve_config_path
+
+        path = tmp_path / "e.yml"
+        path.write_text(
+            f"name: e\ngraphs: [paper-50]\nseeds: [0]\nconfig: {resolve_config_path('ippo')}\n"
+            "hyperparams: {deploy_filter: {neglect_bound: -1}}\nvariants: {default: {}}\n"
+        )
+        message = r"e\.yml.*hyperparams\.deploy_filter: neglect_bound must be at least 1"
+        with pytest.raises(ExperimentError, match=message):
+            load_experiment(path)
+
+
+class TestFaults:
+    def test_a_failed_learn_leaves_the_bound_on(self) -> None:
+        team = tiny_team()
+        try:
+            with pytest.raises(InputError):
+                team.learn(10, callback=[None])  # refused before training starts
+            assert team.acting_filter() == TERRITORY_BOUND
+        finally:
+            team.close()
+
+    def test_a_rule_the_learners_cannot_take_leaves_the_previous_one(self) -> None:
+        from sb3_pm.agents.team import IndependentPPO
+
+        team = IndependentPPO(
+            path_graph(10, targets=[0, 9]),
+            n_agents=2,
+            algo="maskable_ppo",
+            env_kwargs={"max_cycles": 20},
+            hyperparams=TINY,
+        )
+        try:
+            with pytest.raises(InputError, match="no DCBF filter to change"):
+                team.deploy_filter = {"neglect_bound": 20}
+            assert team.deploy_filter is None
+            team.learn(10)  # still trains
+        finally:
+            team.close()
+
+    def test_a_bound_trained_in_is_not_replaced_by_a_deploy_filter(self) -> None:
+        team = tiny_team(deploy_filter=None, policy_kwargs={"neglect_bound": 20.0})
+        try:
+            with pytest.raises(InputError, match="trains with a neglect bound"):
+                team.deploy_filter = {"neglect_bound": 30}
+            assert team.acting_filter() == {"neglect_bound": 20.0, "neglect_scope": "known"}
+        finally:
+            team.close()
+
+    def test_an_infinite_bound_is_refused(self) -> None:
+        with pytest.raises(InputError, match="neglect_bound must be finite"):
+            check_deploy_filter({"neglect_bound": float("inf")})
+
+    def test_a_centralized_team_refuses_it_as_an_attribute_too(self) -> None:
+        from sb3_pm.sharing.centralized import CentralizedPPO
+
+        team = CentralizedPPO(
+            path_graph(8, targets=[0, 7]), n_agents=2, env_kwargs={"max_cycles": 20}, hyperparams=TINY
+        )
+        try:
+            with pytest.raises(InputError, match="not available for a CentralizedPPO team"):
+                team.deploy_filter = {"neglect_bound": 20}
+            assert team.deploy_filter is None
+        finally:
+            team.close()
+
+
+def test_a_bound_without_a_scope_keeps_the_teams_scope(saved, tmp_path) -> None:
+    from sb3_pm.cli import main
+
+    out = tmp_path / "e.json"
+    argv = ["evaluate", "--policy", str(saved), "--graph", str(saved / "graph.graphml"), "--agents", "2"]
+    assert main([*argv, "--episodes", "1", "--steps", "20", "--neglect-bound", "12", "--json", str(out)]) == 0
+    config = json.loads(out.read_text())["config"]
+    assert (config["neglect_bound"], config["neglect_scope"]) == (12.0, "territory")
