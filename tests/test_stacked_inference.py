@@ -136,6 +136,28 @@ def test_rule_8_is_counted_per_learner_as_in_the_serial_path() -> None:
     assert sum(c["forced"] for c in counts[0].values()) > 0  # the bound did force moves
 
 
+def test_learners_bounding_their_own_territories_stack_and_count_as_serially() -> None:
+    """The default's deployment on paper-50: one neglect bound, each learner its own territory."""
+    counts, chosen = [], []
+    for stacked in (False, True):
+        team = make_team()
+        team.set_filter(neglect_bound=12, neglect_scope="territory")
+        territories = {team.models[a].policy.dcbf_config.territory for a in team.agents}
+        assert len(territories) == len(team.agents)  # the configs do differ
+        team.stacked_inference = stacked
+        chosen.append(play(team, 60, seed=7))
+        counts.append(
+            {a: {k: int(v) for k, v in team.models[a].policy.filter_counts.items()} for a in team.agents}
+        )
+        if stacked:
+            policies = [team.models[a].policy for a in team.agents]
+            assert StackedInference().problem(policies) is None
+            for observations in walk(team, 3):
+                check_equal(team, observations, policies, StackedInference())
+    assert chosen[0] == chosen[1] and counts[0] == counts[1]
+    assert sum(c["forced"] for c in counts[0].values()) > 0  # the bound did force moves
+
+
 def test_more_agents_than_learners_and_failed_agents_stack_too() -> None:
     team = make_team(n_agents=2)
     stacker = StackedInference()

@@ -69,7 +69,14 @@ _CHECKS = 8
 #: 32,768), so a batched activation is split between threads at no boundary of its own.
 _ONE_THREAD_ELEMENTS = 32_768
 #: Constructor parameters that do not change what a policy computes when it acts.
-_NOT_ARCHITECTURE = ("lr_schedule", "optimizer_class", "optimizer_kwargs", "estimator_lr")
+#: (a learner's own territory is a filter setting that the stacked pass applies per learner)
+_NOT_ARCHITECTURE = (
+    "lr_schedule",
+    "optimizer_class",
+    "optimizer_kwargs",
+    "estimator_lr",
+    "neglect_territory",
+)
 _TRANSCENDENTAL = (nn.ELU, nn.Tanh, nn.Sigmoid, nn.GELU, nn.SiLU, nn.Softplus, nn.Mish, nn.CELU, nn.SELU)
 _EXACT = (nn.ReLU, nn.LeakyReLU, nn.Identity)
 
@@ -125,7 +132,7 @@ def _signature(policy: DCBFActorCriticPolicy) -> tuple[Any, ...]:
     return (
         repr(policy),
         sorted(kept.items(), key=lambda item: item[0]),
-        policy.dcbf_config,
+        _filter_but_territory(policy),
         policy.use_dcbf,
         policy.u_max,
         policy.device,
@@ -198,7 +205,8 @@ class StackedInference:
             if self._stack is not None and not self._rounds_as_serial(self._stack, maps, values):
                 self._problem = "on this machine the stacked pass does not round as the serial one"
                 self._stack = None
-        if self._problem is None and any(p.dcbf_config != policies[0].dcbf_config for p in policies):
+        settings = _filter_but_territory(policies[0])
+        if self._problem is None and any(_filter_but_territory(p) != settings for p in policies):
             return "the policies' DCBF filter settings differ"
         return self._problem
 
@@ -218,7 +226,7 @@ class StackedInference:
         with th.no_grad():
             u_hat = self._uncertainty(stack, pre)
             if values:
-                masks, _ = stack.policies[0].filtered_masks(pre, u_hat, None)
+                masks, _ = _filtered_masks(stack.policies, pre, u_hat, None)
                 stacked, stacked_values = self._heads_given(stack, pre, u_hat)
             else:
                 masks = th.ones((len(stack.policies) * maps, n), dtype=th.bool)
@@ -356,9 +364,8 @@ class StackedInference:
         with th.no_grad():
             pre = first._preprocess(arrays)
             u_hat = self._uncertainty(stack, pre)
-            # The filter has no parameters: one call on all the maps, each row its own.
             given = arrays["action_mask"] if maps is None else None
-            masks, forced = first.filtered_masks(pre, u_hat, given)
+            masks, forced = _filtered_masks(policies, pre, u_hat, given)
             return pre, u_hat, masks, forced
 
     def rollout_heads(
@@ -552,6 +559,39 @@ def _all_dense(policy: DCBFActorCriticPolicy, adjacency: th.Tensor, maps: int = 
         use_dense(adjacency[start : start + maps], extractor.backend)
         for start in range(0, adjacency.shape[0], maps)
     )
+
+
+def _filter_but_territory(policy: Any) -> Any:
+    """The policy's DCBF settings but its territory: learners whose filters differ only in the
+    territory their neglect bound covers still act in one stacked pass (:func:`_filtered_masks`)."""
+    from dataclasses import replace
+
+    config = policy.dcbf_config
+    return replace(config, territory=()) if config.territory else config
+
+
+def _filtered_masks(
+    policies: Sequence[Any], pre: dict[str, th.Tensor], u_hat: th.Tensor, given: th.Tensor | None
+) -> tuple[th.Tensor, th.Tensor | None]:
+    """Every policy's DCBF mask ``(K * B, N)`` bool on its own ``B`` maps, and rule 8's decisions
+    ``(K * B,)`` bool (``None`` when rule 8 is off).
+
+    The filter has no parameters and decides each row alone, so policies with one filter take one
+    call on all the maps; policies whose neglect bounds cover different territories take one call
+    each, on their own rows.
+    """
+    first = policies[0]
+    if all(p.dcbf_config == first.dcbf_config for p in policies):
+        return first.filtered_masks(pre, u_hat, given)  # type: ignore[no-any-return]
+    size = u_hat.shape[0] // len(policies)
+    parts = []
+    for k, policy in enumerate(policies):
+        rows = slice(k * size, (k + 1) * size)
+        own = {key: value[rows] for key, value in pre.items()}
+        parts.append(policy.filtered_masks(own, u_hat[rows], None if given is None else given[rows]))
+    masks = th.cat([mask for mask, _ in parts])
+    forced = None if parts[0][1] is None else th.cat([f for _, f in parts])  # type: ignore[misc]
+    return masks, forced
 
 
 def _groups(stack: _Stack, x: th.Tensor) -> list[slice]:
