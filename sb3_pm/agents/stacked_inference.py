@@ -205,9 +205,10 @@ class StackedInference:
             if self._stack is not None and not self._rounds_as_serial(self._stack, maps, values):
                 self._problem = "on this machine the stacked pass does not round as the serial one"
                 self._stack = None
-        settings = _filter_but_territory(policies[0])
-        if self._problem is None and any(_filter_but_territory(p) != settings for p in policies):
-            return "the policies' DCBF filter settings differ"
+        if self._problem is None:  # DCBF policies only, so each has a filter to compare
+            settings = _filter_but_territory(policies[0])
+            if any(_filter_but_territory(p) != settings for p in policies):
+                return "the policies' DCBF filter settings differ"
         return self._problem
 
     def _rounds_as_serial(self, stack: _Stack, maps: int = 1, values: bool = False) -> bool:
