@@ -334,3 +334,19 @@ def test_a_bound_without_a_scope_keeps_the_teams_scope(saved, tmp_path) -> None:
     assert main([*argv, "--episodes", "1", "--steps", "20", "--neglect-bound", "12", "--json", str(out)]) == 0
     config = json.loads(out.read_text())["config"]
     assert (config["neglect_bound"], config["neglect_scope"]) == (12.0, "territory")
+
+
+def test_a_bound_above_u_max_is_refused_as_it_could_never_bind() -> None:
+    """rule 8 projects at most u_max (100 here), so B = 155 would leave the team as it was."""
+    team = tiny_team(deploy_filter=None)
+    try:
+        with pytest.raises(InputError, match="neglect_bound 155 is above the environment's u_max 100"):
+            team.set_filter(neglect_bound=155.0)
+        assert team.acting_filter() is None
+        team.set_filter(neglect_bound=100.0)  # at the cap it still binds
+    finally:
+        team.close()
+    with pytest.raises(InputError, match="above the environment's u_max 100"):
+        tiny_team(deploy_filter={"neglect_bound": 155})
+    with pytest.raises(InputError, match="above the environment's u_max 100"):
+        tiny_team(deploy_filter=None, policy_kwargs={"neglect_bound": 101})

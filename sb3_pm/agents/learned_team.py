@@ -152,7 +152,7 @@ class LearnedTeam(DeploymentRule, Team):
         """
         from dataclasses import fields, replace
 
-        from sb3_pm.policies.dcbf import DCBFConfig
+        from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap
 
         names = {f.name for f in fields(DCBFConfig)}
         unknown = sorted(set(changes) - names)
@@ -163,6 +163,8 @@ class LearnedTeam(DeploymentRule, Team):
             raise InputError(f"neglect_bound must be a number (or None), got {bound!r}")
         if "territory" in changes:
             raise InputError("territory is set by neglect_scope='territory', from the team's graph")
+        for model in self.model_files().values():  # before any learner changes
+            check_bound_below_cap(bound, getattr(model.policy, "u_max", float("inf")))
         territories = self._territories() if changes.get("neglect_scope") == "territory" else {}
         for name, model in self.model_files().items():
             policy = model.policy

@@ -91,6 +91,19 @@ class DCBFConfig:
             raise InputError(f"territory must list node indices (ints >= 0), got {self.territory!r}")
 
 
+def check_bound_below_cap(bound: float | None, u_max: float) -> None:
+    """Refuse a neglect bound above the uncertainty cap: rule 8 projects at most ``u_max``, so such
+    a bound would hold without the filter doing anything and would (almost) never bind.
+
+    :raises InputError: naming both values.
+    """
+    if bound is not None and bound > u_max:
+        raise InputError(
+            f"neglect_bound {bound:g} is above the environment's u_max {u_max:g}: no target's "
+            "uncertainty can exceed u_max, so the bound would never bind; choose B <= u_max"
+        )
+
+
 #: The DCBF settings a trained team may switch on for deployment (a config's ``deploy_filter``).
 DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope")
 

@@ -38,7 +38,7 @@ from torch import nn
 
 from sb3_pm.envs.mental_map import FEATURES, U
 from sb3_pm.errors import InputError
-from sb3_pm.policies.dcbf import DCBFConfig, dcbf_filter_from_map
+from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap, dcbf_filter_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.sampling import check_temperature, tempered_logits
@@ -262,6 +262,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         nodes_space = self.observation_space["nodes"]  # type: ignore[index]
         self.n_nodes = int(nodes_space.shape[0])
         self.u_max = float(nodes_space.high[:, U].max())
+        check_bound_below_cap(self.dcbf_config.neglect_bound, self.u_max)
         extractor: GATFeaturesExtractor = self.features_extractor  # type: ignore[assignment]
         hidden = extractor.hidden_dim
         self.estimator: StateEstimator | None = None
