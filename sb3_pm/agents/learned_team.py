@@ -13,7 +13,6 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
-import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
@@ -180,7 +179,7 @@ class LearnedTeam(DeploymentRule, Team):
 
     def _territories(self) -> dict[str, tuple[int, ...]]:
         """``{model file: the target nodes of its agent's territory}`` on the team's graph."""
-        from sb3_pm.graphs.territories import territory_nodes
+        from sb3_pm.graphs.territories import agent_territories
 
         files = list(self.model_files())
         if len(files) != self.n_agents:
@@ -193,9 +192,7 @@ class LearnedTeam(DeploymentRule, Team):
                 "neglect_scope='territory' needs the team on one graph, not a graph family: "
                 "deploy it with team.on_graph(graph) first"
             )
-        graph = self.graph
-        owns = territory_nodes(graph.hop_distances, graph.target_indices, self.n_agents, graph.n_nodes)
-        return {name: tuple(int(node) for node in np.flatnonzero(owns[i])) for i, name in enumerate(files)}
+        return dict(zip(files, agent_territories(self.graph, self.n_agents)))
 
     @property
     def deploy_filter(self) -> dict[str, Any] | None:
@@ -210,9 +207,7 @@ class LearnedTeam(DeploymentRule, Team):
 
     @deploy_filter.setter
     def deploy_filter(self, deploy_filter: Mapping[str, Any] | None) -> None:
-        previous = self._deploy_filter
-        self._check_deploy_filter(deploy_filter)  # first: a bad one leaves the team as it was
-        new, self._deploy_filter = self._deploy_filter, previous
+        previous, new = self._deploy_filter, self._checked_deploy_filter(deploy_filter)
         if previous is None and new is not None:
             self._check_training_bound()  # a bound trained in is not a deploy filter's to replace
         self._training_filter()  # the previous rule off (nothing to do without one)
@@ -225,8 +220,8 @@ class LearnedTeam(DeploymentRule, Team):
             self._apply_deploy_filter()
             raise
 
-    def _check_deploy_filter(self, deploy_filter: Mapping[str, Any] | None) -> None:
-        """Keep a checked ``deploy_filter``; the models need not exist yet.
+    def _checked_deploy_filter(self, deploy_filter: Mapping[str, Any] | None) -> dict[str, Any] | None:
+        """``deploy_filter`` checked against this team; the models need not exist yet.
 
         :raises InputError: a malformed one, or scope ``territory`` where no territory can be given.
         """
@@ -244,7 +239,7 @@ class LearnedTeam(DeploymentRule, Team):
                 "deploy_filter scope 'territory' needs one graph: a team trained on the graph family "
                 f"{self.graph.name!r} has no territories"
             )
-        self._deploy_filter = checked
+        return checked
 
     def _check_training_bound(self) -> None:
         """A deploy filter replaces the bound at deployment only, so training must have none.

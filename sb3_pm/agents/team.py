@@ -140,7 +140,7 @@ class IndependentPPO(LearnedTeam):
         _init_models: bool = True,
     ) -> None:
         self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs, deploy_temperature)
-        self._check_deploy_filter(deploy_filter)
+        self._deploy_filter = self._checked_deploy_filter(deploy_filter)
         self._stacker = PrunedInference()  # the stacked acting pass, pruned to the allowed nodes
         self.verbose = verbose
         self.device = device

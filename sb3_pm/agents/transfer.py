@@ -92,7 +92,7 @@ def retarget_territories(policies: dict[str, Any], graph: GraphSpec) -> None:
     """
     from dataclasses import replace
 
-    from sb3_pm.graphs.territories import territory_nodes
+    from sb3_pm.graphs.territories import agent_territories
 
     def scoped(policy: Any) -> bool:
         config = getattr(policy, "dcbf_config", None)
@@ -100,10 +100,8 @@ def retarget_territories(policies: dict[str, Any], graph: GraphSpec) -> None:
 
     if not any(scoped(policy) for policy in policies.values()):
         return
-    owns = territory_nodes(graph.hop_distances, graph.target_indices, len(policies), graph.n_nodes)
-    for i, policy in enumerate(policies.values()):
+    for policy, territory in zip(policies.values(), agent_territories(graph, len(policies))):
         if scoped(policy):
-            territory = tuple(int(node) for node in np.flatnonzero(owns[i]))
             policy.dcbf_config = replace(policy.dcbf_config, territory=territory)
 
 

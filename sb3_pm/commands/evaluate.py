@@ -253,6 +253,7 @@ def run(args: argparse.Namespace) -> int:
     apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
+    acting_filter = team.acting_filter() if hasattr(team, "acting_filter") else None  # after the flags
     trained_agents = getattr(team, "n_agents", None)
     if trained_agents is not None and trained_agents != args.agents:
         if not hasattr(team, "learner_for"):
@@ -265,8 +266,7 @@ def run(args: argparse.Namespace) -> int:
             f"learner agent_(i mod {trained_agents})",
             file=sys.stderr,
         )
-        bound = team.acting_filter() if hasattr(team, "acting_filter") else None
-        if bound is not None and bound["neglect_scope"] == "territory":
+        if acting_filter is not None and acting_filter["neglect_scope"] == "territory":
             print(
                 f"its territory bound keeps the {trained_agents}-way split: "
                 + (
@@ -279,7 +279,6 @@ def run(args: argparse.Namespace) -> int:
     env_kwargs = {**team_env_kwargs(team), **failure_kwargs(args)}
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     deterministic = acting_rule(args)
-    acting_filter = team.acting_filter() if hasattr(team, "acting_filter") else None
     if args.neglect_bound is None and acting_filter is not None and hasattr(team, "set_filter"):
         print(
             f"the team acts under its deploy_filter: neglect bound {acting_filter['neglect_bound']:g}, scope "

@@ -29,7 +29,7 @@ import math
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from sb3_pm.graphs.spec import GraphError
+from sb3_pm.graphs.spec import GraphError, GraphSpec
 
 _MAX_ROUNDS = 50
 _FORBIDDEN = 1e9
@@ -79,6 +79,13 @@ def territory_nodes(
     owns = np.zeros((n_agents, n_nodes), dtype=bool)
     owns[owner, np.asarray(target_indices, dtype=np.int64)] = True
     return owns
+
+
+def agent_territories(graph: GraphSpec, n_agents: int) -> list[tuple[int, ...]]:
+    """Each agent's territory on ``graph`` as its target nodes in increasing order: agent ``i``'s
+    at index ``i`` (what the neglect bound's scope ``territory`` takes as a policy setting)."""
+    owns = territory_nodes(graph.hop_distances, graph.target_indices, n_agents, graph.n_nodes)
+    return [tuple(int(node) for node in np.flatnonzero(row)) for row in owns]
 
 
 def _farthest_points(distances: np.ndarray, k: int) -> list[int]:

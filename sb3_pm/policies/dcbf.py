@@ -37,6 +37,7 @@ guard makes every row non-empty even for malformed input (falls back to ``R``, t
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -133,15 +134,21 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
 
 
 def territory_mask(territory: tuple[int, ...], batch: int, n_nodes: int, device: th.device) -> th.Tensor:
-    """``(batch, n_nodes)`` bool, True on the territory's nodes (rule 8's scope ``"territory"``)."""
+    """``(batch, n_nodes)`` bool, True on the territory's nodes (rule 8's scope ``"territory"``): a
+    read-only view of one cached ``(n_nodes,)`` row, since the filter runs at every step."""
     if territory and max(territory) >= n_nodes:
         raise InputError(
             f"the neglect bound's territory names node {max(territory)}, but the graph has {n_nodes} nodes"
         )
-    mask = th.zeros((batch, n_nodes), dtype=th.bool, device=device)
-    if territory:
-        mask[:, list(territory)] = True
-    return mask
+    return _territory_row(territory, n_nodes, device).expand(batch, n_nodes)
+
+
+@functools.lru_cache(maxsize=64)
+def _territory_row(territory: tuple[int, ...], n_nodes: int, device: th.device) -> th.Tensor:
+    """``(n_nodes,)`` bool, True on the territory's nodes (a handful of learners and graphs per run)."""
+    row = th.zeros(n_nodes, dtype=th.bool, device=device)
+    row[list(territory)] = True
+    return row
 
 
 def _non_empty(mask: th.Tensor, fallback: th.Tensor) -> th.Tensor:
