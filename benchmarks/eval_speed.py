@@ -4,6 +4,7 @@
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
                                     [--arithmetic default csr allowed fast]
                                     [--inference serial full stacked] [--team DIR]
+                                    [--devices cpu cuda]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
@@ -20,7 +21,9 @@ pruned pass decided. An untrained team's logits are all within about 1e-4 of eac
 pruned pass's margin, so its steps fall back to the full pass: ``--team DIR`` times a trained team
 instead (on each graph of ``--graphs``; one trained elsewhere is deployed there if it transfers,
 with its own team size). Then renders and writes a GIF
-of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). The load
+of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). ``--devices`` runs
+the team's forward passes on each torch device listed (``cpu``, ``cuda``); the environment and the
+baselines stay on the CPU. The load
 average is printed: on a shared CPU the figures are lower.
 
 Measured on the 2-core development machine, idle, with torch 2.13.0 (see the README's Speed
@@ -30,6 +33,7 @@ section for the figures and the command).
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import tempfile
 import time
@@ -48,6 +52,7 @@ def evaluation_speed(
     arithmetic: str = "default",
     inference: str = "stacked",
     team_path: str | None = None,
+    device: str = "cpu",
 ) -> tuple[float, float | None]:
     """Episodes per second of a learned team on ``graph`` with ``threads`` torch threads (the
     median of ``repeats`` timed runs): a 4-agent team built from ``config``, or the saved team
@@ -61,11 +66,12 @@ def evaluation_speed(
     if team_path is not None:
         from sb3_pm.evaluation.teams import load_trained_team
 
-        team = load_trained_team(team_path, graph=graph)
+        team = load_trained_team(team_path, graph=graph, device=device)
         env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}  # type: ignore[attr-defined]
     else:
         overrides = {"policy_kwargs": ARITHMETIC[arithmetic]}
-        team = IndependentPPO.from_config(load_config(config, graph, overrides=overrides), graph, seed=0)
+        entry = load_config(config, graph, overrides=overrides)
+        team = IndependentPPO.from_config(entry, graph, seed=0, device=device)
         env_kwargs = {}
     team.stacked_inference = inference != "serial"  # type: ignore[attr-defined]
     team.pruned_inference = inference == "stacked"  # type: ignore[attr-defined]
@@ -124,38 +130,43 @@ def main() -> None:
         "--inference", nargs="+", choices=["serial", "full", "stacked"], default=["serial", "full", "stacked"]
     )
     parser.add_argument("--team", default=None, help="time this saved team instead of an untrained one")
+    parser.add_argument("--devices", nargs="+", default=["cpu"], help="torch devices (default cpu)")
     args = parser.parse_args()
     import torch
+
+    if "cuda" in args.devices and not torch.cuda.is_available():
+        parser.error("--devices cuda: torch sees no CUDA device here")
 
     print(f"torch {torch.__version__}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
     team = f"the saved team {args.team}" if args.team else f"an untrained 4-agent team ({args.config})"
     print(f"{team}, {args.episodes} episodes of {args.steps} steps per timed run")
     print(
-        "| graph | arithmetic | inference | torch threads | episodes/s | seconds per episode | × serial "
-        "| steps decided pruned |"
+        "| graph | device | arithmetic | inference | torch threads | episodes/s | seconds per episode "
+        "| × serial | steps decided pruned |"
     )
-    print("|---|---|---|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---|---:|---:|---:|---:|---:|")
     for graph in args.graphs:
-        for arithmetic in args.arithmetic:
-            for threads in args.threads:
-                serial = None
-                for inference in args.inference:
-                    rate, share = evaluation_speed(
-                        graph,
-                        args.config,
-                        args.episodes,
-                        args.steps,
-                        threads,
-                        args.repeats,
-                        arithmetic,
-                        inference,
-                        args.team,
-                    )
-                    serial = rate if inference == "serial" else serial
-                    ratio = f"{rate / serial:.2f}" if serial else "—"
-                    pruned = f"{share:.1%}" if share is not None else "—"
-                    row = f"| {graph} | {arithmetic} | {inference} | {threads} | {rate:.3f} | {1 / rate:.2f}"
-                    print(f"{row} | {ratio} | {pruned} |", flush=True)
+        for device, arithmetic, threads in itertools.product(args.devices, args.arithmetic, args.threads):
+            serial = None
+            for inference in args.inference:
+                rate, share = evaluation_speed(
+                    graph,
+                    args.config,
+                    args.episodes,
+                    args.steps,
+                    threads,
+                    args.repeats,
+                    arithmetic,
+                    inference,
+                    args.team,
+                    device,
+                )
+                serial = rate if inference == "serial" else serial
+                ratio = f"{rate / serial:.2f}" if serial else "—"
+                pruned = f"{share:.1%}" if share is not None else "—"
+                row = f"| {graph} | {device} | {arithmetic} | {inference} | {threads} | {rate:.3f}"
+                row += f" | {1 / rate:.2f}"
+                print(f"{row} | {ratio} | {pruned} |", flush=True)
     if args.gif_frames > 0:
         draw, write = gif_speed(args.graphs[0], args.gif_frames)
         print(

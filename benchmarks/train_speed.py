@@ -4,6 +4,7 @@
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
                                      [--updates side-by-side serial] [--rollouts stacked serial]
                                      [--arithmetic default csr allowed fast fast-sparse]
+                                     [--devices cpu cuda]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -31,6 +32,12 @@ allowed``: the actor head on the allowed nodes only); ``fast`` (both); ``fast-sp
 and ``gat_backend: sparse``, so that every minibatch runs the CSR kernel). All compute the same
 function, but rounding differs and training turns it into different teams, so neither option is
 the default (docs/RESULTS.md, "Faster arithmetic"). Listing several gives the ratios in one run.
+
+``--devices`` trains the team's learners on each torch device listed, for the ratios in one run:
+``cpu``, ``cuda``, or ``cpu+cuda`` (rollouts on the CPU, each update phase on the GPU:
+``IndependentPPO.update_device``). CartPole always runs on the CPU, as SB3 recommends for
+MlpPolicy. With ``cuda`` the learners' update phases run one after another (side-by-side threads
+are for CPU learners), so ``--updates`` changes only the other rows.
 
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
@@ -117,6 +124,7 @@ def team_speed(
     concurrent: bool = True,
     arithmetic: str = "default",
     rollouts: str = "stacked",
+    device: str = "cpu",
 ) -> float:
     """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
@@ -137,7 +145,9 @@ def team_speed(
     else:
         kwargs = options["hyperparams"].get("policy_kwargs", {})
         options["hyperparams"]["policy_kwargs"] = {**kwargs, **ARITHMETIC[arithmetic]}
-    team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, **options)
+    rollout_device, _, update_device = device.partition("+")
+    team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, device=rollout_device, **options)
+    team.update_device = update_device or None
     team.batched_rollouts = rollouts == "stacked"
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
     team.learn(rollout)  # warm-up: one rollout and one train() per learner
@@ -205,7 +215,17 @@ def main() -> None:
         default=["default"],
         help="the policy's kernels (default: default; give several for before/after ratios)",
     )
+    parser.add_argument(
+        "--devices",
+        nargs="+",
+        default=["cpu"],
+        choices=["cpu", "cuda", "cpu+cuda"],
+        help="torch devices of the team's learners; cpu+cuda: rollouts on the CPU, updates on the GPU "
+        "(default cpu; give several for the ratios)",
+    )
     args = parser.parse_args()
+    if any("cuda" in device for device in args.devices) and not th.cuda.is_available():
+        parser.error("--devices cuda: torch sees no CUDA device here")
     th.set_num_threads(args.threads)
     print(
         f"torch threads: {args.threads}; team: 4 agents, config {args.config}"
@@ -217,7 +237,8 @@ def main() -> None:
     cartpole = cartpole_speed(args.cartpole_timesteps)
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<62} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
-        for mode, rollouts, arithmetic in itertools.product(args.updates, args.rollouts, args.arithmetic):
+        combinations = itertools.product(args.devices, args.updates, args.rollouts, args.arithmetic)
+        for device, mode, rollouts, arithmetic in combinations:
             runs = [
                 team_speed(
                     graph,
@@ -230,13 +251,15 @@ def main() -> None:
                     concurrent=mode == "side-by-side",
                     arithmetic=arithmetic,
                     rollouts=rollouts,
+                    device=device,
                 )
                 for _ in range(args.repeats)
             ]
             speed = statistics.median(runs)
             paper = 4 * 50_000 / speed
             spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
-            label = f"team {graph} ({args.algo or 'config'}, {mode}, {rollouts}, {arithmetic})"
+            where = "" if args.devices == ["cpu"] else f", {device}"
+            label = f"team {graph} ({args.algo or 'config'}, {mode}, {rollouts}, {arithmetic}{where})"
             print(
                 f"{label:<62} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
                 f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"

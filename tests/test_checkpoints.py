@@ -176,6 +176,8 @@ def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys) -> None:
     assert "drop --seed" in capsys.readouterr().err
     assert main(["train", "--resume", str(out), "--threads", "2", "--checkpoint-every", "3"]) == 2
     assert "drop --checkpoint-every, --threads" in capsys.readouterr().err
+    assert main(["train", "--resume", str(out), "--device", "cuda", "--update-device", "cpu:0"]) == 2
+    assert "drop --device, --update-device" in capsys.readouterr().err
     assert main(["train", "--resume", str(tmp)]) == 2
     assert "not a run folder" in capsys.readouterr().err
 

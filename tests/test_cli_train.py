@@ -196,3 +196,22 @@ def test_train_prints_and_records_staggered_learning_rates(tiny_train, capsys) -
         assert [team.models[a].lr_schedule(1.0) for a in team.agents] == [2e-3, 5e-4]
     finally:
         team.close()
+
+
+def test_update_device_is_checked_first_and_recorded(tiny_train, capsys, monkeypatch) -> None:
+    config, graph, out = tiny_train
+    argv = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "32", "--no-progress"]
+    monkeypatch.setattr(th.cuda, "is_available", lambda: False)
+    assert main([*argv, "--out", str(out), "--update-device", "cuda"]) == 2
+    error = capsys.readouterr().err
+    assert "torch sees no CUDA device" in error and len(error.strip().splitlines()) == 1
+    assert not out.exists()  # refused before the run folder was made
+
+    assert main([*argv, "--out", str(out), "--update-device", "cpu:0"]) == 2  # the config's maskable_ppo
+    assert "update_device needs dcbf_ppo learners; this team has MaskablePPO" in capsys.readouterr().err
+
+    # cpu:0 is another device object than cpu: the update moves there and back (same arithmetic)
+    config.write_text(config.read_text().replace("algo: maskable_ppo", "algo: dcbf_ppo"))
+    assert main([*argv, "--out", str(out), "--update-device", "cpu:0"]) == 0
+    assert yaml.safe_load((out / "args.yml").read_text())["update_device"] == "cpu:0"
+    assert "--update-device cpu:0" in (out / "command.txt").read_text()

@@ -212,6 +212,27 @@ class IndependentPPO(LearnedTeam):
 
     # ------------------------------------------------------------- training
     @property
+    def update_device(self) -> th.device | None:
+        """Torch device of the learners' update phases (``train()``) when it is not their own
+        ``device``, or ``None``: ``"cuda"`` with ``device="cpu"`` collects the rollouts on the CPU
+        and updates on the GPU (:mod:`sb3_pm.ppo_dcbf.update_device`). Not saved with the team."""
+        devices = {getattr(model, "update_device", None) for model in self.models.values()}
+        return devices.pop() if len(devices) == 1 else None
+
+    @update_device.setter
+    def update_device(self, device: str | th.device | None) -> None:
+        from sb3_pm.ppo_dcbf.update_device import check_update_device
+
+        parsed = check_update_device(device)
+        learners = self.models.values()
+        others = sorted({type(model).__name__ for model in learners if not hasattr(model, "update_device")})
+        if parsed is not None and others:
+            raise InputError(f"update_device needs dcbf_ppo learners; this team has {', '.join(others)}")
+        for model in learners:
+            if hasattr(model, "update_device"):  # DCBFPPO learners
+                model.update_device = parsed
+
+    @property
     def num_timesteps(self) -> int:
         """Timesteps taken by each learner (they are equal: the learners step together)."""
         return int(self.models[self.agents[0]].num_timesteps)
@@ -274,8 +295,14 @@ class IndependentPPO(LearnedTeam):
         self._training_filter()  # the deploy filter is for acting: off while the learners train
         try:
             return self._learn_unfiltered(
-                total_timesteps, callback, progress_bar, reset_num_timesteps, log_interval, tb_log_name,
-                checkpoints, on_interrupt,
+                total_timesteps,
+                callback,
+                progress_bar,
+                reset_num_timesteps,
+                log_interval,
+                tb_log_name,
+                checkpoints,
+                on_interrupt,
             )
         finally:
             self._apply_deploy_filter()  # on again, whether training ended or failed

@@ -7,7 +7,7 @@ from typing import Any
 
 
 def add_compute_options(parser: argparse.ArgumentParser, training: bool = False) -> None:
-    """``--device`` and ``--threads``.
+    """``--device`` and ``--threads`` (and, for training, ``--update-device``).
 
     One torch thread is the default everywhere: training is then bit-for-bit reproducible from its
     seed, and a learned team's small per-step forward passes gain nothing from intra-op threads
@@ -17,6 +17,14 @@ def add_compute_options(parser: argparse.ArgumentParser, training: bool = False)
     parser.add_argument(
         "--device", default="cpu", help="torch device of learned teams: cpu, cuda, auto (default cpu)"
     )
+    if training:
+        parser.add_argument(
+            "--update-device",
+            default=None,
+            metavar="DEVICE",
+            help="torch device of the learners' update phases alone, e.g. cuda with --device cpu: "
+            "rollouts on the CPU, updates on the GPU (default: --device)",
+        )
     reason = (
         "training is then bit-for-bit reproducible from --seed; with more threads some torch kernels "
         "reduce in a varying order"

@@ -42,6 +42,7 @@ from sb3_pm.commands.run_folder import (
     lock_owner,
     locked_run_folder,
 )
+from sb3_pm.errors import InputError
 from sb3_pm.files import write_atomic
 from sb3_pm.machine import write_machine_record
 
@@ -205,6 +206,11 @@ def run(args: argparse.Namespace) -> int:
     except TypeError as error:  # an argument the algorithm or the policy does not take
         raise UsageError(f"{config.source}: {error}") from None
     try:
+        team.update_device = args.update_device
+    except InputError as error:
+        team.close()
+        raise UsageError(str(error)) from None
+    try:
         with locked_run_folder(out, args.overwrite):
             _write_records(args, config, out)
             size = (
@@ -242,12 +248,14 @@ def resume(args: argparse.Namespace) -> int:
         given.append("--overwrite")
     if args.checkpoint_every is not None:
         given.append("--checkpoint-every")
-    if args.device != "cpu" or args.threads != 1:  # the run's own are used: the same arithmetic
-        given += [
-            flag
-            for flag, changed in (("--device", args.device != "cpu"), ("--threads", args.threads != 1))
-            if changed
-        ]
+    # the run's own are used: the same arithmetic
+    for flag, changed in (
+        ("--device", args.device != "cpu"),
+        ("--update-device", args.update_device is not None),
+        ("--threads", args.threads != 1),
+    ):
+        if changed:
+            given.append(flag)
     if given:
         raise UsageError(
             f"--resume continues the run recorded in {args.resume}/args.yml; drop {', '.join(given)}"
@@ -277,6 +285,11 @@ def resume(args: argparse.Namespace) -> int:
         )
     except CheckpointError as error:
         raise UsageError(f"cannot resume {out}: {error}; start again with --overwrite") from None
+    try:
+        team.update_device = recorded.get("update_device")
+    except InputError as error:
+        team.close()
+        raise UsageError(f"cannot resume {out} as recorded: {error}") from None
     every = int(recorded.get("checkpoint_every", DEFAULT_CHECKPOINT_EVERY))
     try:
         with locked_run_folder(out, overwrite=False, resume=True):
@@ -413,6 +426,8 @@ def _argv_from(args: argparse.Namespace, out: Path) -> list[str]:
         argv += ["--env-kwargs", *args.env_kwargs]
     if args.device != "cpu":
         argv += ["--device", args.device]
+    if args.update_device is not None:
+        argv += ["--update-device", args.update_device]
     if args.threads != 1:
         argv += ["--threads", str(args.threads)]
     if args.checkpoint_every != DEFAULT_CHECKPOINT_EVERY:

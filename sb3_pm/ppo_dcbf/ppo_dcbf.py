@@ -13,6 +13,8 @@
   reachable set is read from the observation's ``action_mask`` entry.
 * its rollout buffer is an :class:`~sb3_pm.ppo_dcbf.buffers.OrderedRolloutBuffer`, which can draw
   its minibatch orders before the update phase (so team learners can update side by side);
+* with ``update_device``, ``train()`` runs on another device than the rollouts
+  (:mod:`sb3_pm.ppo_dcbf.update_device`: rollouts on the CPU, updates on a GPU);
 * ``learn`` attaches :class:`~sb3_pm.callbacks.EstimatorCallback` when the policy has an
   estimator, and ``_get_torch_save_params`` adds the estimator's optimizer so that save/load
   round-trips it (the estimator's weights are part of the policy's state dict).
@@ -48,6 +50,7 @@ from sb3_pm.errors import InputError
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
 from sb3_pm.ppo_dcbf.buffers import OrderedRolloutBuffer
 from sb3_pm.ppo_dcbf.policies import DCBFPolicy
+from sb3_pm.ppo_dcbf.update_device import check_update_device, on_update_device
 
 SelfDCBFPPO = TypeVar("SelfDCBFPPO", bound="DCBFPPO")
 
@@ -73,6 +76,9 @@ class DCBFPPO(MaskablePPO):
     :param ent_coef_final: with a number, the entropy coefficient decays linearly over training
         from ``ent_coef`` (at the first update) to this value (at the end of ``learn()``), as
         ``learning_rate: lin_...`` does for the step size; ``None`` (default) keeps ``ent_coef``.
+    :param update_device: torch device of the update phase (``train()``) alone, e.g. ``"cuda"``
+        for a learner whose ``device`` is the CPU; ``None`` (default) updates on ``device``. Not
+        saved with the model (like ``device``): set it again after loading.
 
     Policy options (ablation flags and the filter's settings) are policy kwargs, see
     :class:`~sb3_pm.policies.DCBFActorCriticPolicy`.
@@ -86,6 +92,7 @@ class DCBFPPO(MaskablePPO):
         *args: Any,
         estimator_update_at: str = "after_train",
         ent_coef_final: float | None = None,
+        update_device: str | th.device | None = None,
         **kwargs: Any,
     ) -> None:
         if estimator_update_at not in UPDATE_AT:
@@ -98,6 +105,7 @@ class DCBFPPO(MaskablePPO):
         ):
             raise InputError(f"ent_coef_final must be a non-negative number or None, got {ent_coef_final!r}")
         self.estimator_update_at = estimator_update_at
+        self.update_device = check_update_device(update_device)
         self.ent_coef_final = None if ent_coef_final is None else float(ent_coef_final)
         #: where a rollout step's logits, values and masks come from instead of this learner's own
         #: forward pass (:meth:`collect_rollouts`): a callable given the learner's last observation
@@ -116,7 +124,8 @@ class DCBFPPO(MaskablePPO):
             # _current_progress_remaining: 1 at the start of learn(), 0 at its end (SB3's schedules).
             remaining = float(self._current_progress_remaining)
             self.ent_coef = self.ent_coef_final + (self.ent_coef_start - self.ent_coef_final) * remaining
-        super().train()
+        with on_update_device(self, self.update_device):
+            super().train()
 
     def _setup_model(self) -> None:
         if self.rollout_buffer_class in (None, MaskableDictRolloutBuffer):  # also a zip saved before
@@ -126,7 +135,8 @@ class DCBFPPO(MaskablePPO):
             raise InputError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "rollout_heads_source"]
+        # update_device is this machine's, as device is: a model saved beside a GPU loads without one
+        return [*super()._excluded_save_params(), "rollout_heads_source", "update_device"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
