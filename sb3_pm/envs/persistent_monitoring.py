@@ -52,6 +52,14 @@ target_knowledge (``"discovered"``)
     ``"discovered"``: a map flags a node as a target once its agent observes it, every episode;
     ``"known"``: every map starts each episode with the true target flags (a mission that knows its
     sites). Uncertainties and ages stay what the agent itself has observed.
+territory_input (``False``)
+    ``True`` adds a sixth node feature to map observations: 1 on the targets of the agent's own
+    territory (the split of :mod:`sb3_pm.graphs.territories`, which every agent computes alike
+    from the site plan and its own index, as the ``territory`` reward and the ``territory_patrol``
+    baseline do), 0 elsewhere. Since the split is computed from the graph and its targets, it
+    needs ``graph_knowledge`` and ``target_knowledge`` ``"known"``, one graph (not a family) and
+    ``observation="map"``. A team deployed on another graph or with another team size sees that
+    problem's split.
 illegal_action (``"raise"``)
     ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
     and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``
@@ -154,6 +162,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         observation: str = "map",
         graph_knowledge: str = "discovered",
         target_knowledge: str = "discovered",
+        territory_input: bool = False,
         illegal_action: str = "raise",
         shared_map: bool = False,
         failures: Mapping[str, int] | None = None,
@@ -181,6 +190,23 @@ class PersistentMonitoringEnv(ParallelEnv):
                     f"{n_agents} agents do not fit the graph family {self.family.name!r}: "
                     f"its smallest graph has {self.family.min_nodes} nodes"
                 )
+        if territory_input is not False and territory_input is not True:
+            raise InputError(f"territory_input must be true or false, got {territory_input!r}")
+        if territory_input:
+            if self.family is not None:
+                raise InputError(
+                    "territory_input needs one graph: a graph family's territories change every episode"
+                )
+            if observation != "map":
+                raise InputError(
+                    "territory_input is a node feature of map observations: it needs observation='map'"
+                )
+            if graph_knowledge != "known" or target_knowledge != "known":
+                raise InputError(
+                    "territory_input needs graph_knowledge and target_knowledge 'known': an agent computes "
+                    f"its territory from the site plan (got {graph_knowledge!r} and {target_knowledge!r})"
+                )
+        self.territory_input = bool(territory_input)
         assert isinstance(problem, GraphSpec)
         self.graph: GraphSpec = problem
         if max_cycles < 1:
@@ -259,10 +285,17 @@ class PersistentMonitoringEnv(ParallelEnv):
             self.n_agents, graph.adjacency, self.graph_knowledge, self.target_knowledge, graph.targets
         )
         self.maps.track_uncertainty_sum = "change" in self.reward_weights
-        #: ``(n_agents, N)`` bool, the targets of each agent's territory (``territory`` reward only).
+        #: ``(n_agents, N)`` bool, the targets of each agent's territory (``territory`` reward or
+        #: ``territory_input`` only).
         self._territory = (
             territory_nodes(hops, graph.target_indices, self.n_agents, graph.n_nodes)
-            if "territory" in self.reward_weights
+            if "territory" in self.reward_weights or self.territory_input
+            else None
+        )
+        #: ``(n_agents, N, 1)`` float32, the ``territory_input`` feature column (``None`` without it).
+        self._territory_column = (
+            self._territory[:, :, None].astype(np.float32)
+            if self.territory_input and self._territory is not None
             else None
         )
         self.metrics = EpisodeMetrics(graph.target_indices, self.u_max, self.max_cycles, self.n_agents)
@@ -285,6 +318,8 @@ class PersistentMonitoringEnv(ParallelEnv):
             self._active = np.ones(self.n_agents, dtype=bool)
         if "_territory" not in state:  # written before the territory reward existed
             self._territory, self._rows = None, np.arange(self.n_agents)
+        if "territory_input" not in state:  # written before the territory input existed
+            self.territory_input, self._territory_column = False, None
         if "target_knowledge" not in state:  # written before known targets existed
             self.target_knowledge = "discovered"
             self.maps.target_knowledge, self.maps._known_targets = "discovered", None
@@ -314,7 +349,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         n = self.space_nodes
         mask = spaces.Box(0, 1, shape=(n,), dtype=np.int8)
         if self.observation_mode == "map":
-            high = np.ones((n, len(FEATURES)), dtype=np.float32)
+            # territory_input appends one 0/1 column after FEATURES
+            high = np.ones((n, len(FEATURES) + int(self.territory_input)), dtype=np.float32)
             high[:, FEATURES.index("u")] = self.u_max
             high[:, FEATURES.index("age")] = self.max_cycles
             return spaces.Dict(
@@ -544,6 +580,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         masks = self._reachable_i8[positions]  # fresh (n_agents, N); rows handed out as views
         if self.observation_mode == "map":
             nodes = self.maps.features  # a fresh array; rows handed out as views
+            if self._territory_column is not None:
+                nodes = np.concatenate((nodes, self._territory_column), axis=-1)
             dwell = self._dwell.astype(np.float32)[:, None]
             adjacency: Sequence[np.ndarray] | np.ndarray
             if self.space_nodes > self.core.n_nodes:

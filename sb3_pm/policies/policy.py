@@ -36,7 +36,7 @@ from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_pm.envs.mental_map import FEATURES, U
+from sb3_pm.envs.mental_map import U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap, dcbf_filter_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
@@ -267,8 +267,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         hidden = extractor.hidden_dim
         self.estimator: StateEstimator | None = None
         if self.use_estimator:
+            # every node column of the map, FEATURES and any the env appends (territory_input)
             self.estimator = StateEstimator(
-                len(FEATURES), self.u_max, extractor.inv_high, self.estimator_hidden
+                int(extractor.inv_high.shape[-1]), self.u_max, extractor.inv_high, self.estimator_hidden
             )
         u_dim = 1 if self.use_estimator else 0
         if isinstance(self.net_arch, dict):
