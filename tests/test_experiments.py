@@ -257,6 +257,38 @@ def test_a_cell_stopped_mid_training_resumes_from_its_checkpoint(
                 assert th.equal(x, y)
 
 
+def test_update_device_reaches_every_learned_cell(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from sb3_pm.ppo_dcbf import update_device as update_device_module
+
+    experiment = load_tiny(tmp_path)
+    plain = reproduce(experiment, tmp_path / "plain", n_jobs=1, progress=False)
+    moves: list[str] = []
+    move = update_device_module._move
+
+    def recorded(model, device):
+        moves.append(str(device))
+        move(model, device)
+
+    monkeypatch.setattr(update_device_module, "_move", recorded)
+    # cpu:0 is another device object than cpu: each update moves there and back, same arithmetic
+    moved = reproduce(experiment, tmp_path / "moved", n_jobs=1, progress=False, update_device="cpu:0")
+    assert moved.table == plain.table
+    # 2 seeds x 2 learners x 2 updates (64 steps of 32), each moved there and back
+    assert moves.count("cpu:0") == moves.count("cpu") == 8
+    assert [c.update_device for c in plan_cells(experiment, tmp_path, update_device="cpu:0")] == ["cpu:0"] * 4
+
+
+def test_reproduce_refuses_an_update_device_it_lacks(tmp_path: Path, capsys, monkeypatch) -> None:
+    import torch
+
+    path = tiny_experiment(tmp_path)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    argv = ["reproduce", str(path), "--out", str(tmp_path / "o"), "--update-device", "cuda"]
+    assert main([*argv, "--graphs", str(tmp_path / "tiny.graphml")]) == 2
+    assert "torch sees no CUDA device" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_ray_backend_matches_local(tmp_path: Path) -> None:
     experiment = load_tiny(tmp_path)
     local = reproduce(experiment, tmp_path / "local", backend="local", n_jobs=1, progress=False)

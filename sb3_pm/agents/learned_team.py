@@ -293,6 +293,27 @@ class LearnedTeam(DeploymentRule, Team):
         """``{file name: model}``: what :meth:`save` writes beside the manifest."""
         raise NotImplementedError
 
+    @property
+    def update_device(self) -> th.device | None:
+        """Torch device of the learners' update phases (``train()``) when it is not their own
+        ``device``, or ``None``: ``"cuda"`` with ``device="cpu"`` collects the rollouts on the CPU
+        and updates on the GPU (:mod:`sb3_pm.ppo_dcbf.update_device`). Not saved with the team."""
+        devices = {getattr(model, "update_device", None) for model in self.model_files().values()}
+        return devices.pop() if len(devices) == 1 else None
+
+    @update_device.setter
+    def update_device(self, device: str | th.device | None) -> None:
+        from sb3_pm.ppo_dcbf.update_device import check_update_device
+
+        parsed = check_update_device(device)
+        learners = self.model_files().values()
+        others = sorted({type(model).__name__ for model in learners if not hasattr(model, "update_device")})
+        if parsed is not None and others:
+            raise InputError(f"update_device needs dcbf_ppo learners; this team has {', '.join(others)}")
+        for model in learners:
+            if hasattr(model, "update_device"):  # DCBFPPO learners
+                model.update_device = parsed
+
     def manifest(self) -> dict[str, Any]:
         """What :meth:`save` writes to ``manifest.json``."""
         return team_manifest(self, self.MANIFEST_FORMAT)

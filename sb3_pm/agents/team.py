@@ -212,27 +212,6 @@ class IndependentPPO(LearnedTeam):
 
     # ------------------------------------------------------------- training
     @property
-    def update_device(self) -> th.device | None:
-        """Torch device of the learners' update phases (``train()``) when it is not their own
-        ``device``, or ``None``: ``"cuda"`` with ``device="cpu"`` collects the rollouts on the CPU
-        and updates on the GPU (:mod:`sb3_pm.ppo_dcbf.update_device`). Not saved with the team."""
-        devices = {getattr(model, "update_device", None) for model in self.models.values()}
-        return devices.pop() if len(devices) == 1 else None
-
-    @update_device.setter
-    def update_device(self, device: str | th.device | None) -> None:
-        from sb3_pm.ppo_dcbf.update_device import check_update_device
-
-        parsed = check_update_device(device)
-        learners = self.models.values()
-        others = sorted({type(model).__name__ for model in learners if not hasattr(model, "update_device")})
-        if parsed is not None and others:
-            raise InputError(f"update_device needs dcbf_ppo learners; this team has {', '.join(others)}")
-        for model in learners:
-            if hasattr(model, "update_device"):  # DCBFPPO learners
-                model.update_device = parsed
-
-    @property
     def num_timesteps(self) -> int:
         """Timesteps taken by each learner (they are equal: the learners step together)."""
         return int(self.models[self.agents[0]].num_timesteps)

@@ -51,6 +51,13 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--device", default="cpu", help="torch device of the learned teams: cpu, cuda, auto (default cpu)"
     )
+    parser.add_argument(
+        "--update-device",
+        default=None,
+        metavar="DEVICE",
+        help="torch device of the learned teams' update phases alone, e.g. cuda with --device cpu: "
+        "rollouts on the CPU, updates on the GPU (default: --device)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -118,6 +125,10 @@ def run(args: argparse.Namespace) -> int:
         resolve_graph(graph)  # every graph checked before hours of training start
     if args.jobs is not None and args.jobs < 1:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.update_device is not None:  # before hours of training, not in the first cell
+        from sb3_pm.ppo_dcbf.update_device import check_update_device
+
+        check_update_device(args.update_device)
     if args.ray_address and args.backend != "ray":
         raise UsageError("--ray-address needs --backend ray")
     if args.backend == "ray":
@@ -148,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         command=getattr(args, "command_line", None),
         device=args.device,
+        update_device=args.update_device,
     )
     from sb3_pm.evaluation import markdown_table
 

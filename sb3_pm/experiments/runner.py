@@ -74,6 +74,9 @@ class Cell:
     #: torch device of a learned team; not part of the experiment record (results do not depend
     #: on where they ran, up to floating point).
     device: str = "cpu"
+    #: torch device of a learned team's update phases alone (``IndependentPPO.update_device``;
+    #: ``None``: ``device``); like ``device``, not part of the experiment record.
+    update_device: str | None = None
     #: Where a ``train_env`` variant's team is trained (shared by its cells on every graph).
     team_folder: str | None = None
 
@@ -92,7 +95,9 @@ def training_folder(out: Path, variant: Variant, seed: int) -> Path:
     return out / "trained" / variant.key / graph_label(variant.train_env) / f"seed{seed}"
 
 
-def plan_cells(experiment: Experiment, out: Path, device: str = "cpu") -> list[Cell]:
+def plan_cells(
+    experiment: Experiment, out: Path, device: str = "cpu", update_device: str | None = None
+) -> list[Cell]:
     """Every cell of the grid, in table order."""
     cells = []
     for variant in experiment.variants:
@@ -114,6 +119,7 @@ def plan_cells(experiment: Experiment, out: Path, device: str = "cpu") -> list[C
                         hyperparams=dict(experiment.hyperparams),
                         eval_env_kwargs=dict(experiment.eval_env_kwargs),
                         device=device,
+                        update_device=update_device,
                         team_folder=shared,
                     )
                 )
@@ -213,6 +219,8 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
             config, graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
         )
         if variant.train:
+            if cell.update_device is not None:
+                team.update_device = cell.update_device
             team.learn(timesteps)
     team.save(folder / "team", overwrite=True)
     # The machine that trained the team: the same seed trains another team on another kind of CPU.
@@ -241,6 +249,7 @@ def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Pat
             print(f"warning: {error}; kept as {aside}, training the cell from the start", file=sys.stderr)
         else:
             if team.seed == cell.seed and team.num_timesteps + team.remaining_timesteps == timesteps:
+                team.update_device = cell.update_device
                 return team.learn_remaining(schedule)
             team.close()
             aside = move_aside(folder / CHECKPOINTS)
@@ -248,6 +257,7 @@ def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Pat
     team = IndependentPPO.from_config(
         config, graph, seed=cell.seed, tensorboard_log=tensorboard_log, device=cell.device
     )
+    team.update_device = cell.update_device
     team.learn(timesteps, checkpoints=schedule)
     return team
 
@@ -350,16 +360,19 @@ def reproduce(
     progress: bool = True,
     command: list[str] | None = None,
     device: str = "cpu",
+    update_device: str | None = None,
 ) -> Comparison:
     """Run (or resume) ``experiment`` into ``out`` and write its reports; returns the comparison.
 
     :param device: torch device of the learned teams (``cpu``, ``cuda``, ``auto``).
+    :param update_device: torch device of the learned teams' update phases alone (e.g. ``cuda``
+        with ``device="cpu"``: :attr:`~sb3_pm.agents.team.IndependentPPO.update_device`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
-    cells = plan_cells(experiment, out, device=device)
+    cells = plan_cells(experiment, out, device=device, update_device=update_device)
     for cell in cells:
         damage = reopen_damaged_cell(Path(cell.folder)) if cell.done else None
         if damage is not None:
