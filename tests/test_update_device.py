@@ -17,31 +17,11 @@ import torch as th
 
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.errors import InputError
-from sb3_pm.graphs import erdos_renyi
 from sb3_pm.ppo_dcbf import update_device as update_device_module
 from sb3_pm.ppo_dcbf.update_device import check_update_device, on_update_device
+from tests.test_rollout_batching import make_team, parameters  # a 3-agent team on a 14-node graph
 
 th.set_num_threads(1)
-GRAPH = erdos_renyi(14, 0.3, n_targets=4, seed=3)
-TINY = {"n_steps": 16, "batch_size": 16, "n_epochs": 2, "policy_kwargs": {"hidden_dim": 8}}
-
-
-def make_team(algo: str | None = None, concurrent_updates: bool = True) -> IndependentPPO:
-    hyperparams: dict[str, Any] = dict(TINY) if algo is None else {"n_steps": 16, "batch_size": 16}
-    return IndependentPPO(
-        GRAPH,
-        n_agents=3,
-        n_envs=2,
-        seed=0,
-        algo=algo,
-        env_kwargs={"max_cycles": 20},
-        hyperparams=hyperparams,
-        concurrent_updates=concurrent_updates,
-    )
-
-
-def parameters(team: IndependentPPO) -> list[th.Tensor]:
-    return [th.cat([p.detach().flatten() for p in team.models[a].policy.parameters()]) for a in team.agents]
 
 
 @pytest.mark.parametrize("concurrent_updates", [True, False])
