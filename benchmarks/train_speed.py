@@ -259,7 +259,9 @@ def main() -> None:
             paper = 4 * 50_000 / speed
             spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
             where = "" if args.devices == ["cpu"] else f", {device}"
-            label = f"team {graph} ({args.algo or 'config'}, {mode}, {rollouts}, {arithmetic}{where})"
+            # a team on a GPU updates one learner after another, whatever --updates asked
+            updates = "serial" if device == "cuda" else mode
+            label = f"team {graph} ({args.algo or 'config'}, {updates}, {rollouts}, {arithmetic}{where})"
             print(
                 f"{label:<62} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
                 f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"

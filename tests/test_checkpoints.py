@@ -164,7 +164,7 @@ def test_an_interrupted_train_resumes_to_the_uninterrupted_team(tiny_train, sig)
     _assert_same(_state(whole), _state(resumed))
 
 
-def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys) -> None:
+def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys, monkeypatch) -> None:
     tmp = tiny_train[2].parent
     out = tmp / "run"
     assert main(_train_argv(tiny_train, out, 16 * 25)) == 0
@@ -176,8 +176,8 @@ def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys) -> None:
     assert "drop --seed" in capsys.readouterr().err
     assert main(["train", "--resume", str(out), "--threads", "2", "--checkpoint-every", "3"]) == 2
     assert "drop --checkpoint-every, --threads" in capsys.readouterr().err
-    assert main(["train", "--resume", str(out), "--device", "cuda", "--update-device", "cpu:0"]) == 2
-    assert "drop --device, --update-device" in capsys.readouterr().err
+    assert main(["train", "--resume", str(out), "--device", "cuda", "--threads", "2"]) == 2
+    assert "drop --device, --threads" in capsys.readouterr().err
     assert main(["train", "--resume", str(tmp)]) == 2
     assert "not a run folder" in capsys.readouterr().err
 
@@ -185,6 +185,11 @@ def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys) -> None:
     shutil.rmtree(out / "team")
     assert main(_train_argv(tiny_train, out, 16 * 25)) == 2
     assert f"sb3-pm train --resume {out}" in capsys.readouterr().err
+    # --update-device may change on resuming (a GPU run continued without one), and is checked
+    monkeypatch.setattr(th.cuda, "is_available", lambda: False)
+    assert main(["train", "--resume", str(out), "--update-device", "cuda"]) == 2
+    error = capsys.readouterr().err
+    assert "cannot resume" in error and "no CUDA device" in error and "--update-device cpu" in error
     shutil.rmtree(out / "checkpoints")
     assert main(["train", "--resume", str(out)]) == 2
     error = capsys.readouterr().err

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from sb3_pm.cli import main
+from sb3_pm.errors import InputError
 from sb3_pm.experiments import ExperimentError, load_experiment, plan_cells, reproduce
 from sb3_pm.experiments import runner as runner_module
 from sb3_pm.zoo import load_config
@@ -276,6 +277,15 @@ def test_update_device_reaches_every_learned_cell(tmp_path: Path, monkeypatch: p
     # 2 seeds x 2 learners x 2 updates (64 steps of 32), each moved there and back
     assert moves.count("cpu:0") == moves.count("cpu") == 8
     assert [c.update_device for c in plan_cells(experiment, tmp_path, update_device="cpu:0")] == ["cpu:0"] * 4
+
+
+def test_an_update_device_for_learners_that_cannot_take_it_is_refused_before_training(tmp_path: Path) -> None:
+    experiment = load_tiny(tmp_path)
+    config = tmp_path / "config.yml"
+    config.write_text(config.read_text() + "  algo: maskable_ppo\n")
+    with pytest.raises(InputError, match="needs dcbf_ppo learners; variant 'learned' uses maskable_ppo"):
+        reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False, update_device="cpu:0")
+    assert not (tmp_path / "out" / "cells").exists()  # nothing trained
 
 
 def test_reproduce_refuses_an_update_device_it_lacks(tmp_path: Path, capsys, monkeypatch) -> None:

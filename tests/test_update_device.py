@@ -57,6 +57,39 @@ def test_a_moved_update_trains_the_same_parameters(
     plain.close()
 
 
+def test_inside_the_update_everything_is_on_the_update_device(monkeypatch: pytest.MonkeyPatch) -> None:
+    """On the CPU the move's copies show it: ``.to("cpu:0")`` copies a CPU tensor, so the moments
+    a learner's second update starts with are other tensors than those its first one ended with."""
+    from sb3_contrib import MaskablePPO
+
+    def moments(model: Any) -> list[th.Tensor]:
+        return [v for state in model.policy.optimizer.state.values() for k, v in state.items() if k != "step"]
+
+    devices: list[tuple[th.device, th.device]] = []
+    # per learner, the moments at each update's start and end (the tensors kept alive)
+    starts: dict[int, list[list[th.Tensor]]] = {}
+    ends: dict[int, list[list[th.Tensor]]] = {}
+    train = MaskablePPO.train
+
+    def recorded(model: Any) -> None:
+        devices.append((model.device, model.rollout_buffer.device))
+        starts.setdefault(id(model), []).append(moments(model))
+        train(model)
+        ends.setdefault(id(model), []).append(moments(model))
+
+    monkeypatch.setattr(MaskablePPO, "train", recorded)
+    team = make_team(concurrent_updates=False)
+    team.update_device = "cpu:0"
+    team.learn(64)
+    assert len(devices) == 6 and all(device == buffer == th.device("cpu:0") for device, buffer in devices)
+    for learner in starts:
+        first_end, second_start = ends[learner][0], starts[learner][1]
+        assert len(first_end) == len(second_start) > 0
+        # moved out after the first update and in again before the second: copies, not the same tensors
+        assert not {v.data_ptr() for v in first_end} & {v.data_ptr() for v in second_start}
+    team.close()
+
+
 def test_an_update_that_fails_still_moves_back() -> None:
     team = make_team()
     team.learn(32)
@@ -71,6 +104,14 @@ def test_an_update_that_fails_still_moves_back() -> None:
 def test_bad_devices_are_refused_by_name(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(InputError, match="'gpu7' is not a torch device"):
         check_update_device("gpu7")
+    with pytest.raises(InputError, match="'meta' is a meta device; only cpu and cuda are supported"):
+        check_update_device("meta")  # moving there would destroy the parameters
+    with pytest.raises(InputError, match="'auto' is for --device"):
+        check_update_device("auto")
+    monkeypatch.setattr(th.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(th.cuda, "device_count", lambda: 1)
+    with pytest.raises(InputError, match="'cuda:3' asked for, but torch sees 1 CUDA device"):
+        check_update_device("cuda:3")
     monkeypatch.setattr(th.cuda, "is_available", lambda: False)
     with pytest.raises(InputError, match="torch sees no CUDA device"):
         check_update_device("cuda")

@@ -19,7 +19,16 @@ from sb3_pm.zoo.registry import (
 from sb3_pm.zoo.schedules import SCHEDULE_KEYS, parse_schedule
 
 #: Keys the team sets itself; a hyperparameter dict must not hold them.
-RESERVED_KEYS = ("env", "policy", "seed", "tensorboard_log", "verbose", "device", "_init_setup_model")
+RESERVED_KEYS = (
+    "env",
+    "policy",
+    "seed",
+    "tensorboard_log",
+    "verbose",
+    "device",
+    "update_device",  # this machine's, as device is: team.update_device, never saved
+    "_init_setup_model",
+)
 
 
 def agent_seed(seed: int, index: int) -> int:

@@ -4,7 +4,9 @@ Each agent is its own SB3 algorithm (``DCBFPPO`` by default, or sb3-contrib's ``
 plain ``PPO``) with its own parameters, buffers and optimizer. They are stepped together through a
 :class:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer`, each learner in its own thread, in a
 fixed turn order, each drawing from its own random stream, so a team run is reproducible from
-its seed and can be checkpointed and resumed bit for bit (:mod:`sb3_pm.agents.checkpoints`).
+its seed and can be checkpointed and resumed bit for bit (:mod:`sb3_pm.agents.checkpoints`) on
+the CPU, with one torch thread (a GPU's scatter sums, with ``device`` or ``update_device``, vary
+in order between runs).
 
 The team implements the :class:`~sb3_pm.team_interface.Team` interface (through
 :class:`~sb3_pm.agents.learned_team.LearnedTeam`), so evaluation drives a learned team exactly as
@@ -26,9 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.utils import get_device, set_random_seed
 
 from sb3_pm.agents.checkpoints import (
     CHECKPOINTS,
@@ -153,7 +154,7 @@ class IndependentPPO(LearnedTeam):
         )
         # Per-learner streams swap the CPU generators only: side by side is for CPU learners.
         self.hub.concurrent_updates = bool(
-            concurrent_updates and strict_order and th.device(device).type == "cpu"
+            concurrent_updates and strict_order and get_device(device).type == "cpu"
         )
         self.agents: list[str] = list(self.hub.agents)
         unknown = sorted(set(self.per_agent) - set(self.agents))

@@ -12,9 +12,10 @@ Choice (measured in docs/RESULTS.md, "Transfer"): the observation spaces are **r
 graph rather than padded to a maximum size with a node mask. Rebuilding keeps every tensor at its
 true size (no cost on small graphs, no cap on large ones), and each learner's policy is rebuilt
 with the same constructor arguments on the new spaces and given the trained parameters. The only
-size-dependent tensors a transferable policy holds are the input scalings ``inv_high`` ``(N, 5)``,
-whose rows are all equal (one scale per feature, from ``u_max`` and the training episode length);
-they are rebuilt row by row from the trained ones, so inputs are scaled exactly as in training.
+size-dependent tensors a transferable policy holds are the input scalings ``inv_high`` ``(N, F)``
+(F node features), whose rows are all equal (one scale per feature, from ``u_max`` and the
+training episode length); they are rebuilt row by row from the trained ones, so inputs are
+scaled exactly as in training.
 
 Mental maps start anew on the new graph (a new env), as on any first episode: empty, or with the
 new graph's static map when the team's env settings make it known (``target_knowledge``,

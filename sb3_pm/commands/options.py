@@ -23,7 +23,7 @@ def add_compute_options(parser: argparse.ArgumentParser, training: bool = False)
             default=None,
             metavar="DEVICE",
             help="torch device of the learners' update phases alone, e.g. cuda with --device cpu: "
-            "rollouts on the CPU, updates on the GPU (default: --device)",
+            "rollouts on the CPU, updates on the GPU (default: --device; with --resume, the run's own)",
         )
     reason = (
         "training is then bit-for-bit reproducible from --seed; with more threads some torch kernels "

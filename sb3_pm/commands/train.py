@@ -251,7 +251,6 @@ def resume(args: argparse.Namespace) -> int:
     # the run's own are used: the same arithmetic
     for flag, changed in (
         ("--device", args.device != "cpu"),
-        ("--update-device", args.update_device is not None),
         ("--threads", args.threads != 1),
     ):
         if changed:
@@ -285,11 +284,16 @@ def resume(args: argparse.Namespace) -> int:
         )
     except CheckpointError as error:
         raise UsageError(f"cannot resume {out}: {error}; start again with --overwrite") from None
+    # Where the updates run may change on resuming (a GPU run cut off, continued without one): the
+    # command line, kept in resumed.txt, says so; unless given, the run's own is used.
+    update_device = args.update_device if args.update_device is not None else recorded.get("update_device")
     try:
-        team.update_device = recorded.get("update_device")
+        team.update_device = update_device
     except InputError as error:
         team.close()
-        raise UsageError(f"cannot resume {out} as recorded: {error}") from None
+        raise UsageError(
+            f"cannot resume {out}: {error}; give --update-device cpu to update on the CPU"
+        ) from None
     every = int(recorded.get("checkpoint_every", DEFAULT_CHECKPOINT_EVERY))
     try:
         with locked_run_folder(out, overwrite=False, resume=True):

@@ -89,7 +89,8 @@ neighbours, given by ``obs["action_mask"]``.
 Observation with ``observation="map"`` (a ``Dict``):
 
 ``nodes``        ``Box(N, 5) float32``: per node ``[u, age, target, occupied, self]`` from the mental
-                 map (:mod:`sb3_pm.envs.mental_map`).
+                 map (:mod:`sb3_pm.envs.mental_map`); ``Box(N, 6)`` with ``territory_input``, whose
+                 sixth column flags the agent's own territory.
 ``adjacency``    ``Box(N, N) int8``: the known adjacency.
 ``position``     ``Discrete(N)``: the agent's node.
 ``dwell``        ``Box(1,) float32``: steps the agent has stayed on its node (0 on arrival).

@@ -40,6 +40,7 @@ from typing import Any
 
 import yaml
 
+from sb3_pm.errors import InputError
 from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
 from sb3_pm.experiments.backends import run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
@@ -124,6 +125,32 @@ def plan_cells(
                     )
                 )
     return cells
+
+
+def check_update_device_takers(cells: list[Cell]) -> None:
+    """Refuse, before any training, an update device for a learned variant whose learners cannot
+    take it (only DCBF-PPO learners move their updates).
+
+    :raises InputError: naming the variant and its algorithm.
+    """
+    checked: set[str] = set()
+    for cell in cells:
+        variant = Variant(**cell.variant)
+        if variant.kind == "baseline" or not variant.train or variant.key in checked:
+            continue
+        checked.add(variant.key)
+        algo = cell_config(cell, variant).algo
+        if algo != "dcbf_ppo":
+            raise InputError(f"--update-device needs dcbf_ppo learners; variant {variant.key!r} uses {algo}")
+
+
+def _set_update_device(team: Any, cell: Cell) -> None:
+    """Give ``team`` the cell's update device, closing the team if it refuses."""
+    try:
+        team.update_device = cell.update_device
+    except InputError:
+        team.close()
+        raise
 
 
 def training_jobs(cells: list[Cell]) -> list[Cell]:
@@ -219,8 +246,7 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
             config, graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
         )
         if variant.train:
-            if cell.update_device is not None:
-                team.update_device = cell.update_device
+            _set_update_device(team, cell)
             team.learn(timesteps)
     team.save(folder / "team", overwrite=True)
     # The machine that trained the team: the same seed trains another team on another kind of CPU.
@@ -249,7 +275,7 @@ def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Pat
             print(f"warning: {error}; kept as {aside}, training the cell from the start", file=sys.stderr)
         else:
             if team.seed == cell.seed and team.num_timesteps + team.remaining_timesteps == timesteps:
-                team.update_device = cell.update_device
+                _set_update_device(team, cell)
                 return team.learn_remaining(schedule)
             team.close()
             aside = move_aside(folder / CHECKPOINTS)
@@ -257,7 +283,7 @@ def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Pat
     team = IndependentPPO.from_config(
         config, graph, seed=cell.seed, tensorboard_log=tensorboard_log, device=cell.device
     )
-    team.update_device = cell.update_device
+    _set_update_device(team, cell)
     team.learn(timesteps, checkpoints=schedule)
     return team
 
@@ -373,6 +399,8 @@ def reproduce(
     (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
     cells = plan_cells(experiment, out, device=device, update_device=update_device)
+    if update_device is not None:
+        check_update_device_takers(cells)
     for cell in cells:
         damage = reopen_damaged_cell(Path(cell.folder)) if cell.done else None
         if damage is not None:

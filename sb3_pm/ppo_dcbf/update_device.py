@@ -11,7 +11,8 @@ pass, the estimator fit, saving) sees a CPU learner.
 
 Nothing else changes: the same minibatches in the same order, the same loss. The update's
 arithmetic is the update device's, so a run is not the CPU run bit for bit (as with ``device:
-cuda``).
+cuda``), and on a GPU not even its own rerun: the attention layers' scatter sums use atomic
+additions there, whose order varies. Seeded bit-for-bit reproducibility is the CPU's.
 """
 
 from __future__ import annotations
@@ -28,16 +29,33 @@ from sb3_pm.errors import InputError
 def check_update_device(device: str | th.device | None) -> th.device | None:
     """``device`` as a :class:`torch.device`, or ``None``; refuses a device torch cannot use here.
 
-    :raises InputError: naming the device, if it is malformed or absent on this machine.
+    Only ``cpu`` and ``cuda`` devices are taken (``cuda:i`` with ``i`` below the count of GPUs
+    torch sees): an update moved to any other device type is untested, and one on ``meta`` would
+    destroy the parameters.
+
+    :raises InputError: naming the device, if it is malformed, of another type or absent here.
     """
     if device is None:
         return None
+    if isinstance(device, str) and device.strip() == "auto":
+        raise InputError("update_device: name the device (cuda, cuda:1, cpu); 'auto' is for --device")
     try:
         parsed = th.device(device)
-    except (RuntimeError, TypeError) as error:
-        raise InputError(f"update_device: {device!r} is not a torch device ({error})") from None
-    if parsed.type == "cuda" and not th.cuda.is_available():
-        raise InputError(f"update_device: {device!r} asked for, but torch sees no CUDA device here")
+    except (RuntimeError, TypeError):
+        raise InputError(
+            f"update_device: {device!r} is not a torch device (cpu, cuda, cuda:1, ...)"
+        ) from None
+    if parsed.type not in ("cpu", "cuda"):
+        raise InputError(
+            f"update_device: {device!r} is a {parsed.type} device; only cpu and cuda are supported"
+        )
+    if parsed.type == "cuda":
+        if not th.cuda.is_available():
+            raise InputError(f"update_device: {device!r} asked for, but torch sees no CUDA device here")
+        if parsed.index is not None and parsed.index >= th.cuda.device_count():
+            raise InputError(
+                f"update_device: {device!r} asked for, but torch sees {th.cuda.device_count()} CUDA device(s)"
+            )
     return parsed
 
 
@@ -64,15 +82,18 @@ def _move(model: Any, device: th.device) -> None:
 @contextmanager
 def on_update_device(model: Any, device: th.device | None) -> Iterator[None]:
     """Within the block, ``model`` (an SB3 on-policy learner) lives on ``device``; afterwards (also
-    after an error) on its own device again. ``None`` or the learner's own device changes nothing."""
+    after an error, one in the move itself included) on its own device again. ``None`` or the
+    learner's own device changes nothing."""
     home = th.device(model.device)
     if device is None or device == home:
         yield
         return
-    _move(model, device)
     try:
+        _move(model, device)  # inside: a move that fails half way is undone below
         yield
     finally:
+        # Moving home is safe to repeat and to run on a half-moved learner. Should it fail too, the
+        # error that stopped the update stays attached as its context (Python chains them).
         _move(model, home)
 
 
