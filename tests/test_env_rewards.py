@@ -199,5 +199,5 @@ def test_territory_pays_only_on_the_agents_own_targets() -> None:
 
 
 def test_the_territory_reward_is_refused_on_a_graph_family() -> None:
-    with pytest.raises(InputError, match="territory reward needs one graph"):
+    with pytest.raises(InputError, match="territory reward needs one graph or territory_input"):
         persistent_monitoring_v0.parallel_env(graph="family:er", reward={"clearing": 0.04, "territory": 0.04})

@@ -71,7 +71,6 @@ def test_the_pettingzoo_api_holds_with_it_and_with_failures() -> None:
         ({"graph_knowledge": "discovered"}, "needs graph_knowledge and target_knowledge 'known'"),
         ({"target_knowledge": "discovered"}, "computes its territory from the site plan"),
         ({"observation": "local"}, "needs observation='map'"),
-        ({"graph": "family:er"}, "needs one graph"),
         ({"territory_input": "yes"}, "territory_input must be true or false, got 'yes'"),
     ],
 )
@@ -113,3 +112,20 @@ def test_a_transferable_team_sees_each_graphs_own_split() -> None:
                 assert observations[agent]["action_mask"][action] == 1  # legal on the new graph
             observations, *_ = env.step(actions)
     team.close()
+
+
+def test_on_a_graph_family_each_episode_gives_its_own_split() -> None:
+    env = make_env("family:er", reward={"clearing": 0.04, "territory": 0.04})
+    for seed in (0, 1, 2):
+        observations, _ = env.reset(seed=seed)
+        spec = env.graph  # this episode's draw
+        owns = territory_nodes(spec.hop_distances, spec.target_indices, 4, spec.n_nodes)
+        for i, agent in enumerate(env.possible_agents):
+            column = observations[agent]["nodes"][:, -1]
+            assert column.shape == (env.space_nodes,)  # padded to the family's largest graph
+            np.testing.assert_array_equal(column[: spec.n_nodes], owns[i])
+            assert not column[spec.n_nodes :].any()
+        _, rewards, *_ = env.step(
+            {a: int(np.flatnonzero(o["action_mask"])[0]) for a, o in observations.items()}
+        )
+        assert set(rewards) == set(env.possible_agents)

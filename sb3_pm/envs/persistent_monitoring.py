@@ -57,9 +57,9 @@ territory_input (``False``)
     territory (the split of :mod:`sb3_pm.graphs.territories`, which every agent computes alike
     from the site plan and its own index, as the ``territory`` reward and the ``territory_patrol``
     baseline do), 0 elsewhere. Since the split is computed from the graph and its targets, it
-    needs ``graph_knowledge`` and ``target_knowledge`` ``"known"``, one graph (not a family) and
-    ``observation="map"``. A team deployed on another graph or with another team size sees that
-    problem's split.
+    needs ``graph_knowledge`` and ``target_knowledge`` ``"known"`` and ``observation="map"``. A
+    team deployed on another graph or with another team size sees that problem's split; on a graph
+    family, each episode's graph gives its own (and the ``territory`` reward is then allowed).
 illegal_action (``"raise"``)
     ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
     and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``
@@ -181,10 +181,11 @@ class PersistentMonitoringEnv(ParallelEnv):
                 raise InputError(_FAMILY_POSITIONS)
             if observation != "map":
                 raise InputError("a graph family needs observation='map' (padded mental maps)")
-            if not isinstance(reward, str) and "territory" in dict(reward):
+            if not isinstance(reward, str) and "territory" in dict(reward) and territory_input is not True:
+                # Told its territory each episode (territory_input), a learner need not settle in one.
                 raise InputError(
-                    "the territory reward needs one graph: a graph family's territories change every "
-                    "episode, so no learner could settle in one; drop the term for family training"
+                    "the territory reward needs one graph or territory_input: a graph family's "
+                    "territories change every episode, so no learner could settle in one unless told it"
                 )
             if n_agents > self.family.min_nodes:
                 raise InputError(
@@ -194,10 +195,6 @@ class PersistentMonitoringEnv(ParallelEnv):
         if territory_input is not False and territory_input is not True:
             raise InputError(f"territory_input must be true or false, got {territory_input!r}")
         if territory_input:
-            if self.family is not None:
-                raise InputError(
-                    "territory_input needs one graph: a graph family's territories change every episode"
-                )
             if observation != "map":
                 raise InputError(
                     "territory_input is a node feature of map observations: it needs observation='map'"
