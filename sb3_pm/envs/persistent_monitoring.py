@@ -171,6 +171,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
+        if territory_input is not False and territory_input is not True:
+            raise InputError(f"territory_input must be true or false, got {territory_input!r}")
         problem = resolve_graph_or_family(graph)
         #: The family each reset draws a graph from (``None``: one fixed graph).
         self.family: GraphFamily | None = problem if isinstance(problem, GraphFamily) else None
@@ -192,8 +194,6 @@ class PersistentMonitoringEnv(ParallelEnv):
                     f"{n_agents} agents do not fit the graph family {self.family.name!r}: "
                     f"its smallest graph has {self.family.min_nodes} nodes"
                 )
-        if territory_input is not False and territory_input is not True:
-            raise InputError(f"territory_input must be true or false, got {territory_input!r}")
         if territory_input:
             if observation != "map":
                 raise InputError(
@@ -607,8 +607,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         depend on the padding; with ``eigen`` the padded Laplacian's extra zero eigenvalues shift
         the encoding slightly (measured up to 2.4e-4 in the logits of an untrained policy).
 
-        Shapes: nodes ``(n_agents, N, 5)`` -> ``(n_agents, M, 5)``; the maps' known adjacency
-        ``(n_agents, N, N)`` -> ``(n_agents, M, M)``; masks ``(n_agents, N)`` -> ``(n_agents, M)``.
+        Shapes: nodes ``(n_agents, N, F)`` -> ``(n_agents, M, F)`` (F = 5, or 6 with
+        ``territory_input``); the maps' known adjacency ``(n_agents, N, N)`` -> ``(n_agents, M, M)``;
+        masks ``(n_agents, N)`` -> ``(n_agents, M)``.
         """
         n, m = self.graph.n_nodes, self.space_nodes
         padded_nodes = np.zeros((self.n_agents, m, nodes.shape[-1]), dtype=nodes.dtype)
