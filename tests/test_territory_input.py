@@ -129,3 +129,26 @@ def test_on_a_graph_family_each_episode_gives_its_own_split() -> None:
             {a: int(np.flatnonzero(o["action_mask"])[0]) for a, o in observations.items()}
         )
         assert set(rewards) == set(env.possible_agents)
+
+
+def test_on_a_graph_family_the_territory_reward_pays_each_episodes_own_split() -> None:
+    """A family episode rewards exactly as an env on that one drawn graph does, step by step."""
+    reward = {"clearing": 0.04, "territory": 0.5}
+    family = make_env("family:er", reward=reward)
+    rng = np.random.default_rng(0)
+    for seed in (0, 1):
+        observations, _ = family.reset(seed=seed)
+        one = make_env(family.graph, reward=reward)
+        plain = make_env(family.graph, reward={"clearing": 0.04})  # the same without the term
+        start = {"initial_positions": family.core.positions.tolist()}
+        alone, _ = one.reset(seed=seed, options=start)
+        plain.reset(seed=seed, options=start)
+        paid = False
+        for _ in range(29):  # max_cycles 30
+            actions = {a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in alone.items()}
+            observations, rewards, *_ = family.step(actions)
+            alone, expected, *_ = one.step(actions)
+            _, without, *_ = plain.step(actions)
+            assert rewards == pytest.approx(expected)
+            paid = paid or rewards != pytest.approx(without)
+        assert paid  # the territory term did pay in these steps, so the comparison says something
