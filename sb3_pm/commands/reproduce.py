@@ -125,10 +125,6 @@ def run(args: argparse.Namespace) -> int:
         resolve_graph(graph)  # every graph checked before hours of training start
     if args.jobs is not None and args.jobs < 1:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
-    if args.update_device is not None:  # before hours of training, not in the first cell
-        from sb3_pm.ppo_dcbf.update_device import check_update_device
-
-        check_update_device(args.update_device)
     if args.ray_address and args.backend != "ray":
         raise UsageError("--ray-address needs --backend ray")
     if args.backend == "ray":

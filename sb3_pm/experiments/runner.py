@@ -127,12 +127,15 @@ def plan_cells(
     return cells
 
 
-def check_update_device_takers(cells: list[Cell]) -> None:
-    """Refuse, before any training, an update device for a learned variant whose learners cannot
-    take it (only DCBF-PPO learners move their updates).
+def check_update_device_takers(update_device: str, cells: list[Cell]) -> None:
+    """Refuse, before any training, an update device torch cannot use here, or one for a learned
+    variant whose learners cannot take it (only DCBF-PPO learners move their updates).
 
-    :raises InputError: naming the variant and its algorithm.
+    :raises InputError: naming the device, or the variant and its algorithm.
     """
+    from sb3_pm.ppo_dcbf.update_device import check_update_device
+
+    check_update_device(update_device)
     checked: set[str] = set()
     for cell in cells:
         variant = Variant(**cell.variant)
@@ -395,12 +398,12 @@ def reproduce(
         with ``device="cpu"``: :attr:`~sb3_pm.agents.team.IndependentPPO.update_device`).
     """
     out = Path(out)
+    cells = plan_cells(experiment, out, device=device, update_device=update_device)
+    if update_device is not None:  # before the folder is written and hours of training start
+        check_update_device_takers(update_device, cells)
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
-    cells = plan_cells(experiment, out, device=device, update_device=update_device)
-    if update_device is not None:
-        check_update_device_takers(cells)
     for cell in cells:
         damage = reopen_damaged_cell(Path(cell.folder)) if cell.done else None
         if damage is not None:
