@@ -375,4 +375,4 @@ class TestDeployment:
         from sb3_pm.cli import main
 
         assert main(["evaluate", "--policy", "grazing", "--neglect-bound", "50", "--episodes", "1"]) == 2
-        assert "needs a trained DCBF team on its own graph" in capsys.readouterr().err
+        assert "needs a trained DCBF team;" in capsys.readouterr().err

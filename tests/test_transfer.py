@@ -101,3 +101,44 @@ def test_a_transferred_team_refuses_a_third_graph(saved_transferable: Path) -> N
     env.reset(seed=0)
     with pytest.raises(ValueError, match="not on graph 'path'.*rebuilt for graph 'paper-50'"):
         team.reset(env, seed=0)
+
+
+BOUND_GRAPH = path_graph(25, [0, 6, 12, 18, 24])
+
+
+def test_a_moved_team_takes_a_territory_bound_on_its_new_graph(saved_transferable: Path) -> None:
+    from sb3_pm.errors import InputError
+    from sb3_pm.graphs.territories import agent_territories
+
+    team = resolve_team(saved_transferable, graph=BOUND_GRAPH)
+    assert isinstance(team, TransferredTeam) and team.acting_filter() is None
+    team.set_filter(neglect_bound=20.0, neglect_scope="territory")
+    assert [p.dcbf_config.territory for p in team.policies.values()] == agent_territories(BOUND_GRAPH, 2)
+    assert team.acting_filter() == {"neglect_bound": 20.0, "neglect_scope": "territory"}
+    # The trained team it came from keeps its own filter.
+    assert all(m.policy.dcbf_config.neglect_bound is None for m in team.source.models.values())
+    # A setting it cannot take changes nothing.
+    with pytest.raises(InputError, match="above the environment's u_max"):
+        team.set_filter(neglect_bound=1000.0)
+    assert team.acting_filter() == {"neglect_bound": 20.0, "neglect_scope": "territory"}
+    result = evaluate(team, BOUND_GRAPH, n_agents=2, episodes=1, max_cycles=60)
+    assert (result.config["neglect_bound"], result.config["neglect_scope"]) == (20.0, "territory")
+    assert team.filter_activity()["masks"] == 2 * 60  # every agent-step ran under the bound
+    team.set_filter(neglect_bound=None)
+    assert team.acting_filter() is None
+
+
+def test_evaluate_deploys_a_moved_team_under_a_bound(saved_transferable: Path, tmp_path: Path) -> None:
+    import json
+
+    from sb3_pm.cli import main
+    from sb3_pm.graphs.io import save_graphml
+
+    graph = save_graphml(BOUND_GRAPH, tmp_path / "path25.graphml")
+    out = tmp_path / "e.json"
+    argv = ["evaluate", "--policy", str(saved_transferable), "--graph", str(graph), "--agents", "2"]
+    flags = ["--episodes", "1", "--steps", "60", "--neglect-bound", "20", "--neglect-scope", "territory"]
+    assert main([*argv, *flags, "--json", str(out)]) == 0
+    config = json.loads(out.read_text())["config"]
+    assert (config["neglect_bound"], config["neglect_scope"]) == (20.0, "territory")
+    assert config["filter_activity"]["masks"] == 120

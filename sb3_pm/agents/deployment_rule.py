@@ -1,4 +1,5 @@
-""":class:`DeploymentRule`: how a trained team acts when the caller does not say.
+""":class:`DeploymentRule`: how a trained team acts when the caller does not say, and the DCBF
+filter it acts under.
 
 Shared by the trained teams (:class:`~sb3_pm.agents.learned_team.LearnedTeam`) and a trained team
 moved to another graph (:class:`~sb3_pm.agents.transfer.TransferredTeam`), which differ only in
@@ -12,7 +13,8 @@ from typing import Any
 
 
 class DeploymentRule:
-    """The ``deploy_temperature`` rule and the sampling temperature of a team's DCBF policies."""
+    """The ``deploy_temperature`` rule, the sampling temperature and the DCBF filter settings of a
+    team's DCBF policies."""
 
     _deploy_temperature: float | None = None
 
@@ -75,6 +77,68 @@ class DeploymentRule:
         from sb3_pm.policies.sampling import set_sampling_temperature
 
         set_sampling_temperature(self.acting_policies(), temperature)
+
+    def set_filter(self, **changes: Any) -> None:
+        """Change the DCBF filter's settings of every acting policy (fields of
+        :class:`~sb3_pm.policies.dcbf.DCBFConfig`, e.g. ``neglect_bound=40``), for deployment.
+
+        The filter has no parameters, so a trained team can be deployed with another filter (the
+        actor then meets masks it was not trained under), on its own graph or on one it was moved
+        to. ``neglect_scope="territory"`` gives each policy its own agent's territory on the graph
+        the team acts on (:mod:`sb3_pm.graphs.territories`, :meth:`_filter_territories`).
+
+        :raises InputError: a policy without the DCBF filter, or an unknown or invalid setting; no
+            policy changes then.
+        """
+        from dataclasses import fields, replace
+
+        from sb3_pm.errors import InputError
+        from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap
+
+        names = {f.name for f in fields(DCBFConfig)}
+        unknown = sorted(set(changes) - names)
+        if unknown:
+            raise InputError(f"unknown DCBF filter setting(s) {unknown}; known: {sorted(names)}")
+        bound = changes.get("neglect_bound")
+        if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float))):
+            raise InputError(f"neglect_bound must be a number (or None), got {bound!r}")
+        if "territory" in changes:
+            raise InputError("territory is set by neglect_scope='territory', from the team's graph")
+        policies = self.acting_policies()
+        for name, policy in policies.items():  # every check before any policy changes
+            if not getattr(policy, "use_dcbf", False):
+                algo = getattr(self, "algo", None) or getattr(getattr(self, "source", None), "algo", "?")
+                raise InputError(f"{name} has no DCBF filter to change (algo {algo}, use_dcbf off)")
+            check_bound_below_cap(bound, getattr(policy, "u_max", float("inf")))
+        territories = self._filter_territories() if changes.get("neglect_scope") == "territory" else {}
+        for name, policy in policies.items():
+            own = {"territory": territories[name]} if territories else {}
+            policy.dcbf_config = replace(policy.dcbf_config, **changes, **own)
+            if "avoid_collisions" in changes:
+                policy.avoid_collisions = bool(changes["avoid_collisions"])
+            self._filter_changed(name, {**changes, **own})
+
+    def filter_activity(self) -> dict[str, int]:
+        """Summed over the acting policies since they were built: masks computed with the neglect
+        bound on (``masks``) and masks it forced (``forced``); see
+        :class:`~sb3_pm.policies.policy.DCBFActorCriticPolicy`."""
+        total = {"masks": 0, "forced": 0}
+        for policy in self.acting_policies().values():
+            for key, value in getattr(policy, "filter_counts", {}).items():
+                total[key] = total.get(key, 0) + int(value)  # int() of a tensor count: one sync here
+        return total
+
+    def _filter_territories(self) -> dict[str, tuple[int, ...]]:
+        """``{policy name: the target nodes of its agent's territory}`` on the graph the team acts on.
+
+        :raises InputError: where the team has no territories (one per agent, on one graph).
+        """
+        raise NotImplementedError
+
+    def _filter_changed(self, name: str, changes: Mapping[str, Any]) -> None:
+        """Called for each policy whose filter :meth:`set_filter` changed (``changes``: its new
+        :class:`~sb3_pm.policies.dcbf.DCBFConfig` fields); a team that saves its policies records
+        them here. Nothing by default."""
 
 
 __all__ = ["DeploymentRule"]

@@ -138,47 +138,9 @@ class LearnedTeam(DeploymentRule, Team):
         return {name: model.policy for name, model in self.model_files().items()}
 
     # ------------------------------------------------------ the DCBF filter
-    def set_filter(self, **changes: Any) -> None:
-        """Change the DCBF filter's settings of every learner (fields of
-        :class:`~sb3_pm.policies.dcbf.DCBFConfig`, e.g. ``neglect_bound=40``), for deployment.
-
-        The filter has no parameters, so a trained team can be deployed with another filter (the
-        actor then meets masks it was not trained under). A saved team keeps the new settings.
-        ``neglect_scope="territory"`` gives each learner its own agent's territory on the team's
-        graph (:mod:`sb3_pm.graphs.territories`); it needs one learner per agent and one graph.
-
-        :raises InputError: a learner without the DCBF filter, or an unknown or invalid setting.
-        """
-        from dataclasses import fields, replace
-
-        from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap
-
-        names = {f.name for f in fields(DCBFConfig)}
-        unknown = sorted(set(changes) - names)
-        if unknown:
-            raise InputError(f"unknown DCBF filter setting(s) {unknown}; known: {sorted(names)}")
-        bound = changes.get("neglect_bound")
-        if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float))):
-            raise InputError(f"neglect_bound must be a number (or None), got {bound!r}")
-        if "territory" in changes:
-            raise InputError("territory is set by neglect_scope='territory', from the team's graph")
-        for model in self.model_files().values():  # before any learner changes
-            check_bound_below_cap(bound, getattr(model.policy, "u_max", float("inf")))
-        territories = self._territories() if changes.get("neglect_scope") == "territory" else {}
-        for name, model in self.model_files().items():
-            policy = model.policy
-            if not getattr(policy, "use_dcbf", False):
-                raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
-            own = {"territory": territories[name]} if territories else {}
-            policy.dcbf_config = replace(policy.dcbf_config, **changes, **own)  # type: ignore[union-attr,type-var]
-            if "avoid_collisions" in changes:
-                policy.avoid_collisions = bool(changes["avoid_collisions"])  # type: ignore[assignment]
-            # SB3 saves (and rebuilds the policy from) the model's policy_kwargs.
-            kwargs = {_POLICY_KWARG.get(key, key): value for key, value in {**changes, **own}.items()}
-            model.policy_kwargs = {**model.policy_kwargs, **kwargs}
-
-    def _territories(self) -> dict[str, tuple[int, ...]]:
-        """``{model file: the target nodes of its agent's territory}`` on the team's graph."""
+    def _filter_territories(self) -> dict[str, tuple[int, ...]]:
+        """``{model file: the target nodes of its agent's territory}`` on the team's graph
+        (:meth:`~sb3_pm.agents.deployment_rule.DeploymentRule.set_filter`)."""
         from sb3_pm.graphs.territories import agent_territories
 
         files = list(self.model_files())
@@ -193,6 +155,13 @@ class LearnedTeam(DeploymentRule, Team):
                 "deploy it with team.on_graph(graph) first"
             )
         return dict(zip(files, agent_territories(self.graph, self.n_agents)))
+
+    def _filter_changed(self, name: str, changes: Mapping[str, Any]) -> None:
+        """Record the filter's new settings in the model's ``policy_kwargs``, which SB3 saves and
+        rebuilds the policy from, so a saved team keeps them."""
+        model = self.model_files()[name]
+        kwargs = {_POLICY_KWARG.get(key, key): value for key, value in changes.items()}
+        model.policy_kwargs = {**model.policy_kwargs, **kwargs}
 
     @property
     def deploy_filter(self) -> dict[str, Any] | None:
@@ -277,16 +246,6 @@ class LearnedTeam(DeploymentRule, Team):
                 for key, value in model.policy_kwargs.items()
                 if key not in ("neglect_bound", "neglect_scope", "neglect_territory")
             }
-
-    def filter_activity(self) -> dict[str, int]:
-        """Summed over learners since they were built: masks computed with the neglect bound on
-        (``masks``) and masks it forced (``forced``); see
-        :class:`~sb3_pm.policies.policy.DCBFActorCriticPolicy`."""
-        total = {"masks": 0, "forced": 0}
-        for model in self.model_files().values():
-            for key, value in getattr(model.policy, "filter_counts", {}).items():
-                total[key] = total.get(key, 0) + int(value)  # int() of a tensor count: one sync here
-        return total
 
     # ---------------------------------------------------------- save / load
     def model_files(self) -> dict[str, BaseAlgorithm]:

@@ -144,6 +144,13 @@ class TransferredTeam(DeploymentRule, Team):
         """``{agent: policy}``: the rebuilt policies (:class:`DeploymentRule`)."""
         return self.policies
 
+    def _filter_territories(self) -> dict[str, tuple[int, ...]]:
+        """``{agent: its territory}`` on the graph the team was moved to, as
+        :func:`retarget_territories` gives them (:meth:`DeploymentRule.set_filter`)."""
+        from sb3_pm.graphs.territories import agent_territories
+
+        return dict(zip(self.policies, agent_territories(self.graph, len(self.policies))))
+
     def learner_for(self, agent: str) -> str:
         """The learner acting for ``agent`` (see :meth:`IndependentPPO.learner_for`)."""
         return str(self.source.learner_for(agent))

@@ -169,9 +169,7 @@ def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None 
     if bound is None:
         return
     if not hasattr(team, "set_filter"):
-        raise UsageError(
-            f"--neglect-bound needs a trained DCBF team on its own graph; {team.name!r} is not one"
-        )
+        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
     if bound == BOUND_OFF:
         team.set_filter(neglect_bound=None)
         return

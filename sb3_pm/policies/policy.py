@@ -206,7 +206,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             tuple(int(node) for node in neglect_territory),
         )
         #: Masks the filter computed with rule 8 (the neglect bound) on, and how many it forced: a
-        #: diagnostic read by ``LearnedTeam.filter_activity()``, never saved. ``forced`` is summed
+        #: diagnostic read by ``DeploymentRule.filter_activity()``, never saved. ``forced`` is summed
         #: as a tensor, so counting costs no device synchronisation per forward pass.
         self.filter_counts: dict[str, Any] = {"masks": 0, "forced": 0}
         self._sampling_temperature = 1.0
