@@ -881,3 +881,25 @@ def test_only_the_headline_acts_under_paper_50s_deploy_filter(tmp_path: Path, na
             continue
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
         assert config.deploy_filter is None, (name, cell.variant["key"], cell.graph)
+
+
+def test_the_report_names_a_variants_own_training_budget(tmp_path: Path) -> None:
+    from sb3_pm.experiments.report import write_report
+
+    for name in ("results.md", "anova.txt", "by_graph.md", "effects.md"):
+        (tmp_path / name).write_text("x\n")
+    (tmp_path / "command.txt").write_text("sb3-pm reproduce e\n")
+    record = {
+        "name": "e",
+        "graphs": ["paper-50"],
+        "seeds": [0],
+        "episodes": 1,
+        "max_cycles": 10,
+        "n_agents": 4,
+        "evaluation_seeds": "1000000 + seed * 1000 + episode",
+        "timesteps": 50000,
+        "variants": {"long": {"kind": "independent", "timesteps": 150000}, "grazing": {"kind": "baseline"}},
+    }
+    report = write_report(tmp_path, record, [], reference="x").read_text()
+    assert "50000 steps per learner" in report
+    assert "variant `long`: 150000 steps per learner" in report and "`grazing`" not in report

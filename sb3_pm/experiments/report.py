@@ -56,6 +56,16 @@ def _cell_seconds(cells: Sequence[Any]) -> tuple[float, int]:
     return total, counted
 
 
+def _variant_budgets(record: dict[str, Any]) -> str:
+    """``"; variant X: N steps per learner"`` for each learned variant that sets its own budget."""
+    own = [
+        f"; variant `{key}`: {variant['timesteps']} steps per learner"
+        for key, variant in (record.get("variants") or {}).items()
+        if isinstance(variant, dict) and variant.get("timesteps")
+    ]
+    return "".join(own)
+
+
 def write_report(out: Path, record: dict[str, Any], cells: Sequence[Any], reference: str) -> Path:
     """Write ``out/report.md`` from the files the runner has already written into ``out``.
 
@@ -79,7 +89,8 @@ def write_report(out: Path, record: dict[str, Any], cells: Sequence[Any], refere
         f"{record['n_agents']} agents; evaluation env seeds {record['evaluation_seeds']}",
         "- training budget: "
         + (f"{budget} steps per learner" if budget else "the config's `n_timesteps`")
-        + (f" (config `{record['config']}`)" if record.get("config") else ""),
+        + (f" (config `{record['config']}`)" if record.get("config") else "")
+        + _variant_budgets(record),
         f"- code that wrote this report: {code_version()} (each cell's evaluation.json records the code "
         "that ran it)",
         f"- compute: {seconds / 3600:.2f} h summed over {counted} cells (training + evaluation, "
