@@ -120,6 +120,8 @@ def test_a_moved_team_takes_a_territory_bound_on_its_new_graph(saved_transferabl
     # A setting it cannot take changes nothing.
     with pytest.raises(InputError, match="above the environment's u_max"):
         team.set_filter(neglect_bound=1000.0)
+    with pytest.raises(InputError, match="must be at least 1"):  # raised as the new configs are built
+        team.set_filter(neglect_bound=0.5)
     assert team.acting_filter() == {"neglect_bound": 20.0, "neglect_scope": "territory"}
     result = evaluate(team, BOUND_GRAPH, n_agents=2, episodes=1, max_cycles=60)
     assert (result.config["neglect_bound"], result.config["neglect_scope"]) == (20.0, "territory")

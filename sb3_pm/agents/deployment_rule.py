@@ -2,8 +2,10 @@
 filter it acts under.
 
 Shared by the trained teams (:class:`~sb3_pm.agents.learned_team.LearnedTeam`) and a trained team
-moved to another graph (:class:`~sb3_pm.agents.transfer.TransferredTeam`), which differ only in
-where their policies live (:meth:`DeploymentRule.acting_policies`).
+moved to another graph (:class:`~sb3_pm.agents.transfer.TransferredTeam`), which differ in where
+their policies live (:meth:`DeploymentRule.acting_policies`), which graph gives their territories
+(:meth:`DeploymentRule._filter_territories`) and whether a filter change is saved
+(:meth:`DeploymentRule._filter_changed`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ class DeploymentRule:
     team's DCBF policies."""
 
     _deploy_temperature: float | None = None
+    #: the learners' algorithm (in error messages)
+    algo: str
 
     def acting_policies(self) -> Mapping[str, Any]:
         """``{name: policy}``: the policies that act for the team."""
@@ -107,16 +111,18 @@ class DeploymentRule:
         policies = self.acting_policies()
         for name, policy in policies.items():  # every check before any policy changes
             if not getattr(policy, "use_dcbf", False):
-                algo = getattr(self, "algo", None) or getattr(getattr(self, "source", None), "algo", "?")
-                raise InputError(f"{name} has no DCBF filter to change (algo {algo}, use_dcbf off)")
+                raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
             check_bound_below_cap(bound, getattr(policy, "u_max", float("inf")))
         territories = self._filter_territories() if changes.get("neglect_scope") == "territory" else {}
+        own = {name: {"territory": territories[name]} if territories else {} for name in policies}
+        # Every new config first: DCBFConfig checks its fields as it is built, so a bad setting
+        # raises here, before any policy has changed.
+        configs = {name: replace(p.dcbf_config, **changes, **own[name]) for name, p in policies.items()}
         for name, policy in policies.items():
-            own = {"territory": territories[name]} if territories else {}
-            policy.dcbf_config = replace(policy.dcbf_config, **changes, **own)
+            policy.dcbf_config = configs[name]
             if "avoid_collisions" in changes:
                 policy.avoid_collisions = bool(changes["avoid_collisions"])
-            self._filter_changed(name, {**changes, **own})
+            self._filter_changed(name, {**changes, **own[name]})
 
     def filter_activity(self) -> dict[str, int]:
         """Summed over the acting policies since they were built: masks computed with the neglect

@@ -125,7 +125,7 @@ class TransferredTeam(DeploymentRule, Team):
 
         self.source, self.graph = source, graph
         self.name = f"{getattr(source, 'name', 'team')} on {graph.name}"
-        self.n_agents = source.n_agents
+        self.n_agents, self.algo = source.n_agents, source.algo
         self.env_kwargs = dict(source.env_kwargs)
         self.agents = list(source.agents)
         # The spaces of the new graph with the training env's settings (u_max, episode length),
