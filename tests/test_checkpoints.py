@@ -248,3 +248,37 @@ def test_drawn_minibatch_orders_leave_numpys_generator_alone() -> None:
     assert after[1].tolist() == state[1].tolist() and after[2] == state[2]
     actions = th.as_tensor(buffer.actions)
     assert th.equal(th.cat(first), actions[expected[0]]) and th.equal(th.cat(second), actions[expected[1]])
+
+
+def test_a_checkpoint_is_also_due_after_every_seconds(tmp_path, monkeypatch) -> None:
+    from sb3_pm.agents import checkpoints
+
+    clock = [100.0]
+    monkeypatch.setattr(checkpoints.time, "monotonic", lambda: clock[0])
+    schedule = CheckpointSchedule(tmp_path, every=10, every_seconds=60.0)
+    assert not schedule.due(1, stop_requested=False)
+    clock[0] += 59.0
+    assert not schedule.due(2, stop_requested=False)
+    clock[0] += 1.0
+    assert schedule.due(3, stop_requested=False)  # 60 s since the start
+    assert not schedule.due(4, stop_requested=False)  # the clock restarted at 3
+    clock[0] += 30.0
+    assert schedule.due(10, stop_requested=False)  # the rollout count still counts, and restarts it
+    clock[0] += 59.0
+    assert not schedule.due(11, stop_requested=False)
+    assert CheckpointSchedule(tmp_path, every=10).due(3, stop_requested=False) is False  # by rollouts only
+    from sb3_pm.errors import InputError
+
+    with pytest.raises(InputError, match="every_seconds must be positive"):
+        CheckpointSchedule(tmp_path, every_seconds=0)
+
+
+def test_a_time_due_checkpoint_changes_nothing_about_the_run(tmp_path) -> None:
+    steps = 32 * 3
+    plain = _team("dcbf_ppo").learn(steps)
+    # every_seconds below any rollout's duration: a checkpoint at every barrier, though every=100
+    schedule = CheckpointSchedule(tmp_path, every=100, keep=5, every_seconds=1e-9)
+    timed = _team("dcbf_ppo").learn(steps, checkpoints=schedule)
+    _assert_same(_state(plain), _state(timed))
+    # one at every barrier between rollouts (the run's end saves the team, not a checkpoint)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rollout_000001", "rollout_000002"]

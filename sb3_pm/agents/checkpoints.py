@@ -32,6 +32,7 @@ import json
 import logging
 import pickle
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -73,11 +74,15 @@ class CheckpointSchedule:
     :param every: write one at every ``every``-th rollout barrier (counted from step 0), and always
         when a stop was requested (Ctrl-C).
     :param keep: how many of the newest checkpoints to keep (at least 1).
+    :param every_seconds: also write one at the first barrier this many seconds after the last
+        checkpoint (or the schedule's start), so a long rollout interval cannot cost a cut session
+        hours of training; ``None``: by rollouts only. Writing a checkpoint never changes training.
     """
 
     folder: Path
     every: int = 10
     keep: int = 2
+    every_seconds: float | None = None
 
     def __post_init__(self) -> None:
         self.folder = Path(self.folder)
@@ -85,12 +90,21 @@ class CheckpointSchedule:
             raise InputError(f"checkpoint every must be at least 1 rollout, got {self.every}")
         if self.keep < 1:
             raise InputError(f"checkpoints to keep must be at least 1, got {self.keep}")
+        if self.every_seconds is not None and not self.every_seconds > 0:
+            raise InputError(f"checkpoint every_seconds must be positive, got {self.every_seconds}")
         #: the last checkpoint written or resumed from
         self.last: Path | None = None
+        #: when the last checkpoint was due (time.monotonic()), for ``every_seconds``
+        self.since = time.monotonic()
 
     def due(self, rollouts: int, stop_requested: bool) -> bool:
-        """Whether the barrier after ``rollouts`` rollouts writes a checkpoint."""
-        return rollouts > 0 and (stop_requested or rollouts % self.every == 0)
+        """Whether the barrier after ``rollouts`` rollouts writes a checkpoint (the clock of
+        ``every_seconds`` restarts when it does)."""
+        late = self.every_seconds is not None and time.monotonic() - self.since >= self.every_seconds
+        if rollouts > 0 and (stop_requested or rollouts % self.every == 0 or late):
+            self.since = time.monotonic()
+            return True
+        return False
 
 
 def checkpoint_name(rollouts: int) -> str:

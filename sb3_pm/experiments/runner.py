@@ -260,6 +260,9 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
 
 #: Rollouts between two checkpoints of a training cell (a 50,000-step cell has 100 rollouts).
 CELL_CHECKPOINT_EVERY = 10
+#: ... or seconds, whichever comes first: ten rollouts of 16 learners on 200 nodes take over an hour
+#: on two cores, which a cut session would lose.
+CELL_CHECKPOINT_SECONDS = 900.0
 
 
 def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Path, graph: str) -> Any:
@@ -268,7 +271,9 @@ def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Pat
     from sb3_pm.agents.checkpoints import CHECKPOINTS, CheckpointError, CheckpointSchedule
     from sb3_pm.agents.team import IndependentPPO
 
-    schedule = CheckpointSchedule(folder / CHECKPOINTS, every=CELL_CHECKPOINT_EVERY)
+    schedule = CheckpointSchedule(
+        folder / CHECKPOINTS, every=CELL_CHECKPOINT_EVERY, every_seconds=CELL_CHECKPOINT_SECONDS
+    )
     tensorboard_log = str(folder / "tb")
     if (folder / CHECKPOINTS).is_dir():
         try:
