@@ -24,6 +24,7 @@ new graph's static map when the team's env settings make it known (``target_know
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -84,16 +85,22 @@ def rebuild_policy(policy: Any, observation_space: Any, action_space: Any) -> An
     return rebuilt.to(policy.device)
 
 
+def policy_territories(policies: Mapping[str, Any], graph: GraphSpec) -> dict[str, tuple[int, ...]]:
+    """``{name: its territory on graph}``: learner ``i`` of ``K`` (``policies`` in the team's agent
+    order) takes the ``i``-th territory of ``graph``'s ``K``-way split, as on its own graph."""
+    from sb3_pm.graphs.territories import agent_territories
+
+    return dict(zip(policies, agent_territories(graph, len(policies))))
+
+
 def retarget_territories(policies: dict[str, Any], graph: GraphSpec) -> None:
-    """Give each rebuilt policy whose neglect bound has scope ``territory`` its territory on ``graph``.
+    """Give each rebuilt policy whose neglect bound has scope ``territory`` its territory on ``graph``
+    (:func:`policy_territories`).
 
     The bound names its territory's nodes on the graph it was set for, which mean nothing on
-    another graph. Learner ``i`` of ``K`` (``policies`` in the team's agent order) takes the
-    ``i``-th territory of ``graph``'s ``K``-way split, as on its own graph.
+    another graph.
     """
     from dataclasses import replace
-
-    from sb3_pm.graphs.territories import agent_territories
 
     def scoped(policy: Any) -> bool:
         config = getattr(policy, "dcbf_config", None)
@@ -101,9 +108,9 @@ def retarget_territories(policies: dict[str, Any], graph: GraphSpec) -> None:
 
     if not any(scoped(policy) for policy in policies.values()):
         return
-    for policy, territory in zip(policies.values(), agent_territories(graph, len(policies))):
-        if scoped(policy):
-            policy.dcbf_config = replace(policy.dcbf_config, territory=territory)
+    for name, territory in policy_territories(policies, graph).items():
+        if scoped(policies[name]):
+            policies[name].dcbf_config = replace(policies[name].dcbf_config, territory=territory)
 
 
 class TransferredTeam(DeploymentRule, Team):
@@ -145,11 +152,9 @@ class TransferredTeam(DeploymentRule, Team):
         return self.policies
 
     def _filter_territories(self) -> dict[str, tuple[int, ...]]:
-        """``{agent: its territory}`` on the graph the team was moved to, as
-        :func:`retarget_territories` gives them (:meth:`DeploymentRule.set_filter`)."""
-        from sb3_pm.graphs.territories import agent_territories
-
-        return dict(zip(self.policies, agent_territories(self.graph, len(self.policies))))
+        """``{agent: its territory}`` on the graph the team was moved to
+        (:meth:`DeploymentRule.set_filter`)."""
+        return policy_territories(self.policies, self.graph)
 
     def learner_for(self, agent: str) -> str:
         """The learner acting for ``agent`` (see :meth:`IndependentPPO.learner_for`)."""
@@ -205,4 +210,4 @@ def on_graph(team: Any, graph: GraphLike) -> Team:
     return TransferredTeam(team, spec)
 
 
-__all__ = ["TransferredTeam", "on_graph", "rebuild_policy", "transfer_problem"]
+__all__ = ["TransferredTeam", "on_graph", "policy_territories", "rebuild_policy", "transfer_problem"]

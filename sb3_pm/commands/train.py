@@ -248,12 +248,10 @@ def resume(args: argparse.Namespace) -> int:
         given.append("--overwrite")
     if args.checkpoint_every is not None:
         given.append("--checkpoint-every")
-    if args.device != "cpu" or args.threads != 1:  # the run's own are used: the same arithmetic
-        given += [
-            flag
-            for flag, changed in (("--device", args.device != "cpu"), ("--threads", args.threads != 1))
-            if changed
-        ]
+    # the run's own are used: the same arithmetic
+    for flag, changed in (("--device", args.device != "cpu"), ("--threads", args.threads != 1)):
+        if changed:
+            given.append(flag)
     if given:
         raise UsageError(
             f"--resume continues the run recorded in {args.resume}/args.yml; drop {', '.join(given)}"
