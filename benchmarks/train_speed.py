@@ -4,7 +4,7 @@
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
                                      [--updates side-by-side serial] [--rollouts stacked serial]
                                      [--arithmetic default csr allowed fast fast-sparse]
-                                     [--devices cpu cuda]
+                                     [--devices cpu cuda] [--attention batch map]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
 learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
@@ -38,6 +38,13 @@ the default (docs/RESULTS.md, "Faster arithmetic"). Listing several gives the ra
 ``IndependentPPO.update_device``). CartPole always runs on the CPU, as SB3 recommends for
 MlpPolicy. With ``cuda`` the learners' update phases run one after another (side-by-side threads
 are for CPU learners), so ``--updates`` changes only the other rows.
+
+``--attention`` picks when the dense attention runs the chunked kernel
+(:func:`sb3_pm.policies.attention.use_chunked`): ``batch`` (the default: when one map's scores or
+the whole minibatch's are large, so a PPO minibatch on 200 nodes takes it) and/or ``map`` (the
+rule before it: only when one map's scores are large, never at one head below 256 nodes). Both give
+the same parameters bit for bit (``tests/test_attention_kernels.py``), so listing both measures the
+gain.
 
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
@@ -125,9 +132,11 @@ def team_speed(
     arithmetic: str = "default",
     rollouts: str = "stacked",
     device: str = "cpu",
+    attention_rule: str = "batch",
 ) -> float:
     """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.policies import attention
     from sb3_pm.zoo.config import load_config
 
     entry = load_config(config, graph)
@@ -150,13 +159,18 @@ def team_speed(
     team.update_device = update_device or None
     team.batched_rollouts = rollouts == "stacked"
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
-    team.learn(rollout)  # warm-up: one rollout and one train() per learner
+    default_batch_scores = attention.FUSED_MIN_BATCH_SCORES
+    if attention_rule == "map":  # no batch is ever large enough: the per-map rule alone
+        attention.FUSED_MIN_BATCH_SCORES = 2**62
     phases: dict[str, float] = defaultdict(float)
-    undo = _instrument(team, phases) if profile else None
-    start = time.perf_counter()
+    undo = None
     try:
+        team.learn(rollout)  # warm-up: one rollout and one train() per learner
+        undo = _instrument(team, phases) if profile else None
+        start = time.perf_counter()
         team.learn(timesteps, reset_num_timesteps=False)
     finally:
+        attention.FUSED_MIN_BATCH_SCORES = default_batch_scores
         if undo is not None:
             undo()
     elapsed = time.perf_counter() - start
@@ -223,6 +237,14 @@ def main() -> None:
         help="torch devices of the team's learners; cpu+cuda: rollouts on the CPU, updates on the GPU "
         "(default cpu; give several for the ratios)",
     )
+    parser.add_argument(
+        "--attention",
+        nargs="+",
+        choices=["batch", "map"],
+        default=["batch"],
+        help="when the dense attention runs the chunked kernel: batch (the default) or map (the "
+        "previous, per-map rule); give both for the ratio",
+    )
     args = parser.parse_args()
     if any("cuda" in device for device in args.devices) and not th.cuda.is_available():
         parser.error("--devices cuda: torch sees no CUDA device here")
@@ -237,8 +259,10 @@ def main() -> None:
     cartpole = cartpole_speed(args.cartpole_timesteps)
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<62} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
-        combinations = itertools.product(args.devices, args.updates, args.rollouts, args.arithmetic)
-        for device, mode, rollouts, arithmetic in combinations:
+        combinations = itertools.product(
+            args.devices, args.updates, args.rollouts, args.arithmetic, args.attention
+        )
+        for device, mode, rollouts, arithmetic, attention_rule in combinations:
             runs = [
                 team_speed(
                     graph,
@@ -252,6 +276,7 @@ def main() -> None:
                     arithmetic=arithmetic,
                     rollouts=rollouts,
                     device=device,
+                    attention_rule=attention_rule,
                 )
                 for _ in range(args.repeats)
             ]
@@ -261,7 +286,9 @@ def main() -> None:
             where = "" if args.devices == ["cpu"] else f", {device}"
             # a team on a GPU updates one learner after another, whatever --updates asked
             updates = "serial" if device == "cuda" else mode
-            label = f"team {graph} ({args.algo or 'config'}, {updates}, {rollouts}, {arithmetic}{where})"
+            rule = "" if args.attention == ["batch"] else f", attention {attention_rule}"
+            options = f"{args.algo or 'config'}, {updates}, {rollouts}, {arithmetic}{where}{rule}"
+            label = f"team {graph} ({options})"
             print(
                 f"{label:<62} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
                 f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"

@@ -11,8 +11,10 @@ from __future__ import annotations
 import pytest
 import torch as th
 
-from sb3_pm.policies import GraphAttention, attention, layers
-from sb3_pm.policies.attention import attention_bias, chunked_attention, unique_graphs
+from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.graphs import erdos_renyi
+from sb3_pm.policies import GraphAttention, attention
+from sb3_pm.policies.attention import attention_bias, chunked_attention, unique_graphs, use_chunked
 
 # Graphs with many edges, and graphs with few edges and an isolated node (only its self loop).
 DENSITIES = {"dense": 0.5, "sparse": 0.03}
@@ -102,7 +104,7 @@ def test_layer_kernels_agree(
     """A GAT layer gives the same outputs and gradients with the custom kernel, with the fallback,
     and with the sparse kernel; ``FUSED_MIN_SCORES = 0`` routes these small graphs through the
     chunked attention that large graphs use."""
-    monkeypatch.setattr(layers, "FUSED_MIN_SCORES", 0)
+    monkeypatch.setattr(attention, "FUSED_MIN_SCORES", 0)
     th.manual_seed(0)
     custom = GraphAttention(6, 8, heads=4, backend=backend)
     fallback = GraphAttention(6, 8, heads=4, backend=backend, custom_kernel=False)
@@ -119,3 +121,55 @@ def test_layer_kernels_agree(
     other = layer_outputs_and_grads(fallback, x, adjacency, not dense)
     for a, b in zip(got, other):
         th.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+
+
+def test_chunked_kernel_follows_the_size_of_the_map_and_of_the_batch() -> None:
+    """Large maps always take the chunked kernel; small maps only in a batch past the caches."""
+    assert use_chunked(1, 1, 256)  # 65,536 scores in one map
+    assert not use_chunked(2, 1, 200)  # a rollout step on 200 nodes: 80,000 scores
+    assert use_chunked(250, 1, 200)  # a PPO minibatch on 200 nodes: 10M scores
+    assert not use_chunked(250, 1, 50)  # the default minibatch on 50 nodes: 625,000 scores
+    assert not use_chunked(250, 4, 50)  # ... at four heads: 2.5M
+    assert use_chunked(500, 4, 50)  # 5M
+
+
+@pytest.mark.parametrize("heads", [1, 2])
+def test_chunked_kernel_gives_the_same_bits_as_plain_autograd(
+    heads: int, monkeypatch: pytest.MonkeyPatch, count_custom_calls: list[int]
+) -> None:
+    """Not only close: the chunked kernel and plain autograd over the whole batch give equal outputs
+    and gradients, which is what lets the batch's size choose between them without changing a
+    seeded run. A 130-node graph as sparse as the published ones, 40 maps."""
+    th.manual_seed(0)
+    layer = GraphAttention(9, 32, heads=heads, backend="dense")
+    x, adjacency = th.randn(40, 130, 9), random_graphs(40, 130, 0.03)
+    adjacency[10:] = adjacency[3]
+    monkeypatch.setattr(attention, "FUSED_MIN_BATCH_SCORES", 10**12)
+    plain = layer_outputs_and_grads(layer, x, adjacency, dense=True)
+    assert not count_custom_calls
+    monkeypatch.setattr(attention, "FUSED_MIN_BATCH_SCORES", 1)
+    chunked = layer_outputs_and_grads(layer, x, adjacency, dense=True)
+    assert count_custom_calls, "the chunked kernel did not run"
+    for a, b in zip(chunked, plain, strict=True):
+        assert th.equal(a, b)
+
+
+def test_a_team_trains_the_same_parameters_with_either_kernel(
+    monkeypatch: pytest.MonkeyPatch, count_custom_calls: list[int]
+) -> None:
+    """A seeded team whose minibatches take the chunked kernel ends with the parameters of the same
+    team trained through plain autograd, bit for bit (rollout steps take plain autograd both ways)."""
+    graph = erdos_renyi(40, 0.1, n_targets=6, seed=5)
+    hyperparams = {"n_steps": 32, "batch_size": 32, "n_epochs": 2, "policy_kwargs": {"hidden_dim": 16}}
+    minibatch_scores = 32 * 40 * 40
+    trained = []
+    for threshold in (10**12, minibatch_scores):
+        monkeypatch.setattr(attention, "FUSED_MIN_BATCH_SCORES", threshold)
+        team = IndependentPPO(
+            graph, n_agents=2, n_envs=2, seed=0, env_kwargs={"max_cycles": 40}, hyperparams=hyperparams
+        )
+        team.learn(128)
+        trained.append([p.detach().clone() for a in team.agents for p in team.models[a].policy.parameters()])
+        assert bool(count_custom_calls) == (threshold == minibatch_scores)
+    for a, b in zip(*trained, strict=True):
+        assert th.equal(a, b)

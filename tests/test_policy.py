@@ -123,6 +123,19 @@ class TestLayers:
         graphs, index = unique_graphs(adjacency)
         assert len(graphs) == 2 and th.equal(graphs[index], adjacency)
 
+    def test_unique_graphs_of_one_map(self) -> None:
+        """A batch of one repeated map (a known topology) gives that map once; one differing entry
+        anywhere in the batch gives two."""
+        from sb3_pm.policies.attention import unique_graphs
+
+        adjacency = random_graphs(1, 7, 0.4).expand(12, 7, 7).contiguous()
+        graphs, index = unique_graphs(adjacency)
+        assert graphs.shape == (1, 7, 7) and th.equal(index, th.zeros(12, dtype=th.long))
+        assert th.equal(graphs[index], adjacency)
+        adjacency[11, 6, 5] = 1.0 - adjacency[11, 6, 5]
+        graphs, index = unique_graphs(adjacency)
+        assert len(graphs) == 2 and th.equal(graphs[index], adjacency)
+
     @pytest.mark.parametrize("collide", [False, True])
     def test_unique_graphs_keep_the_earlier_order(
         self, collide: bool, monkeypatch: pytest.MonkeyPatch

@@ -50,8 +50,23 @@ UNIQUE_MIN_BATCH = 8
 #: so a chunk's scores, probabilities and gradients stay in a core's L2 cache.
 CHUNK_FLOATS = 131_072
 #: The chunked kernel runs when one map's scores ``heads * N * N`` reach this size (about 128 nodes
-#: at 4 heads); below it, plain autograd over the whole batch is faster.
+#: at 4 heads), whatever the batch; below it, see :data:`FUSED_MIN_BATCH_SCORES`.
 FUSED_MIN_SCORES = 65_536
+#: ... or when the whole batch's scores ``B * heads * N * N`` reach this size (16 MB of floats, past
+#: the caches): a PPO minibatch of 250 maps on 130 nodes or more at one head. Below it, plain
+#: autograd over the whole batch is faster (measured on 2 cores: 250 maps of 50 nodes at 4 heads,
+#: 2.5M scores, 46 ms plain against 56 ms chunked per forward and backward pass; 500 maps of 100
+#: nodes at one head, 5M, 97 against 72 ms; 250 maps of 200 nodes, 10M, 348 against 132 ms). Both
+#: paths give the same bits on this project's machines, so the choice changes only the speed
+#: (tests/test_attention_kernels.py trains a team both ways).
+FUSED_MIN_BATCH_SCORES = 4_194_304
+
+
+def use_chunked(batch: int, heads: int, n: int) -> bool:
+    """Whether a dense batch of ``batch`` maps, ``heads`` heads and ``n`` nodes runs the chunked
+    kernel (:func:`chunked_attention` with ``custom_kernel``) rather than plain autograd."""
+    scores = heads * n * n
+    return scores >= FUSED_MIN_SCORES or batch * scores >= FUSED_MIN_BATCH_SCORES
 
 
 def use_dense(adjacency: th.Tensor, backend: str) -> bool:
@@ -110,6 +125,10 @@ def unique_graphs(adjacency: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
     if batch <= UNIQUE_MIN_BATCH:
         return adjacency, th.arange(batch, device=adjacency.device)
     flat = adjacency.reshape(batch, -1)
+    if bool((flat == flat[:1]).all()):
+        # One map for the whole batch (a known topology, or a map that stopped growing): a byte
+        # comparison instead of the keys' float conversion and product (a tenth of a 200-node train()).
+        return adjacency[:1], th.zeros(batch, dtype=th.long, device=adjacency.device)
     arange = th.arange(batch, device=adjacency.device)
     # A cheap key first (a weighted sum, not the edge count: two maps of a rollout often know as
     # many edges but different ones); one exact comparison confirms that equal keys mean equal graphs.

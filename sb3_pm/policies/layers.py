@@ -18,12 +18,12 @@ from torch_geometric.nn import GATConv, TransformerConv
 from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import (
     BACKENDS,
-    FUSED_MIN_SCORES,
     attention_bias,
     attention_probabilities,
     batched_edge_index,
     chunked_attention,
     unique_graphs,
+    use_chunked,
     use_dense,
 )
 from sb3_pm.policies.csr_attention import SPARSE_KERNELS, CSRGraph, csr_gat_attention, csr_graph
@@ -164,8 +164,8 @@ class GraphAttention(nn.Module):
         h = self._project(x, encoding).view(batch, n, heads, channels).transpose(1, 2).contiguous()
         alpha_src = (h * conv.att_src.view(1, heads, 1, channels)).sum(-1)  # (B, H, N)
         alpha_dst = (h * conv.att_dst.view(1, heads, 1, channels)).sum(-1)
-        if (self.training and conv.dropout > 0) or heads * n * n < FUSED_MIN_SCORES:
-            # Whole batch at once: attention dropout needs the probabilities, and on small graphs
+        if (self.training and conv.dropout > 0) or not use_chunked(batch, heads, n):
+            # Whole batch at once: attention dropout needs the probabilities, and on small batches
             # recomputing the scores in the backward pass costs more than the memory traffic it saves.
             alpha = attention_probabilities(alpha_dst, alpha_src, bias[index], conv.negative_slope)
             alpha = nn.functional.dropout(alpha, p=conv.dropout, training=self.training)
