@@ -5,9 +5,10 @@
                                      [--updates side-by-side serial] [--rollouts stacked serial]
                                      [--arithmetic default csr allowed fast fast-sparse]
                                      [--devices cpu cuda] [--attention batch map]
+                                     [--agents 4] [--update-slots auto all]
 
 Prints agent-steps per second (every learner's steps, summed: a 4-agent team at T steps per
-learner takes 4T) for a 4-agent team on each graph, and env-steps per second for SB3 PPO
+learner takes 4T) for a team of ``--agents`` (default 4) on each graph, and env-steps per second for SB3 PPO
 (MlpPolicy) on CartPole-v1 with 8 envs. Both include PPO's train() phases. Short runs: a warm-up
 rollout is not timed, so the figures are throughput, not start-up cost.
 
@@ -45,6 +46,11 @@ the whole minibatch's are large, so a PPO minibatch on 200 nodes takes it) and/o
 rule before it: only when one map's scores are large, never at one head below 256 nodes). Both give
 the same parameters bit for bit (``tests/test_attention_kernels.py``), so listing both measures the
 gain.
+
+``--update-slots`` picks how many learners may run their update phase at once
+(:mod:`sb3_pm.agents.update_slots`): ``auto`` (the default: one per core over torch's threads),
+``all`` (every learner, the rule before it) or a number. The parameters are the same whatever the
+count, so listing several measures the gain (it shows with many learners: ``--agents 16``).
 
 ``--profile`` adds, for each graph, where the team's wall time goes: the joint environment step,
 the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``, the estimator
@@ -133,14 +139,16 @@ def team_speed(
     rollouts: str = "stacked",
     device: str = "cpu",
     attention_rule: str = "batch",
+    n_agents: int = 4,
+    update_slots: str = "auto",
 ) -> float:
-    """Agent-steps per second of one 4-agent team after a one-rollout warm-up."""
+    """Agent-steps per second of one team after a one-rollout warm-up."""
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.policies import attention
     from sb3_pm.zoo.config import load_config
 
     entry = load_config(config, graph)
-    entry.n_agents = 4  # before team_kwargs(): per-agent learning rates follow the team size
+    entry.n_agents = n_agents  # before team_kwargs(): per-agent learning rates follow the team size
     options = entry.team_kwargs()
     options["env_kwargs"] = {**options["env_kwargs"], "max_cycles": 500}
     if algo is not None:
@@ -158,6 +166,8 @@ def team_speed(
     team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, device=rollout_device, **options)
     team.update_device = update_device or None
     team.batched_rollouts = rollouts == "stacked"
+    slots = {"auto": None, "all": n_agents}
+    team.update_slots = slots[update_slots] if update_slots in slots else int(update_slots)
     rollout = team.models[team.agents[0]].n_steps * team.n_envs
     default_batch_scores = attention.FUSED_MIN_BATCH_SCORES
     if attention_rule == "map":  # no batch is ever large enough: the per-map rule alone
@@ -245,12 +255,23 @@ def main() -> None:
         help="when the dense attention runs the chunked kernel: batch (the default) or map (the "
         "previous, per-map rule); give both for the ratio",
     )
+    parser.add_argument("--agents", type=int, default=4, help="agents of the team (default 4)")
+    parser.add_argument(
+        "--update-slots",
+        nargs="+",
+        default=["auto"],
+        help="learners updating at once: auto (the default, one per core), all, or a number; "
+        "give several for the ratios",
+    )
     args = parser.parse_args()
     if any("cuda" in device for device in args.devices) and not th.cuda.is_available():
         parser.error("--devices cuda: torch sees no CUDA device here")
+    for slots in args.update_slots:
+        if slots not in ("auto", "all") and not (slots.isdigit() and int(slots) > 0):
+            parser.error(f"--update-slots: auto, all or a positive number, got {slots!r}")
     th.set_num_threads(args.threads)
     print(
-        f"torch threads: {args.threads}; team: 4 agents, config {args.config}"
+        f"torch threads: {args.threads}; team: {args.agents} agents, config {args.config}"
         + (f", algo {args.algo}" if args.algo else "")
         + (f", n_envs={args.n_envs}" if args.n_envs else "")
         + (f", n_steps={args.n_steps}" if args.n_steps else "")
@@ -260,9 +281,9 @@ def main() -> None:
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<62} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
         combinations = itertools.product(
-            args.devices, args.updates, args.rollouts, args.arithmetic, args.attention
+            args.devices, args.updates, args.rollouts, args.arithmetic, args.attention, args.update_slots
         )
-        for device, mode, rollouts, arithmetic, attention_rule in combinations:
+        for device, mode, rollouts, arithmetic, attention_rule, slots in combinations:
             runs = [
                 team_speed(
                     graph,
@@ -277,21 +298,24 @@ def main() -> None:
                     rollouts=rollouts,
                     device=device,
                     attention_rule=attention_rule,
+                    n_agents=args.agents,
+                    update_slots=slots,
                 )
                 for _ in range(args.repeats)
             ]
             speed = statistics.median(runs)
-            paper = 4 * 50_000 / speed
+            paper = args.agents * 50_000 / speed
             spread = f"  (runs: {', '.join(f'{r:.0f}' for r in runs)})" if len(runs) > 1 else ""
             where = "" if args.devices == ["cpu"] else f", {device}"
             # a team on a GPU updates one learner after another, whatever --updates asked
             updates = "serial" if device == "cuda" else mode
             rule = "" if args.attention == ["batch"] else f", attention {attention_rule}"
+            rule += "" if args.update_slots == ["auto"] else f", update slots {slots}"
             options = f"{args.algo or 'config'}, {updates}, {rollouts}, {arithmetic}{where}{rule}"
             label = f"team {graph} ({options})"
             print(
                 f"{label:<62} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
-                f"paper budget (4 x 50,000): {paper / 60:.1f} min{spread}"
+                f"paper budget ({args.agents} x 50,000): {paper / 60:.1f} min{spread}"
             )
 
 

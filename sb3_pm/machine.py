@@ -19,6 +19,14 @@ from typing import Any
 MACHINE_RECORD = "machine.yml"
 
 
+def usable_cores() -> int:
+    """How many cores this process may run on (its CPU affinity on Linux, else every core)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def cpu_model() -> str:
     """The processor's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`)."""
     cpuinfo = Path("/proc/cpuinfo")

@@ -110,8 +110,9 @@ class RolloutBarrier(BaseCallback):
     between two rollouts (``train()``, the estimator fit). Its env must be an :class:`AgentVecEnv`.
     At each rollout's end it opens the learner's update phase
     (:meth:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer.enter_update`); when the phase runs
-    side by side with the others, ``estimator`` (the learner's estimator callback, if any) draws
-    from the learner's own generator until the barrier.
+    side by side with the others, it first waits for one of the team's update slots
+    (:mod:`sb3_pm.agents.update_slots`), which it gives back at the barrier, and ``estimator`` (the
+    learner's estimator callback, if any) draws from the learner's own generator until the barrier.
 
     :param estimator: the learner's :class:`~sb3_pm.callbacks.EstimatorCallback`, or ``None``.
     """
@@ -143,11 +144,14 @@ class RolloutBarrier(BaseCallback):
         ):
             draw = lambda: buffer.draw_orders(int(epochs))  # noqa: E731
         generator = env.hub.enter_update(env.index, draw)
+        if generator is not None:  # side by side: wait for an update slot (a free core)
+            env.hub.take_update_slot(env.index)
         if self.estimator is not None:
             self.estimator.generator = generator
 
     def _on_rollout_start(self) -> None:
         env = self._agent_env()
+        env.hub.give_back_update_slot(env.index)
         env.hub.sync(env.index)
         if self.estimator is not None:
             self.estimator.generator = None

@@ -63,6 +63,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
 
 from sb3_pm.agents.agent_vec_env import AgentVecEnv
 from sb3_pm.agents.stream_turns import LearnerStreams
+from sb3_pm.agents.update_slots import UpdateSlots
 
 #: How often (seconds) a blocked agent re-checks the abort flag even without a notification.
 POLL_INTERVAL = 0.5
@@ -136,6 +137,9 @@ class ParallelEnvMultiplexer(LearnerStreams):
         self.stop_requested = False
         #: the reason the last ``on_sync`` stopped the team, if it did
         self.stopped: str | None = None
+        #: with side-by-side updates, how many learners may be in their update phase at once
+        #: (``None``: all of them); see :mod:`sb3_pm.agents.update_slots`
+        self.update_slots: UpdateSlots | None = None
 
         # Per agent and copy: running return; per copy: running length (Monitor-style stats).
         self._ep_returns = np.zeros((self.n_agents, self.n_envs), dtype=np.float64)
@@ -203,8 +207,26 @@ class ParallelEnvMultiplexer(LearnerStreams):
             self._finished = [False] * self.n_agents
             self._aborted = None
 
+    def take_update_slot(self, index: int) -> None:
+        """Agent ``index``, updating side by side, waits for one of the :attr:`update_slots`.
+
+        :raises TeamAborted: if the team is aborted while it waits.
+        """
+        slots = self.update_slots
+        if slots is None:
+            return
+        while not slots.take(index, POLL_INTERVAL):
+            if self._aborted is not None:
+                raise TeamAborted(self._aborted)
+
+    def give_back_update_slot(self, index: int) -> None:
+        """Agent ``index`` leaves its update phase (a no-op if it holds no slot)."""
+        if self.update_slots is not None:
+            self.update_slots.give_back(index)
+
     def finish(self, index: int) -> None:
         """Agent ``index``'s learner is done: hand the baton on and never wait for it again."""
+        self.give_back_update_slot(index)  # a learner that stops inside its update phase
         with self._cond:
             self._finished[index] = True
             self._kinds[index] = None

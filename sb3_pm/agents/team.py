@@ -57,6 +57,7 @@ from sb3_pm.agents.rollout_batching import RolloutBatcher
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
 from sb3_pm.agents.transfer import on_graph, transfer_problem
+from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike
 from sb3_pm.team_interface import Observation, Team
@@ -118,6 +119,10 @@ class IndependentPPO(LearnedTeam):
     #: while training, run the learners' rollout passes as one stacked pass per joint step where it
     #: applies (:mod:`sb3_pm.agents.rollout_batching`; the same parameters bit for bit)
     batched_rollouts: bool = True
+    #: with side-by-side updates, how many learners may run their update phase at once: ``None``
+    #: (one per usable core, over torch's threads) or a positive integer; the same parameters
+    #: either way (:mod:`sb3_pm.agents.update_slots`)
+    update_slots: int | None = None
 
     def __init__(
         self,
@@ -341,6 +346,9 @@ class IndependentPPO(LearnedTeam):
         batcher = self._rollout_batcher()
         if batcher is not None:
             batcher.attach()
+        # Read at every learn(): torch's thread count may have changed since construction.
+        slots = self.update_slots if self.update_slots is not None else default_update_slots()
+        self.hub.update_slots = UpdateSlots(slots) if self.hub.concurrent_updates else None
         try:
             errors = learn_concurrently(
                 [self.models[a] for a in self.agents],

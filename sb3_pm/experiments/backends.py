@@ -14,16 +14,14 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
 
 from sb3_pm.errors import InputError
+from sb3_pm.machine import usable_cores
 
 BACKENDS = ("local", "ray")
 
 
 def default_jobs() -> int:
     """One job per core the process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
+    return usable_cores()
 
 
 def run_jobs(

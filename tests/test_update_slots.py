@@ -1,0 +1,141 @@
+"""Update slots: at most so many learners in their update phase at once, the same parameters."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import pytest
+import torch as th
+
+from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
+from sb3_pm.errors import InputError
+from sb3_pm.graphs import erdos_renyi
+from sb3_pm.ppo_dcbf.ppo_dcbf import DCBFPPO
+
+th.set_num_threads(1)
+GRAPH = erdos_renyi(14, 0.3, n_targets=4, seed=3)
+TINY = {"n_steps": 16, "batch_size": 16, "n_epochs": 2, "policy_kwargs": {"hidden_dim": 8}}
+
+
+def make_team(concurrent_updates: bool = True, slots: int | None = None) -> IndependentPPO:
+    team = IndependentPPO(
+        GRAPH,
+        n_agents=4,
+        n_envs=2,
+        seed=0,
+        env_kwargs={"max_cycles": 20},
+        hyperparams=TINY,
+        concurrent_updates=concurrent_updates,
+    )
+    team.update_slots = slots
+    return team
+
+
+def parameters(team: IndependentPPO) -> list[th.Tensor]:
+    return [p.detach().clone() for a in team.agents for p in team.models[a].policy.parameters()]
+
+
+class UpdateCounter:
+    """Wraps ``DCBFPPO.train`` to record how many learners were inside it at once."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.inside = 0
+        self.most = 0
+        self.calls = 0
+        self.lock = threading.Lock()
+        original = DCBFPPO.train
+
+        def train(model: Any) -> None:
+            with self.lock:
+                self.inside += 1
+                self.calls += 1
+                self.most = max(self.most, self.inside)
+            try:
+                threading.Event().wait(0.1)  # long enough for the others to arrive if allowed
+                original(model)
+            finally:
+                with self.lock:
+                    self.inside -= 1
+
+        monkeypatch.setattr(DCBFPPO, "train", train)
+
+
+def test_slots_count_their_holders() -> None:
+    slots = UpdateSlots(2)
+    assert slots.take(0, 0.01) and slots.take(1, 0.01)
+    assert slots.take(1, 0.01), "a holder taking again keeps its slot"
+    assert not slots.take(2, 0.01), "no third slot"
+    slots.give_back(3)  # holds none: nothing changes
+    assert slots.holders == {0, 1}
+    slots.give_back(0)
+    slots.give_back(0)  # twice: the second is a no-op
+    assert slots.take(2, 0.01) and slots.holders == {1, 2}
+    assert not slots.take(0, 0.01)
+
+
+@pytest.mark.parametrize("count", [0, -1, True, 1.5, "2"])
+def test_bad_slot_counts_are_refused(count: Any) -> None:
+    with pytest.raises(InputError, match="update slots must be a positive integer"):
+        UpdateSlots(count)
+
+
+def test_default_is_one_slot_per_core_per_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("sb3_pm.agents.update_slots.usable_cores", lambda: 8)
+    monkeypatch.setattr(th, "get_num_threads", lambda: 2)
+    assert default_update_slots() == 4
+    monkeypatch.setattr(th, "get_num_threads", lambda: 16)
+    assert default_update_slots() == 1
+
+
+@pytest.mark.parametrize("slots", [1, 2])
+def test_at_most_that_many_learners_update_at_once(slots: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    counter = UpdateCounter(monkeypatch)
+    make_team(slots=slots).learn(64)
+    assert counter.calls == 4 * 2  # four learners, two rollouts of 32 steps each
+    assert counter.most == slots
+
+
+def test_without_slots_every_learner_may_update_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The count is what limits the updates: with a slot per learner all four overlap."""
+    counter = UpdateCounter(monkeypatch)
+    make_team(slots=4).learn(64)
+    assert counter.most == 4
+
+
+def test_the_parameters_do_not_depend_on_the_slots() -> None:
+    serial = make_team(concurrent_updates=False)
+    serial.learn(96)
+    want = parameters(serial)
+    for slots in (1, 3, None):
+        team = make_team(slots=slots)
+        team.learn(96)
+        assert all(th.equal(a, b) for a, b in zip(parameters(team), want, strict=True)), slots
+
+
+def test_a_failing_update_gives_its_slot_back(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With one slot, a learner whose train() raises ends the run with its error; the learners
+    waiting for its slot do not hang, and the team can train again."""
+    team = make_team(slots=1)
+    original = DCBFPPO.train
+    failing = team.models[team.agents[1]]
+
+    def train(model: Any) -> None:
+        if model is failing:
+            raise RuntimeError("update failed")
+        original(model)
+
+    monkeypatch.setattr(DCBFPPO, "train", train)
+    with pytest.raises(RuntimeError, match="update failed"):
+        team.learn(64)
+    assert team.hub.update_slots is not None and not team.hub.update_slots.holders
+    monkeypatch.setattr(DCBFPPO, "train", original)
+    team.learn(32)
+
+
+def test_a_bad_slot_count_is_refused_before_training() -> None:
+    team = make_team(slots=0)
+    with pytest.raises(InputError, match="update slots must be a positive integer, got 0"):
+        team.learn(32)
+    assert team.num_timesteps == 0
