@@ -131,6 +131,8 @@ def test_chunked_kernel_follows_the_size_of_the_map_and_of_the_batch() -> None:
     assert not use_chunked(250, 1, 50)  # the default minibatch on 50 nodes: 625,000 scores
     assert not use_chunked(250, 4, 50)  # ... at four heads: 2.5M
     assert use_chunked(500, 4, 50)  # 5M
+    assert not use_chunked(250, 1, 200, on_cpu=False)  # on a GPU only the map's size counts
+    assert use_chunked(1, 1, 256, on_cpu=False)
 
 
 @pytest.mark.parametrize("heads", [1, 2])
@@ -159,6 +161,7 @@ def test_a_team_trains_the_same_parameters_with_either_kernel(
 ) -> None:
     """A seeded team whose minibatches take the chunked kernel ends with the parameters of the same
     team trained through plain autograd, bit for bit (rollout steps take plain autograd both ways)."""
+    monkeypatch.setattr(attention, "CHUNK_FLOATS", 5 * 40 * 40)  # chunks of 5 maps: 32 = 6 x 5 + 2
     graph = erdos_renyi(40, 0.1, n_targets=6, seed=5)
     hyperparams = {"n_steps": 32, "batch_size": 32, "n_epochs": 2, "policy_kwargs": {"hidden_dim": 16}}
     minibatch_scores = 32 * 40 * 40

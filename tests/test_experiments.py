@@ -903,3 +903,39 @@ def test_the_report_names_a_variants_own_training_budget(tmp_path: Path) -> None
     report = write_report(tmp_path, record, [], reference="x").read_text()
     assert "50000 steps per learner" in report
     assert "variant `long`: 150000 steps per learner" in report and "`grazing`" not in report
+
+
+def test_jobs_side_by_side_share_the_cores_between_their_teams(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each local job's team gets the cores over the jobs running at once as its update slots."""
+    from sb3_pm.agents import update_slots
+    from sb3_pm.experiments import runner
+
+    experiment = load_tiny(tmp_path)
+    monkeypatch.setattr(runner, "usable_cores", lambda: 8)
+    planned: list = []
+
+    class Planned(Exception):
+        pass
+
+    def plan_only(function, jobs, **kwargs):
+        planned.extend(jobs)
+        raise Planned
+
+    with monkeypatch.context() as patch:
+        patch.setattr(runner, "run_jobs", plan_only)
+        with pytest.raises(Planned):
+            reproduce(experiment, tmp_path / "four", n_jobs=4, progress=False)
+    assert len(planned) == 4 and {cell.update_slots for cell in planned} == {2}  # 8 cores, 4 jobs
+
+    counts: list[int] = []
+    original = update_slots.UpdateSlots.__init__
+
+    def recorded(self, count: int) -> None:
+        counts.append(count)
+        original(self, count)
+
+    monkeypatch.setattr(update_slots.UpdateSlots, "__init__", recorded)
+    reproduce(experiment, tmp_path / "one", n_jobs=1, progress=False)  # in this process
+    assert counts == [8, 8]  # one job at a time: every core; one learn() per learned cell

@@ -8,6 +8,7 @@ from typing import Any
 import pytest
 import torch as th
 
+from sb3_pm.agents.multiplexer import TeamTimeout
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
 from sb3_pm.errors import InputError
@@ -38,25 +39,30 @@ def parameters(team: IndependentPPO) -> list[th.Tensor]:
 
 
 class UpdateCounter:
-    """Wraps ``DCBFPPO.train`` to record how many learners were inside it at once."""
+    """Wraps ``DCBFPPO.train`` to record how many learners were inside it at once.
 
-    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+    Each learner entering waits (up to ``patience`` seconds) until ``expected`` learners are
+    inside, so that the most seen is the most allowed, not what the scheduler happened to overlap.
+    """
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, expected: int, patience: float = 10.0) -> None:
         self.inside = 0
         self.most = 0
         self.calls = 0
-        self.lock = threading.Lock()
+        self.cond = threading.Condition()
         original = DCBFPPO.train
 
         def train(model: Any) -> None:
-            with self.lock:
+            with self.cond:
                 self.inside += 1
                 self.calls += 1
                 self.most = max(self.most, self.inside)
+                self.cond.notify_all()
+                self.cond.wait_for(lambda: self.inside >= expected, timeout=patience)
             try:
-                threading.Event().wait(0.1)  # long enough for the others to arrive if allowed
                 original(model)
             finally:
-                with self.lock:
+                with self.cond:
                     self.inside -= 1
 
         monkeypatch.setattr(DCBFPPO, "train", train)
@@ -91,7 +97,8 @@ def test_default_is_one_slot_per_core_per_thread(monkeypatch: pytest.MonkeyPatch
 
 @pytest.mark.parametrize("slots", [1, 2])
 def test_at_most_that_many_learners_update_at_once(slots: int, monkeypatch: pytest.MonkeyPatch) -> None:
-    counter = UpdateCounter(monkeypatch)
+    # Each waits a moment for one learner too many: every other learner is ready to enter by then.
+    counter = UpdateCounter(monkeypatch, expected=slots + 1, patience=0.3)
     make_team(slots=slots).learn(64)
     assert counter.calls == 4 * 2  # four learners, two rollouts of 32 steps each
     assert counter.most == slots
@@ -99,7 +106,7 @@ def test_at_most_that_many_learners_update_at_once(slots: int, monkeypatch: pyte
 
 def test_without_slots_every_learner_may_update_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """The count is what limits the updates: with a slot per learner all four overlap."""
-    counter = UpdateCounter(monkeypatch)
+    counter = UpdateCounter(monkeypatch, expected=4)
     make_team(slots=4).learn(64)
     assert counter.most == 4
 
@@ -139,3 +146,44 @@ def test_a_bad_slot_count_is_refused_before_training() -> None:
     with pytest.raises(InputError, match="update slots must be a positive integer, got 0"):
         team.learn(32)
     assert team.num_timesteps == 0
+
+
+def test_a_stuck_update_times_the_team_out(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The learners waiting for the slot of a learner stuck in its update time the team out, as
+    they would waiting for it at the barrier."""
+    team = IndependentPPO(
+        GRAPH, n_agents=4, n_envs=2, seed=0, env_kwargs={"max_cycles": 20}, hyperparams=TINY, wait_timeout=1.0
+    )
+    team.update_slots = 1
+    original = DCBFPPO.train
+    stuck = team.models[team.agents[0]]
+
+    def train(model: Any) -> None:
+        if model is stuck:
+            threading.Event().wait(3.0)
+        original(model)
+
+    monkeypatch.setattr(DCBFPPO, "train", train)
+    with pytest.raises(TeamTimeout, match="waited more than 1.0 s for an update slot"):
+        team.learn(32)
+
+
+def test_no_update_starts_after_the_team_is_aborted(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The slot of a learner whose update raised goes to a waiting learner, which sees the abort
+    and gives it back instead of updating."""
+    team = make_team(slots=1)
+    original = DCBFPPO.train
+    failing = team.models[team.agents[0]]
+    after_abort: list[Any] = []
+
+    def train(model: Any) -> None:
+        if team.hub.aborted is not None:
+            after_abort.append(model)
+        if model is failing:
+            raise RuntimeError("update failed")
+        original(model)
+
+    monkeypatch.setattr(DCBFPPO, "train", train)
+    with pytest.raises(RuntimeError, match="update failed"):
+        team.learn(32)
+    assert not after_abort

@@ -210,14 +210,25 @@ class ParallelEnvMultiplexer(LearnerStreams):
     def take_update_slot(self, index: int) -> None:
         """Agent ``index``, updating side by side, waits for one of the :attr:`update_slots`.
 
-        :raises TeamAborted: if the team is aborted while it waits.
+        The wait counts against :attr:`timeout` like any other: a learner stuck in its update
+        holds its slot, and the ones waiting for it time the team out.
+
+        :raises TeamAborted: if the team is aborted, or times out, before it gets a slot (a slot
+            taken as the team is aborted is given back: no update starts after an abort).
         """
         slots = self.update_slots
         if slots is None:
             return
+        deadline = None if self.timeout is None else time.monotonic() + self.timeout
         while not slots.take(index, POLL_INTERVAL):
+            if self._aborted is None and deadline is not None and time.monotonic() >= deadline:
+                with self._cond:
+                    self._time_out(self._waited_too_long(index, "an update slot"))
             if self._aborted is not None:
                 raise TeamAborted(self._aborted)
+        if self._aborted is not None:
+            slots.give_back(index)
+            raise TeamAborted(self._aborted)
 
     def give_back_update_slot(self, index: int) -> None:
         """Agent ``index`` leaves its update phase (a no-op if it holds no slot)."""
@@ -259,14 +270,20 @@ class ParallelEnvMultiplexer(LearnerStreams):
             if deadline is not None:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    self._aborted = (
-                        f"{self.agents[index]} waited more than {self.timeout} s for the other agents"
-                    )
-                    self.timed_out = self._aborted
-                    self._cond.notify_all()
+                    self._time_out(self._waited_too_long(index, "the other agents"))
                     raise TeamAborted(self._aborted)
                 wait = min(wait, remaining)
             self._cond.wait(wait)
+
+    def _waited_too_long(self, index: int, what: str) -> str:
+        return f"{self.agents[index]} waited more than {self.timeout} s for {what}"
+
+    def _time_out(self, reason: str) -> None:
+        """Abort the team for a timeout (holding ``_cond``); the first reason is kept."""
+        if self._aborted is None:
+            self._aborted = reason
+            self.timed_out = reason
+        self._cond.notify_all()
 
     def _pass_baton(self, index: int) -> None:
         """Give the baton to the next unfinished agent after ``index`` (in ring order)."""

@@ -104,9 +104,10 @@ class IndependentPPO(LearnedTeam):
         (:attr:`~sb3_pm.agents.learned_team.LearnedTeam.deploy_filter`), ``{"neglect_bound": B,
         "neglect_scope": S}``, or ``None``. Saved with the team; :meth:`learn` trains without it.
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
-        before training stops with :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
-        ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (under a
-        minute per rollout on the 200-node graph).
+        or for an update slot (:attr:`update_slots`), before training stops with
+        :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
+        ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (about two
+        minutes at a rollout's end for 16 learners on the 200-node graph, two updating at a time).
     """
 
     name = "ippo"
@@ -304,6 +305,10 @@ class IndependentPPO(LearnedTeam):
         on_interrupt: Callable[[], None] | None,
     ) -> IndependentPPO:
         """:meth:`learn`'s body, run with the deploy filter off."""
+        # Read at every learn() (torch's thread count may have changed since construction), and
+        # before anything changes, so that a bad count changes nothing.
+        count = self.update_slots if self.update_slots is not None else default_update_slots()
+        slots = UpdateSlots(count) if self.hub.concurrent_updates else None
         if not reset_num_timesteps and any(m._last_obs is None for m in self.models.values()):
             # All learners must reset together (the multiplexer steps them as one).
             for model in self.models.values():
@@ -346,9 +351,7 @@ class IndependentPPO(LearnedTeam):
         batcher = self._rollout_batcher()
         if batcher is not None:
             batcher.attach()
-        # Read at every learn(): torch's thread count may have changed since construction.
-        slots = self.update_slots if self.update_slots is not None else default_update_slots()
-        self.hub.update_slots = UpdateSlots(slots) if self.hub.concurrent_updates else None
+        self.hub.update_slots = slots
         try:
             errors = learn_concurrently(
                 [self.models[a] for a in self.agents],

@@ -34,7 +34,7 @@ import shutil
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,14 +42,14 @@ import yaml
 
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
-from sb3_pm.experiments.backends import run_jobs
+from sb3_pm.experiments.backends import default_jobs, run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, ExperimentError, Variant
 from sb3_pm.files import move_aside
 from sb3_pm.graphs import graph_label
-from sb3_pm.machine import write_machine_record
+from sb3_pm.machine import usable_cores, write_machine_record
 
 #: Evaluation env seeds start here, far from the seeds training episodes use.
 EVAL_SEED_OFFSET = 1_000_000
@@ -78,6 +78,10 @@ class Cell:
     #: torch device of a learned team's update phases alone (``IndependentPPO.update_device``;
     #: ``None``: ``device``); like ``device``, not part of the experiment record.
     update_device: str | None = None
+    #: How many of a learned team's learners may update at once (``IndependentPPO.update_slots``;
+    #: ``None``: one per core): the cores a job may use when jobs run side by side. Not part of the
+    #: experiment record (the parameters are the same whatever the count).
+    update_slots: int | None = None
     #: Where a ``train_env`` variant's team is trained (shared by its cells on every graph).
     team_folder: str | None = None
 
@@ -148,12 +152,14 @@ def check_update_device_takers(update_device: str, cells: list[Cell]) -> None:
 
 
 def _set_update_device(team: Any, cell: Cell) -> None:
-    """Give ``team`` the cell's update device, closing the team if it refuses."""
+    """Give ``team`` the cell's update device, closing the team if it refuses, and its update slots."""
     try:
         team.update_device = cell.update_device
     except InputError:
         team.close()
         raise
+    if hasattr(team, "update_slots"):
+        team.update_slots = cell.update_slots
 
 
 def training_jobs(cells: list[Cell]) -> list[Cell]:
@@ -414,6 +420,10 @@ def reproduce(
         if damage is not None:
             print(f"warning: finished cell is damaged, running it again: {damage}", file=sys.stderr)
     todo = schedule([cell for cell in cells if not cell.done])
+    if backend == "local" and todo:
+        # Jobs side by side share this machine's cores: each team's updates get its share of them.
+        share = max(1, usable_cores() // max(1, min(n_jobs or default_jobs(), len(todo))))
+        todo = [replace(cell, update_slots=share) for cell in todo]
     jobs = training_jobs(todo)
     if jobs:  # the shared teams first: the cells that deploy them wait for them
         print(f"{experiment.name}: training {len(jobs)} shared team(s) (train_env variants) before the cells")

@@ -52,21 +52,26 @@ CHUNK_FLOATS = 131_072
 #: The chunked kernel runs when one map's scores ``heads * N * N`` reach this size (about 128 nodes
 #: at 4 heads), whatever the batch; below it, see :data:`FUSED_MIN_BATCH_SCORES`.
 FUSED_MIN_SCORES = 65_536
-#: ... or when the whole batch's scores ``B * heads * N * N`` reach this size (16 MB of floats, past
-#: the caches): a PPO minibatch of 250 maps on 130 nodes or more at one head. Below it, plain
-#: autograd over the whole batch is faster (measured on 2 cores: 250 maps of 50 nodes at 4 heads,
-#: 2.5M scores, 46 ms plain against 56 ms chunked per forward and backward pass; 500 maps of 100
-#: nodes at one head, 5M, 97 against 72 ms; 250 maps of 200 nodes, 10M, 348 against 132 ms). Both
-#: paths give the same bits on this project's machines, so the choice changes only the speed
-#: (tests/test_attention_kernels.py trains a team both ways).
+#: ... or, on the CPU, when the whole batch's scores ``B * heads * N * N`` reach this size (16 MB of
+#: floats, past the caches): a PPO minibatch of 250 maps on 130 nodes or more at one head. Well
+#: below it plain autograd over the whole batch is faster, and between 1M and 4M scores which wins
+#: depends on the shape (measured on 2 cores, per forward and backward pass: 250 maps of 50 nodes
+#: at 4 heads, 2.5M scores, 46 ms plain against 56 ms chunked; 250 maps of 100 nodes at one head,
+#: 2.5M, 74 against 58 ms; 500 maps of 100
+#: nodes at one head, 5M, 97 against 72 ms; 250 maps of 200 nodes, 10M, 348 against 132 ms;
+#: docs/results/speed_probes/attention_kernel_sizes.py). On the CPU both paths give the same bits
+#: (tests/test_attention_kernels.py trains a team both ways), so the choice changes only the speed.
+#: The rule is for CPUs: on a GPU a chunked batch is hundreds of small kernel launches, and neither
+#: its speed nor its bits were measured there, so GPU batches keep the per-map rule.
 FUSED_MIN_BATCH_SCORES = 4_194_304
 
 
-def use_chunked(batch: int, heads: int, n: int) -> bool:
+def use_chunked(batch: int, heads: int, n: int, on_cpu: bool = True) -> bool:
     """Whether a dense batch of ``batch`` maps, ``heads`` heads and ``n`` nodes runs the chunked
-    kernel (:func:`chunked_attention` with ``custom_kernel``) rather than plain autograd."""
+    kernel (:func:`chunked_attention` with ``custom_kernel``) rather than plain autograd; the
+    batch's size counts only ``on_cpu``."""
     scores = heads * n * n
-    return scores >= FUSED_MIN_SCORES or batch * scores >= FUSED_MIN_BATCH_SCORES
+    return scores >= FUSED_MIN_SCORES or (on_cpu and batch * scores >= FUSED_MIN_BATCH_SCORES)
 
 
 def use_dense(adjacency: th.Tensor, backend: str) -> bool:

@@ -164,7 +164,8 @@ class GraphAttention(nn.Module):
         h = self._project(x, encoding).view(batch, n, heads, channels).transpose(1, 2).contiguous()
         alpha_src = (h * conv.att_src.view(1, heads, 1, channels)).sum(-1)  # (B, H, N)
         alpha_dst = (h * conv.att_dst.view(1, heads, 1, channels)).sum(-1)
-        if (self.training and conv.dropout > 0) or not use_chunked(batch, heads, n):
+        chunked = use_chunked(batch, heads, n, on_cpu=h.device.type == "cpu")
+        if (self.training and conv.dropout > 0) or not chunked:
             # Whole batch at once: attention dropout needs the probabilities, and on small batches
             # recomputing the scores in the backward pass costs more than the memory traffic it saves.
             alpha = attention_probabilities(alpha_dst, alpha_src, bias[index], conv.negative_slope)
