@@ -148,23 +148,43 @@ def test_a_bad_slot_count_is_refused_before_training() -> None:
     assert team.num_timesteps == 0
 
 
-def test_a_stuck_update_times_the_team_out(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The learners waiting for the slot of a learner stuck in its update time the team out, as
-    they would waiting for it at the barrier."""
-    team = IndependentPPO(
-        GRAPH, n_agents=4, n_envs=2, seed=0, env_kwargs={"max_cycles": 20}, hyperparams=TINY, wait_timeout=1.0
-    )
-    team.update_slots = 1
+def first_to_update(monkeypatch: pytest.MonkeyPatch, then: Any) -> list[Any]:
+    """Patches ``DCBFPPO.train`` so that the first learner to enter it calls ``then()`` instead of
+    updating (whichever learner the scheduler let in first); returns the models that entered."""
+    entered: list[Any] = []
+    lock = threading.Lock()
     original = DCBFPPO.train
-    stuck = team.models[team.agents[0]]
 
     def train(model: Any) -> None:
-        if model is stuck:
-            threading.Event().wait(3.0)
-        original(model)
+        with lock:
+            entered.append(model)
+            first = len(entered) == 1
+        if first:
+            then()
+        else:
+            original(model)
 
     monkeypatch.setattr(DCBFPPO, "train", train)
-    with pytest.raises(TeamTimeout, match="waited more than 1.0 s for an update slot"):
+    return entered
+
+
+def test_a_stuck_update_times_the_team_out(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The learner waiting for the slot of a learner stuck in its update times the team out, as it
+    would waiting for it at the barrier."""
+    team = IndependentPPO(
+        GRAPH, n_agents=2, n_envs=2, seed=0, env_kwargs={"max_cycles": 20}, hyperparams=TINY, wait_timeout=2.0
+    )
+    team.update_slots = 1
+    stuck = threading.Event()
+
+    def stall() -> None:  # until the other learner gives up waiting (at most 30 s)
+        for _ in range(300):
+            if team.hub.timed_out is not None:
+                break
+            stuck.wait(0.1)
+
+    first_to_update(monkeypatch, stall)
+    with pytest.raises(TeamTimeout, match="waited more than 2.0 s for an update slot"):
         team.learn(32)
 
 
@@ -172,18 +192,11 @@ def test_no_update_starts_after_the_team_is_aborted(monkeypatch: pytest.MonkeyPa
     """The slot of a learner whose update raised goes to a waiting learner, which sees the abort
     and gives it back instead of updating."""
     team = make_team(slots=1)
-    original = DCBFPPO.train
-    failing = team.models[team.agents[0]]
-    after_abort: list[Any] = []
 
-    def train(model: Any) -> None:
-        if team.hub.aborted is not None:
-            after_abort.append(model)
-        if model is failing:
-            raise RuntimeError("update failed")
-        original(model)
+    def fail() -> None:
+        raise RuntimeError("update failed")
 
-    monkeypatch.setattr(DCBFPPO, "train", train)
+    entered = first_to_update(monkeypatch, fail)
     with pytest.raises(RuntimeError, match="update failed"):
         team.learn(32)
-    assert not after_abort
+    assert len(entered) == 1, "a learner updated after the team was aborted"

@@ -213,14 +213,17 @@ class ParallelEnvMultiplexer(LearnerStreams):
         The wait counts against :attr:`timeout` like any other: a learner stuck in its update
         holds its slot, and the ones waiting for it time the team out.
 
-        :raises TeamAborted: if the team is aborted, or times out, before it gets a slot (a slot
-            taken as the team is aborted is given back: no update starts after an abort).
+        :raises TeamAborted: if the team is aborted, or times out, before it gets a slot (a learner
+            that sees the abort once it has a slot gives the slot back instead of updating).
         """
         slots = self.update_slots
         if slots is None:
             return
         deadline = None if self.timeout is None else time.monotonic() + self.timeout
-        while not slots.take(index, POLL_INTERVAL):
+        wait = POLL_INTERVAL if self.timeout is None else min(POLL_INTERVAL, self.timeout)
+        while not slots.take(index, wait):
+            if deadline is not None:  # wake at the deadline, not up to a poll interval after it
+                wait = max(0.0, min(POLL_INTERVAL, deadline - time.monotonic()))
             if self._aborted is None and deadline is not None and time.monotonic() >= deadline:
                 with self._cond:
                     self._time_out(self._waited_too_long(index, "an update slot"))

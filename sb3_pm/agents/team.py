@@ -308,7 +308,9 @@ class IndependentPPO(LearnedTeam):
         # Read at every learn() (torch's thread count may have changed since construction), and
         # before anything changes, so that a bad count changes nothing.
         count = self.update_slots if self.update_slots is not None else default_update_slots()
-        slots = UpdateSlots(count) if self.hub.concurrent_updates else None
+        slots: UpdateSlots | None = UpdateSlots(count)  # checks the count even without side by side
+        if not self.hub.concurrent_updates:
+            slots = None
         if not reset_num_timesteps and any(m._last_obs is None for m in self.models.values()):
             # All learners must reset together (the multiplexer steps them as one).
             for model in self.models.values():

@@ -8,7 +8,8 @@ of the caches by the others': a 16-learner team trained 1.7× faster with two up
 than with all sixteen (docs/RESULTS.md §3i, "Update slots"). :class:`UpdateSlots` lets at most
 ``count`` learners be in their update phase at once; the others wait for a slot at their
 rollout's end. A learner that cannot update side by side (``target_kl`` set) updates holding the
-baton, one at a time, and takes no slot.
+baton, one at a time, and takes no slot: in a team that mixes both kinds, up to ``count + 1``
+updates may run at once.
 
 Which learner updates when does not change what it computes: each update draws only from its own
 generator and runs the same arithmetic, so the parameters are the same bit for bit whatever the

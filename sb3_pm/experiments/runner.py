@@ -151,6 +151,13 @@ def check_update_device_takers(update_device: str, cells: list[Cell]) -> None:
             raise InputError(f"--update-device needs dcbf_ppo learners; variant {variant.key!r} uses {algo}")
 
 
+def _core_share(backend: str, n_jobs: int | None, trainings: int) -> int:
+    """The update slots of each team when ``trainings`` teams train in jobs side by side."""
+    if backend != "local":
+        return 1  # a Ray task reserves one CPU
+    return max(1, usable_cores() // max(1, min(n_jobs or default_jobs(), trainings)))
+
+
 def _set_update_device(team: Any, cell: Cell) -> None:
     """Give ``team`` the cell's update device, closing the team if it refuses, and its update slots."""
     try:
@@ -420,11 +427,12 @@ def reproduce(
         if damage is not None:
             print(f"warning: finished cell is damaged, running it again: {damage}", file=sys.stderr)
     todo = schedule([cell for cell in cells if not cell.done])
-    if backend == "local" and todo:
-        # Jobs side by side share this machine's cores: each team's updates get its share of them.
-        share = max(1, usable_cores() // max(1, min(n_jobs or default_jobs(), len(todo))))
-        todo = [replace(cell, update_slots=share) for cell in todo]
     jobs = training_jobs(todo)
+    # Jobs side by side share the cores: each team's updates get its share of them as update slots
+    # (a Ray task reserves one CPU). Shared teams train in a phase of their own, before the cells.
+    jobs = [replace(cell, update_slots=_core_share(backend, n_jobs, len(jobs))) for cell in jobs]
+    training = sum(1 for cell in todo if Variant(**cell.variant).learned and cell.team_folder is None)
+    todo = [replace(cell, update_slots=_core_share(backend, n_jobs, training)) for cell in todo]
     if jobs:  # the shared teams first: the cells that deploy them wait for them
         print(f"{experiment.name}: training {len(jobs)} shared team(s) (train_env variants) before the cells")
         run_jobs(train_shared_team, jobs, backend=backend, n_jobs=n_jobs, ray_address=ray_address)
