@@ -225,7 +225,39 @@ class TestCommandLine:
         assert "--neglect-scope needs --neglect-bound B" in capsys.readouterr().err
         with pytest.raises(SystemExit):
             main([*base, "--neglect-bound", "fifty"])
-        assert "expected a number or 'off'" in capsys.readouterr().err
+        assert "expected a number, 'off' or 'auto'" in capsys.readouterr().err
+
+    def test_auto_calibrates_a_territory_bound_on_the_graph(self, saved, tmp_path, capsys) -> None:
+        from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+        from sb3_pm.graphs import load_graphml
+
+        config = self.evaluate(saved, tmp_path, "--neglect-bound", "auto")
+        expected = calibrate_neglect_bound(load_graphml(saved / "graph.graphml"), 2, max_cycles=20)
+        assert expected.bound is not None and expected.bound != 15.0  # not the saved filter's B
+        assert (config["neglect_bound"], config["neglect_scope"]) == (expected.bound, "territory")
+        assert config["neglect_calibration"] == expected.to_dict()
+        assert expected.describe() in capsys.readouterr().err
+
+    def test_auto_acts_without_a_bound_where_the_territories_cannot_be_held(
+        self, saved, tmp_path, monkeypatch
+    ) -> None:
+        from sb3_pm.evaluation import neglect_calibration
+
+        hopeless = neglect_calibration.CalibratedBound(None, 100.0, 100.0, 10, 9_000_000, 1.2)
+        monkeypatch.setattr(neglect_calibration, "calibrate_neglect_bound", lambda *a, **k: hopeless)
+        config = self.evaluate(saved, tmp_path, "--neglect-bound", "auto")
+        assert "neglect_bound" not in config and "filter_activity" not in config  # not the saved B 15
+        assert config["neglect_calibration"]["bound"] is None
+
+    def test_auto_is_a_territory_bound_for_trained_teams(self, saved, capsys) -> None:
+        from sb3_pm.cli import main
+
+        graph = str(saved / "graph.graphml")
+        base = ["evaluate", "--graph", graph, "--agents", "2", "--episodes", "1", "--neglect-bound", "auto"]
+        assert main([*base, "--policy", str(saved), "--neglect-scope", "known"]) == 2
+        assert "--neglect-scope known cannot go with it" in capsys.readouterr().err
+        assert main([*base, "--policy", "territory_patrol"]) == 2
+        assert "needs a trained DCBF team" in capsys.readouterr().err
 
 
 class TestSetting:

@@ -64,8 +64,10 @@ def register(subparsers: Any) -> None:
         type=neglect_bound_option,
         metavar="B",
         help="deploy a trained DCBF team with the filter's neglect bound B (rule 8) instead of its own "
-        "setting (its config's deploy_filter, saved with it), or 'off' to act with none; prints how "
-        "often the bound forced the agents' moves",
+        "setting (its config's deploy_filter, saved with it), 'off' to act with none, or 'auto': a "
+        "territory bound calibrated on this graph, 1.2x the worst peak uncertainty of "
+        "territory_patrol over 10 episodes of its own, none where that rule lets a target reach "
+        "u_max; prints how often the bound forced the agents' moves",
     )
     parser.add_argument(
         "--fail",
@@ -149,16 +151,41 @@ def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 
 #: ``--neglect-bound off``: act with no bound, whatever the team's deploy_filter says.
 BOUND_OFF = "off"
+#: ``--neglect-bound auto``: the territory bound calibrated on the site
+#: (:mod:`sb3_pm.evaluation.neglect_calibration`).
+BOUND_AUTO = "auto"
 
 
 def neglect_bound_option(text: str) -> float | str:
-    """``--neglect-bound``'s value: a number, or ``off``."""
-    if text.strip().lower() == BOUND_OFF:
-        return BOUND_OFF
+    """``--neglect-bound``'s value: a number, ``off`` or ``auto``."""
+    word = text.strip().lower()
+    if word in (BOUND_OFF, BOUND_AUTO):
+        return word
     try:
         return float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number or 'off', got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a number, 'off' or 'auto', got {text!r}") from None
+
+
+def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwargs: dict[str, Any]) -> Any:
+    """``--neglect-bound auto``: calibrate the territory bound on ``graph`` for ``--agents`` agents
+    and put the number (or ``off`` where the territories cannot be held) in ``args``, with scope
+    ``territory``. Returns the :class:`~sb3_pm.evaluation.neglect_calibration.CalibratedBound`."""
+    from sb3_pm.errors import UsageError
+    from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+
+    if not hasattr(team, "set_filter"):
+        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
+    if args.neglect_scope not in (None, "territory"):
+        raise UsageError(
+            f"--neglect-bound auto is a territory bound (calibrated on territory_patrol); "
+            f"--neglect-scope {args.neglect_scope} cannot go with it"
+        )
+    calibration = calibrate_neglect_bound(graph, args.agents, env_kwargs, max_cycles=args.steps)
+    args.neglect_bound = BOUND_OFF if calibration.bound is None else calibration.bound
+    args.neglect_scope = None if calibration.bound is None else "territory"
+    print(calibration.describe(), file=sys.stderr)
+    return calibration
 
 
 def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None = None) -> None:
@@ -248,6 +275,9 @@ def run(args: argparse.Namespace) -> int:
         except InputError:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
     team = resolve_team(args.policy, graph=graph, device=args.device)
+    calibration = None
+    if args.neglect_bound == BOUND_AUTO:  # the site's own bound, from the team's env settings
+        calibration = resolve_auto_bound(args, team, graph, team_env_kwargs(team))
     apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
@@ -310,6 +340,8 @@ def run(args: argparse.Namespace) -> int:
     activity = team.filter_activity() if counts else None  # type: ignore[attr-defined]  # checked
     if activity is not None:
         result.config["filter_activity"] = activity
+    if calibration is not None:
+        result.config["neglect_calibration"] = calibration.to_dict()
     print_summary(result)
     if activity is not None:
         share = activity["forced"] / max(1, activity["masks"])

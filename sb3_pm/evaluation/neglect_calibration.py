@@ -1,0 +1,125 @@
+"""A neglect bound for a new site, calibrated on the territory rule: ``--neglect-bound auto``.
+
+The DCBF's neglect bound (rule 8, scope ``territory``) makes each agent keep the known targets of
+its own territory below ``B``. Its guarantee holds for one due target at a time, so a bound the
+territories cannot keep forces move after move and costs more than it saves: on the held-out
+graphs where every policy lets some target reach ``u_max`` (docs/RESULTS.md 3h, "Transfer"), a
+fixed ``B`` forced a third to two thirds of all moves. How tight a bound a site allows is a
+property of the site and the split, not of a learned team, so it can be measured before
+deployment by the rule that follows the same split, ``territory_patrol``
+(:mod:`sb3_pm.baselines.territory_patrol`):
+
+* run ``territory_patrol`` for ``episodes`` calibration episodes on the site, with the team size
+  and the environment settings of the deployment, from a seed of its own (not the evaluation's);
+* ``P`` = the largest ``peak_uncertainty`` of those episodes: the worst uncertainty the territory
+  rule let any target reach;
+* if ``P`` reaches ``u_max`` the territories cannot be held and no bound is deployed (``None``);
+  otherwise ``B = max(1, ceil(margin · P))``, at most ``u_max``.
+
+``margin`` = 1.2 was set from the published 50-node graph alone, where the default team's bound
+``B = 50`` had been chosen earlier and the rule's worst peak is 44 (``ceil(1.2 · 44) = 53``); the
+held-out graphs that measured the rule never set it. The rule needs the site's road network and
+target list, which a team with a known map has anyway; it reads no learned team.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from sb3_pm.baselines import make_team
+from sb3_pm.errors import InputError
+from sb3_pm.evaluation.harness import evaluate
+from sb3_pm.graphs import GraphLike, resolve_graph
+
+#: ``B = ceil(MARGIN · P)``: 20% above the territory rule's worst peak.
+MARGIN = 1.2
+#: Calibration episodes of the territory rule.
+CALIBRATION_EPISODES = 10
+#: Episode ``e`` of the calibration runs from env seed ``CALIBRATION_SEED + e``: apart from the
+#: evaluation seeds of the sweeps (``1,000,000 + 1,000 · seed``), so a bound is never fitted to
+#: the episodes it is then measured on.
+CALIBRATION_SEED = 9_000_000
+#: The environment's default cap on a target's uncertainty.
+DEFAULT_U_MAX = 100
+
+
+@dataclass(frozen=True)
+class CalibratedBound:
+    """What :func:`calibrate_neglect_bound` found.
+
+    :ivar bound: ``B``, or ``None`` when the territory rule let a target reach ``u_max``.
+    :ivar peak: ``P``, the territory rule's worst ``peak_uncertainty`` over the episodes.
+    :ivar u_max: the environment's cap.
+    :ivar episodes: calibration episodes run; ``seed`` the env seed of the first.
+    """
+
+    bound: float | None
+    peak: float
+    u_max: float
+    episodes: int
+    seed: int
+    margin: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "rule": "auto",
+            "bound": self.bound,
+            "peak": self.peak,
+            "u_max": self.u_max,
+            "episodes": self.episodes,
+            "seed": self.seed,
+            "margin": self.margin,
+        }
+
+    def describe(self) -> str:
+        """One line for the user: the bound and where it came from."""
+        source = f"territory_patrol's worst peak over {self.episodes} calibration episodes was {self.peak:g}"
+        if self.bound is None:
+            return f"no neglect bound: {source}, at u_max {self.u_max:g}, so the territories cannot be held"
+        return f"neglect bound {self.bound:g} on each agent's territory: {source}, x {self.margin:g}"
+
+
+def calibrate_neglect_bound(
+    graph: GraphLike,
+    n_agents: int,
+    env_kwargs: Mapping[str, Any] | None = None,
+    max_cycles: int = 500,
+    episodes: int = CALIBRATION_EPISODES,
+    seed: int = CALIBRATION_SEED,
+    margin: float = MARGIN,
+) -> CalibratedBound:
+    """The territory bound a site allows (module docstring): ``B = ceil(margin · P)`` or none.
+
+    :param graph: the deployment site (a preset name, a ``.graphml`` path or a ``GraphSpec``).
+    :param n_agents: the deployed team size (the split, and so the rule, depends on it).
+    :param env_kwargs: the deployment's environment settings (``u_max`` among them); failures are
+        not calibrated for: pass the settings without them.
+    :raises InputError: for ``episodes < 1`` or ``margin < 1``.
+    """
+    if episodes < 1:
+        raise InputError(f"calibration episodes must be at least 1, got {episodes}")
+    if not math.isfinite(margin) or margin < 1:
+        raise InputError(
+            f"the calibration margin must be at least 1 (B at or above the rule's peak), got {margin}"
+        )
+    spec = resolve_graph(graph)
+    kwargs = dict(env_kwargs or {})
+    u_max = float(kwargs.get("u_max", DEFAULT_U_MAX))
+    result = evaluate(
+        make_team("territory_patrol"),
+        spec,
+        n_agents=n_agents,
+        episodes=episodes,
+        seed=seed,
+        max_cycles=max_cycles,
+        env_kwargs=kwargs,
+    )
+    peak = max(float(record.metrics["peak_uncertainty"]) for record in result.episodes)
+    bound = None if peak >= u_max else float(min(u_max, max(1, math.ceil(margin * peak))))
+    return CalibratedBound(bound=bound, peak=peak, u_max=u_max, episodes=episodes, seed=seed, margin=margin)
+
+
+__all__ = ["CALIBRATION_EPISODES", "CALIBRATION_SEED", "MARGIN", "CalibratedBound", "calibrate_neglect_bound"]
