@@ -243,11 +243,53 @@ class TestCommandLine:
     ) -> None:
         from sb3_pm.evaluation import neglect_calibration
 
-        hopeless = neglect_calibration.CalibratedBound(None, 100.0, 100.0, 10, 9_000_000, 1.2)
+        hopeless = neglect_calibration.CalibratedBound(None, 100.0, 100.0, 10, 9_000_000, 1.2, 2, 20)
         monkeypatch.setattr(neglect_calibration, "calibrate_neglect_bound", lambda *a, **k: hopeless)
         config = self.evaluate(saved, tmp_path, "--neglect-bound", "auto")
         assert "neglect_bound" not in config and "filter_activity" not in config  # not the saved B 15
         assert config["neglect_calibration"]["bound"] is None
+
+    def test_auto_calibrates_the_team_as_deployed_without_its_failures(
+        self, saved, tmp_path, monkeypatch
+    ) -> None:
+        from sb3_pm.evaluation import neglect_calibration
+        from sb3_pm.evaluation.teams import resolve_team
+
+        calls = []
+        real = neglect_calibration.calibrate_neglect_bound
+
+        def recording(graph, n_agents, env_kwargs, max_cycles):
+            calls.append((graph, n_agents, dict(env_kwargs), max_cycles))
+            return real(graph, n_agents, env_kwargs, max_cycles=max_cycles)
+
+        monkeypatch.setattr(neglect_calibration, "calibrate_neglect_bound", recording)
+        config = self.evaluate(saved, tmp_path, "--neglect-bound", "auto", "--fail", "agent_1:5")
+        ((graph, n_agents, env_kwargs, max_cycles),) = calls
+        team_env = {k: v for k, v in resolve_team(str(saved)).env_kwargs.items() if k != "max_cycles"}
+        assert (graph.name, n_agents, max_cycles) == ("graph", 2, 20)  # --steps 20, not the default 500
+        assert env_kwargs == team_env and "failures" not in env_kwargs
+        assert config["env_kwargs"]["failures"] == {"agent_1": 5}  # the episodes themselves fail
+        assert config["neglect_calibration"]["max_cycles"] == 20
+
+    def test_auto_refuses_another_team_size(self, saved, capsys) -> None:
+        from sb3_pm.cli import main
+
+        graph = str(saved / "graph.graphml")
+        argv = [
+            "evaluate",
+            "--policy",
+            str(saved),
+            "--graph",
+            graph,
+            "--agents",
+            "3",
+            "--neglect-bound",
+            "auto",
+        ]
+        assert main(argv) == 2
+        assert (
+            "calibrates the 2-agent team's territories; deploy it with --agents 2" in capsys.readouterr().err
+        )
 
     def test_auto_is_a_territory_bound_for_trained_teams(self, saved, capsys) -> None:
         from sb3_pm.cli import main

@@ -38,9 +38,25 @@ def test_no_bound_where_the_territory_rule_lets_a_target_reach_u_max() -> None:
     assert roomy.bound is not None
 
 
-def test_the_bound_is_at_most_u_max() -> None:
+def test_the_bound_is_at_most_u_max_and_says_so() -> None:
     found = calibrate_neglect_bound(PAIRS, 2, episodes=2, max_cycles=40, margin=50.0)
-    assert found.peak * 50 > 100 and found.bound == 100.0
+    assert found.peak * 50 > 100 and found.bound == 100.0 and found.capped
+    assert "capped at u_max 100" in found.describe()
+    assert not calibrate_neglect_bound(PAIRS, 2, episodes=2, max_cycles=40).capped
+
+
+def test_a_rule_that_never_leaves_its_targets_gives_the_least_bound() -> None:
+    # Two agents start on the two targets, each a territory of one: the rule stays, u stays 0.
+    found = calibrate_neglect_bound(
+        path_graph(4, targets=[0, 1]), 2, env_kwargs={"initial_positions": [0, 1]}, episodes=2, max_cycles=30
+    )
+    assert (found.peak, found.bound) == (0.0, 1.0)
+
+
+def test_random_initial_uncertainty_is_refused() -> None:
+    # Rule 8 projects an unseen target from u = 0; with random starts the guarantee does not hold.
+    with pytest.raises(InputError, match="initial_uncertainty 'random'"):
+        calibrate_neglect_bound(PAIRS, 2, env_kwargs={"initial_uncertainty": "random"})
 
 
 @pytest.mark.parametrize(
@@ -56,7 +72,16 @@ def test_bad_settings_are_refused(kwargs: dict, message: str) -> None:
 
 
 def test_the_record_names_the_rule() -> None:
-    found = CalibratedBound(bound=53.0, peak=44.0, u_max=100.0, episodes=10, seed=9_000_000, margin=1.2)
+    found = CalibratedBound(
+        bound=53.0,
+        peak=44.0,
+        u_max=100.0,
+        episodes=10,
+        seed=9_000_000,
+        margin=1.2,
+        n_agents=4,
+        max_cycles=500,
+    )
     assert found.to_dict() == {
         "rule": "auto",
         "bound": 53.0,
@@ -65,4 +90,6 @@ def test_the_record_names_the_rule() -> None:
         "episodes": 10,
         "seed": 9_000_000,
         "margin": 1.2,
+        "n_agents": 4,
+        "max_cycles": 500,
     }

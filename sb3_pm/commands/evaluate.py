@@ -168,9 +168,13 @@ def neglect_bound_option(text: str) -> float | str:
 
 
 def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwargs: dict[str, Any]) -> Any:
-    """``--neglect-bound auto``: calibrate the territory bound on ``graph`` for ``--agents`` agents
+    """``--neglect-bound auto``: calibrate the territory bound on ``graph`` for the team's agents
     and put the number (or ``off`` where the territories cannot be held) in ``args``, with scope
-    ``territory``. Returns the :class:`~sb3_pm.evaluation.neglect_calibration.CalibratedBound`."""
+    ``territory``. Returns the :class:`~sb3_pm.evaluation.neglect_calibration.CalibratedBound`.
+
+    :param env_kwargs: the team's environment settings, without ``--fail``/``--failure-rate``
+        (the bound is for the team as deployed, not as it fails).
+    """
     from sb3_pm.errors import UsageError
     from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
 
@@ -180,6 +184,14 @@ def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwar
         raise UsageError(
             f"--neglect-bound auto is a territory bound (calibrated on territory_patrol); "
             f"--neglect-scope {args.neglect_scope} cannot go with it"
+        )
+    trained = getattr(team, "n_agents", None)
+    if trained is not None and trained != args.agents:
+        # The bound keeps the trained team's split (agents that share a learner share its
+        # territory), so a calibration on another split would measure other territories.
+        raise UsageError(
+            f"--neglect-bound auto calibrates the {trained}-agent team's territories; deploy it with "
+            f"--agents {trained}, or give a number B for {args.agents} agents"
         )
     calibration = calibrate_neglect_bound(graph, args.agents, env_kwargs, max_cycles=args.steps)
     args.neglect_bound = BOUND_OFF if calibration.bound is None else calibration.bound

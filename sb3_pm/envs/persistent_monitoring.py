@@ -134,6 +134,8 @@ from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
 from sb3_pm.graphs.territories import territory_nodes
 
+#: The default cap on a target's uncertainty (``u_max``).
+DEFAULT_U_MAX = 100
 OBSERVATION_MODES = ("map", "local")
 INITIAL_UNCERTAINTY = ("zero", "random")
 ILLEGAL_ACTION_MODES = ("raise", "stay")
@@ -155,7 +157,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         graph: GraphLike | GraphFamily = "paper-50",
         n_agents: int = 4,
         max_cycles: int = 500,
-        u_max: int = 100,
+        u_max: int = DEFAULT_U_MAX,
         obs_radius: int = 1,
         initial_positions: Sequence[int] | None = None,
         initial_uncertainty: str = "zero",

@@ -9,8 +9,9 @@ property of the site and the split, not of a learned team, so it can be measured
 deployment by the rule that follows the same split, ``territory_patrol``
 (:mod:`sb3_pm.baselines.territory_patrol`):
 
-* run ``territory_patrol`` for ``episodes`` calibration episodes on the site, with the team size
-  and the environment settings of the deployment, from a seed of its own (not the evaluation's);
+* run ``territory_patrol`` for ``episodes`` calibration episodes on the site, with the team's
+  size (whose split the bound follows) and the deployment's environment settings, from seeds of
+  its own (apart from the sweeps' evaluation seeds);
 * ``P`` = the largest ``peak_uncertainty`` of those episodes: the worst uncertainty the territory
   rule let any target reach;
 * if ``P`` reaches ``u_max`` the territories cannot be held and no bound is deployed (``None``);
@@ -20,6 +21,9 @@ deployment by the rule that follows the same split, ``territory_patrol``
 ``B = 50`` had been chosen earlier and the rule's worst peak is 44 (``ceil(1.2 · 44) = 53``); the
 held-out graphs that measured the rule never set it. The rule needs the site's road network and
 target list, which a team with a known map has anyway; it reads no learned team.
+
+Rule 8's guarantee assumes targets start at ``u = 0`` (a target the map has not seen projects as
+its age), so a site with ``initial_uncertainty: random`` is refused rather than calibrated.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from sb3_pm.baselines import make_team
+from sb3_pm.envs.persistent_monitoring import DEFAULT_U_MAX
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.graphs import GraphLike, resolve_graph
@@ -42,8 +47,6 @@ CALIBRATION_EPISODES = 10
 #: evaluation seeds of the sweeps (``1,000,000 + 1,000 · seed``), so a bound is never fitted to
 #: the episodes it is then measured on.
 CALIBRATION_SEED = 9_000_000
-#: The environment's default cap on a target's uncertainty.
-DEFAULT_U_MAX = 100
 
 
 @dataclass(frozen=True)
@@ -54,6 +57,7 @@ class CalibratedBound:
     :ivar peak: ``P``, the territory rule's worst ``peak_uncertainty`` over the episodes.
     :ivar u_max: the environment's cap.
     :ivar episodes: calibration episodes run; ``seed`` the env seed of the first.
+    :ivar n_agents: the team size (and split) calibrated for; ``max_cycles`` the episode length.
     """
 
     bound: float | None
@@ -62,6 +66,13 @@ class CalibratedBound:
     episodes: int
     seed: int
     margin: float
+    n_agents: int
+    max_cycles: int
+
+    @property
+    def capped(self) -> bool:
+        """Whether ``B`` is ``u_max`` because ``ceil(margin · P)`` is above it."""
+        return self.bound is not None and self.bound < math.ceil(self.margin * self.peak)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -72,6 +83,8 @@ class CalibratedBound:
             "episodes": self.episodes,
             "seed": self.seed,
             "margin": self.margin,
+            "n_agents": self.n_agents,
+            "max_cycles": self.max_cycles,
         }
 
     def describe(self) -> str:
@@ -79,7 +92,8 @@ class CalibratedBound:
         source = f"territory_patrol's worst peak over {self.episodes} calibration episodes was {self.peak:g}"
         if self.bound is None:
             return f"no neglect bound: {source}, at u_max {self.u_max:g}, so the territories cannot be held"
-        return f"neglect bound {self.bound:g} on each agent's territory: {source}, x {self.margin:g}"
+        cap = f", capped at u_max {self.u_max:g}" if self.capped else ""
+        return f"neglect bound {self.bound:g} on each agent's territory: {source}, x {self.margin:g}{cap}"
 
 
 def calibrate_neglect_bound(
@@ -94,10 +108,11 @@ def calibrate_neglect_bound(
     """The territory bound a site allows (module docstring): ``B = ceil(margin · P)`` or none.
 
     :param graph: the deployment site (a preset name, a ``.graphml`` path or a ``GraphSpec``).
-    :param n_agents: the deployed team size (the split, and so the rule, depends on it).
+    :param n_agents: the team size whose territories the bound follows (the split, and so the
+        rule, depends on it).
     :param env_kwargs: the deployment's environment settings (``u_max`` among them); failures are
         not calibrated for: pass the settings without them.
-    :raises InputError: for ``episodes < 1`` or ``margin < 1``.
+    :raises InputError: for ``episodes < 1``, ``margin < 1`` or ``initial_uncertainty: random``.
     """
     if episodes < 1:
         raise InputError(f"calibration episodes must be at least 1, got {episodes}")
@@ -107,7 +122,12 @@ def calibrate_neglect_bound(
         )
     spec = resolve_graph(graph)
     kwargs = dict(env_kwargs or {})
-    u_max = float(kwargs.get("u_max", DEFAULT_U_MAX))
+    if kwargs.get("initial_uncertainty", "zero") != "zero":
+        raise InputError(
+            "a neglect bound cannot be calibrated with initial_uncertainty "
+            f"{kwargs['initial_uncertainty']!r}: rule 8's guarantee assumes targets start at u = 0"
+        )
+    u_max = int(kwargs.get("u_max", DEFAULT_U_MAX))
     result = evaluate(
         make_team("territory_patrol"),
         spec,
@@ -119,7 +139,16 @@ def calibrate_neglect_bound(
     )
     peak = max(float(record.metrics["peak_uncertainty"]) for record in result.episodes)
     bound = None if peak >= u_max else float(min(u_max, max(1, math.ceil(margin * peak))))
-    return CalibratedBound(bound=bound, peak=peak, u_max=u_max, episodes=episodes, seed=seed, margin=margin)
+    return CalibratedBound(
+        bound=bound,
+        peak=peak,
+        u_max=float(u_max),
+        episodes=episodes,
+        seed=seed,
+        margin=margin,
+        n_agents=n_agents,
+        max_cycles=max_cycles,
+    )
 
 
 __all__ = ["CALIBRATION_EPISODES", "CALIBRATION_SEED", "MARGIN", "CalibratedBound", "calibrate_neglect_bound"]
