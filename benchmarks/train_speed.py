@@ -3,7 +3,7 @@
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
                                      [--updates side-by-side serial] [--rollouts stacked serial]
-                                     [--arithmetic default csr allowed fast fast-sparse]
+                                     [--arithmetic default csr allowed fast fast-sparse sparse]
                                      [--devices cpu cuda] [--attention batch map]
                                      [--agents 4] [--update-slots auto all]
 
@@ -30,7 +30,8 @@ same parameters, so listing both measures the gain.
 (``gat_sparse_kernel: csr``: sparse matrix products for sparse minibatches; graphs of up to 64
 nodes never run the sparse kernel, so there it equals ``default``); ``allowed`` (``actor_nodes:
 allowed``: the actor head on the allowed nodes only); ``fast`` (both); ``fast-sparse`` (both,
-and ``gat_backend: sparse``, so that every minibatch runs the CSR kernel). All compute the same
+and ``gat_backend: sparse``, so that every minibatch runs the CSR kernel); ``sparse`` (the CSR
+kernel on every minibatch, the actor on every node). All compute the same
 function, but rounding differs and training turns it into different teams, so neither option is
 the default (docs/RESULTS.md, "Faster arithmetic"). Listing several gives the ratios in one run.
 
@@ -83,6 +84,7 @@ ARITHMETIC: dict[str, dict[str, str]] = {
     "allowed": {"actor_nodes": "allowed"},
     "fast": {"gat_sparse_kernel": "csr", "actor_nodes": "allowed"},
     "fast-sparse": {"gat_sparse_kernel": "csr", "actor_nodes": "allowed", "gat_backend": "sparse"},
+    "sparse": {"gat_sparse_kernel": "csr", "gat_backend": "sparse"},
 }
 
 

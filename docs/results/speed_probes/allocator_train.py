@@ -1,0 +1,48 @@
+"""Time one learner's ``train()`` on a minibatch-sized rollout, and count the page faults it takes.
+
+Run it twice, once as is and once under another memory allocator, to see what the allocator
+costs (the arithmetic, and so the parameters, do not depend on it):
+
+    python docs/results/speed_probes/allocator_train.py paper-50
+    LD_PRELOAD=/usr/lib/x86_64-linux-gnu/libtcmalloc_minimal.so.4 \\
+        python docs/results/speed_probes/allocator_train.py paper-50
+
+A default team is trained for one rollout; then the first learner's ``train()`` runs three times
+from the same state, and the median time is printed with the minor page faults of those runs.
+"""
+
+from __future__ import annotations
+
+import copy
+import resource
+import statistics
+import sys
+import time
+
+import torch as th
+
+from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.zoo.config import load_config
+
+
+def main() -> None:
+    graph = sys.argv[1] if len(sys.argv) > 1 else "paper-50"
+    th.set_num_threads(1)
+    team = IndependentPPO(graph, seed=0, concurrent_updates=False, **load_config("ippo", graph).team_kwargs())
+    team.learn(500)
+    model = team.models[team.agents[0]]
+    state = copy.deepcopy(model.policy.state_dict())
+    times = []
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(3):
+        model.policy.load_state_dict(state)
+        start = time.perf_counter()
+        model.train()
+        times.append(time.perf_counter() - start)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+    median = statistics.median(times)
+    print(f"{graph}: train() {median:.3f} s (median of 3), {faults // 3} minor page faults each")
+
+
+if __name__ == "__main__":
+    main()
