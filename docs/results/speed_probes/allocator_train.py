@@ -1,4 +1,4 @@
-"""Time one learner's ``train()`` on a minibatch-sized rollout, and count the page faults it takes.
+"""Time one learner's ``train()`` on one rollout (two minibatches), and count its page faults.
 
 Run it twice, once as is and once under another memory allocator, to see what the allocator
 costs (the arithmetic, and so the parameters, do not depend on it):
@@ -7,8 +7,9 @@ costs (the arithmetic, and so the parameters, do not depend on it):
     LD_PRELOAD=/usr/lib/x86_64-linux-gnu/libtcmalloc_minimal.so.4 \\
         python docs/results/speed_probes/allocator_train.py paper-50
 
-A default team is trained for one rollout; then the first learner's ``train()`` runs three times
-from the same state, and the median time is printed with the minor page faults of those runs.
+A default team is trained for one rollout; then the first learner's ``train()`` runs three times,
+each from the same policy weights (the optimizer's state and the shuffling move on, which does not
+matter for the timing), and the median time is printed with the minor page faults of those runs.
 """
 
 from __future__ import annotations
