@@ -167,6 +167,14 @@ def neglect_bound_option(text: str) -> float | str:
         raise argparse.ArgumentTypeError(f"expected a number, 'off' or 'auto', got {text!r}") from None
 
 
+def require_filter(team: Any) -> None:
+    """``--neglect-bound`` needs a team with the DCBF filter (a trained DCBF team)."""
+    from sb3_pm.errors import UsageError
+
+    if not hasattr(team, "set_filter"):
+        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
+
+
 def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwargs: dict[str, Any]) -> Any:
     """``--neglect-bound auto``: calibrate the territory bound on ``graph`` for the team's agents
     and put the number (or ``off`` where the territories cannot be held) in ``args``, with scope
@@ -178,8 +186,7 @@ def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwar
     from sb3_pm.errors import UsageError
     from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
 
-    if not hasattr(team, "set_filter"):
-        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
+    require_filter(team)
     if args.neglect_scope not in (None, "territory"):
         raise UsageError(
             f"--neglect-bound auto is a territory bound (calibrated on territory_patrol); "
@@ -203,12 +210,10 @@ def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwar
 def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None = None) -> None:
     """``--neglect-bound`` (and ``--neglect-scope``): set the filter's bound on a trained team, or
     switch it off (``"off"``); a baseline has no filter."""
-    from sb3_pm.errors import UsageError
 
     if bound is None:
         return
-    if not hasattr(team, "set_filter"):
-        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
+    require_filter(team)
     if bound == BOUND_OFF:
         team.set_filter(neglect_bound=None)
         return

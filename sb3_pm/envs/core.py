@@ -16,6 +16,8 @@ from sb3_pm.graphs import GraphSpec
 
 #: What :meth:`MonitoringCore._build_tables` derives from the graph (rebuilt on unpickling a
 #: core written before one of them existed).
+#: The default cap on a target's uncertainty (``u_max``), here and in the PettingZoo env.
+DEFAULT_U_MAX = 100
 _DERIVED_TABLES = frozenset({"n_nodes", "_legal_sets", "_next_u"})
 
 
@@ -58,7 +60,7 @@ class MonitoringCore:
     :param u_max: the uncertainty cap.
     """
 
-    def __init__(self, graph: GraphSpec, n_agents: int, u_max: int = 100) -> None:
+    def __init__(self, graph: GraphSpec, n_agents: int, u_max: int = DEFAULT_U_MAX) -> None:
         if n_agents < 1:
             raise InputError(f"n_agents must be at least 1, got {n_agents}")
         if n_agents > graph.n_nodes:

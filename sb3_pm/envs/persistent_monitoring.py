@@ -126,7 +126,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from sb3_pm.envs.core import MonitoringCore
+from sb3_pm.envs.core import DEFAULT_U_MAX, MonitoringCore
 from sb3_pm.envs.mental_map import FEATURES, MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
@@ -134,8 +134,6 @@ from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
 from sb3_pm.graphs.territories import territory_nodes
 
-#: The default cap on a target's uncertainty (``u_max``).
-DEFAULT_U_MAX = 100
 OBSERVATION_MODES = ("map", "local")
 INITIAL_UNCERTAINTY = ("zero", "random")
 ILLEGAL_ACTION_MODES = ("raise", "stay")

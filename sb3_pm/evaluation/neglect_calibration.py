@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from sb3_pm.baselines import make_team
-from sb3_pm.envs.persistent_monitoring import DEFAULT_U_MAX
+from sb3_pm.envs.core import DEFAULT_U_MAX
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.graphs import GraphLike, resolve_graph
@@ -75,17 +75,8 @@ class CalibratedBound:
         return self.bound is not None and self.bound < math.ceil(self.margin * self.peak)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "rule": "auto",
-            "bound": self.bound,
-            "peak": self.peak,
-            "u_max": self.u_max,
-            "episodes": self.episodes,
-            "seed": self.seed,
-            "margin": self.margin,
-            "n_agents": self.n_agents,
-            "max_cycles": self.max_cycles,
-        }
+        """The fields, JSON-ready, under ``rule: auto``."""
+        return {"rule": "auto", **asdict(self)}
 
     def describe(self) -> str:
         """One line for the user: the bound and where it came from."""
