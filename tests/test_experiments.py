@@ -678,27 +678,33 @@ def test_transfer_features_trains_the_transfer_config_with_one_flag(tmp_path: Pa
 
 
 @pytest.mark.parametrize(
-    ("name", "knowledge"),
+    ("name", "knowledge", "territory"),
     [
-        ("zero_shot", "discovered"),
-        ("zero_shot_scaling", "discovered"),
-        ("transfer_features", "discovered"),
-        ("transfer_known_map", "known"),
+        ("zero_shot", "discovered", False),
+        ("zero_shot_scaling", "discovered", False),
+        ("transfer_features", "discovered", False),
+        ("transfer_known_map", "known", False),
+        ("transfer_eigen", "known", False),
+        ("transfer_territory", "known", True),
     ],
 )
-def test_the_transfer_experiments_train_under_the_map_knowledge_they_measured(
-    tmp_path: Path, name: str, knowledge: str
+def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
+    tmp_path: Path, name: str, knowledge: str, territory: bool
 ) -> None:
-    """zoo/ippo_transfer.yml gives a known map; the files that measured discovered maps pin them,
-    so every learned variant there trains (and, keeping its env settings, deploys) as measured."""
+    """zoo/ippo_transfer.yml gives a known map and the territory input and reward; the files that
+    measured other settings pin them, so every learned variant there trains (and, keeping its env
+    settings, deploys) as measured."""
     experiment = load_experiment(name)
     learned = 0
     for cell in plan_cells(experiment, tmp_path):
         if cell.variant["kind"] == "baseline":
             continue
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        where = (name, cell.variant["key"])
         for key in ("target_knowledge", "graph_knowledge"):  # unset: the env's default, discovered
-            assert config.env_kwargs.get(key, "discovered") == knowledge, (name, cell.variant["key"], key)
+            assert config.env_kwargs.get(key, "discovered") == knowledge, (*where, key)
+        assert config.env_kwargs.get("territory_input", False) is territory, where
+        assert ("territory" in config.env_kwargs["reward"]) is territory, where
         learned += 1
     assert learned > 0
 
