@@ -424,3 +424,122 @@ def test_a_bound_above_u_max_is_refused_as_it_could_never_bind() -> None:
         tiny_team(deploy_filter={"neglect_bound": 155})
     with pytest.raises(InputError, match="above the environment's u_max 100"):
         tiny_team(deploy_filter=None, policy_kwargs={"neglect_bound": 101})
+
+
+SITE_BOUND = {"neglect_bound": "auto", "neglect_scope": "territory"}
+
+
+class TestSiteBound:
+    """``deploy_filter: {neglect_bound: auto}``: the bound is calibrated on each site the team is
+    deployed on, before its first episode there (``zoo/ippo_transfer.yml`` ships it)."""
+
+    def test_auto_is_a_territory_bound_and_nothing_else(self) -> None:
+        assert check_deploy_filter({"neglect_bound": "auto"}) == SITE_BOUND
+        assert check_deploy_filter(SITE_BOUND) == SITE_BOUND
+        with pytest.raises(InputError, match="neglect_bound auto is a territory bound"):
+            check_deploy_filter({"neglect_bound": "auto", "neglect_scope": "known"})
+        with pytest.raises(InputError, match=r"neglect_bound must be a number \(the bound B\) or auto"):
+            check_deploy_filter({"neglect_bound": "automatic"})
+
+    def test_evaluate_calibrates_the_site_first_and_the_team_keeps_its_bound(self, tmp_path) -> None:
+        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.evaluation import evaluate
+        from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        try:
+            assert team.site_bound_pending and team.acting_filter() is None  # no number before a site
+            team.learn(10)
+            assert team.site_bound_pending  # training ends waiting for a site again
+            team.save(tmp_path / "t")
+        finally:
+            team.close()
+        loaded = IndependentPPO.load(tmp_path / "t")
+        try:
+            assert loaded.deploy_filter == SITE_BOUND and loaded.site_bound_pending
+            result = evaluate(loaded, loaded.graph, n_agents=2, episodes=1, max_cycles=20)
+            expected = calibrate_neglect_bound(loaded.graph, 2, {}, max_cycles=20)
+            assert expected.bound is not None
+            assert result.config["neglect_calibration"] == expected.to_dict()
+            acted = (result.config["neglect_bound"], result.config["neglect_scope"])
+            assert acted == (expected.bound, "territory")
+            assert not loaded.site_bound_pending
+            assert loaded.acting_filter() == {"neglect_bound": expected.bound, "neglect_scope": "territory"}
+            again = evaluate(loaded, loaded.graph, n_agents=2, episodes=1, max_cycles=20)
+            assert "neglect_calibration" not in again.config  # settled: not calibrated twice
+        finally:
+            loaded.close()
+
+    def test_a_set_bound_wins_and_another_team_size_is_refused(self) -> None:
+        from sb3_pm.evaluation import evaluate
+
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        try:
+            asked = "calibrates its 2 agents' territories, and 3 agents were asked"
+            with pytest.raises(InputError, match=asked):
+                evaluate(team, team.graph, n_agents=3, episodes=1, max_cycles=20)
+            team.set_filter(neglect_bound=None)  # the user's choice: no bound
+            result = evaluate(team, team.graph, n_agents=3, episodes=1, max_cycles=20)
+            assert "neglect_calibration" not in result.config and "neglect_bound" not in result.config
+        finally:
+            team.close()
+
+    def test_a_moved_team_calibrates_its_new_site_not_the_old_one(self) -> None:
+        from sb3_pm.evaluation import evaluate
+        from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+
+        team = tiny_team(deploy_filter=SITE_BOUND, policy_kwargs={"laplacian": "none"})
+        other = path_graph(14, targets=[0, 2, 11, 13], name="longer")
+        try:
+            evaluate(team, team.graph, n_agents=2, episodes=1, max_cycles=20)  # settles its own graph
+            moved = team.on_graph(other)
+            assert moved.site_bound_pending and moved.acting_filter() is None  # not the old site's B
+            result = evaluate(moved, other, n_agents=2, episodes=1, max_cycles=20)
+            expected = calibrate_neglect_bound(other, 2, {}, max_cycles=20)
+            assert result.config["neglect_calibration"] == expected.to_dict()
+            territory = moved.policies["agent_1"].dcbf_config.territory
+            assert territory and max(territory) < 14  # the new graph's territory
+        finally:
+            team.close()
+
+    def test_a_team_trained_on_a_family_takes_it(self) -> None:
+        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.graphs.distributions import ErdosRenyiFamily
+
+        team = IndependentPPO(
+            ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4)),
+            n_agents=2,
+            seed=0,
+            env_kwargs={"max_cycles": 20},
+            hyperparams={**TINY, "policy_kwargs": {"laplacian": "none"}},
+            deploy_filter=SITE_BOUND,
+        )
+        try:
+            assert team.site_bound_pending
+            with pytest.raises(InputError, match="deploy_filter scope 'territory' needs one graph"):
+                team.deploy_filter = {"neglect_bound": 15, "neglect_scope": "territory"}
+        finally:
+            team.close()
+
+    def test_the_command_line_calibrates_a_saved_auto_team_and_says_so(self, tmp_path, capsys) -> None:
+        from sb3_pm.cli import main
+        from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+        from sb3_pm.graphs import load_graphml
+
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        try:
+            team.learn(10)
+            team.save(tmp_path / "t")
+        finally:
+            team.close()
+        out, graph = tmp_path / "e.json", tmp_path / "t" / "graph.graphml"
+        argv = ["evaluate", "--policy", str(tmp_path / "t"), "--graph", str(graph), "--agents", "2"]
+        assert main([*argv, "--episodes", "1", "--steps", "20", "--json", str(out)]) == 0
+        config = json.loads(out.read_text())["config"]
+        expected = calibrate_neglect_bound(load_graphml(graph), 2, max_cycles=20)
+        assert config["neglect_calibration"] == expected.to_dict()
+        assert config["filter_activity"]["masks"] > 0
+        err = capsys.readouterr().err
+        assert "deploy_filter is auto" in err and expected.describe() in err
+        assert main([*argv[:-1], "3", "--episodes", "1", "--steps", "20"]) == 2
+        assert "deploy it with --agents 2, or give a number B (or off)" in capsys.readouterr().err

@@ -655,7 +655,9 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert known["known_graph"].env_kwargs == {"graph_knowledge": "known"}
     assert not known["known_map"].hyperparams and not known["known_map"].policy_kwargs
     transfer_known = _variants("transfer_known_map")
-    assert transfer_known["known_map"].env_kwargs == known["known_map"].env_kwargs
+    # the same map, and ippo_transfer.yml's env of the time pinned (before its territory input)
+    before_territory = {"territory_input": False, "reward": {"clearing": 0.04, "collision": 0.001}}
+    assert transfer_known["known_map"].env_kwargs == {**known["known_map"].env_kwargs, **before_territory}
     assert transfer_known["known_map"].config is None and not transfer_known["known_map"].policy_kwargs
     derived = _variants("derived_features")
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
@@ -704,6 +706,7 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
         for key in ("target_knowledge", "graph_knowledge"):  # unset: the env's default, discovered
             assert config.env_kwargs.get(key, "discovered") == knowledge, (*where, key)
         assert config.env_kwargs.get("territory_input", False) is territory, where
+        assert config.deploy_filter is None, where  # measured as trained, not under the site's bound
         assert ("territory" in config.env_kwargs["reward"]) is territory, where
         learned += 1
     assert learned > 0

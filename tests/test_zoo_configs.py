@@ -227,9 +227,9 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_an
     # staggers them (learning_rate_spread: 2).
     assert transfer.learning_rate_spread == 1.0 and default.learning_rate_spread == 2.0
     assert t_kwargs.pop("per_agent") == {} and len(d_kwargs.pop("per_agent")) == default.n_agents
-    # No fixed bound: B = 50 belongs to paper-50; on a new site the bound is calibrated there
-    # (--neglect-bound auto), since a fixed one forced a third to two thirds of the moves elsewhere.
-    assert t_kwargs.pop("deploy_filter") is None
+    # No fixed bound: B = 50 belongs to paper-50; wherever it is deployed the bound is calibrated
+    # there (auto), since a fixed one forced a third to two thirds of the moves elsewhere.
+    assert t_kwargs.pop("deploy_filter") == {"neglect_bound": "auto", "neglect_scope": "territory"}
     assert d_kwargs.pop("deploy_filter") == {"neglect_bound": 50.0, "neglect_scope": "territory"}
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
     # It names the graph it trains on without --env; the default trains on the command line's.

@@ -21,6 +21,12 @@ class DeploymentRule:
     _deploy_temperature: float | None = None
     #: the learners' algorithm (in error messages)
     algo: str
+    #: ``True`` while the team's ``deploy_filter`` is ``{neglect_bound: auto}`` and no bound has been
+    #: set for the graph it acts on: :func:`sb3_pm.evaluation.evaluate` then calibrates one there
+    #: before the first episode (:mod:`sb3_pm.evaluation.neglect_calibration`). Until then the
+    #: policies act with no bound. Any :meth:`set_filter` that sets ``neglect_bound`` (a number, or
+    #: ``None`` for none) settles it.
+    site_bound_pending: bool = False
 
     def acting_policies(self) -> Mapping[str, Any]:
         """``{name: policy}``: the policies that act for the team."""
@@ -118,6 +124,8 @@ class DeploymentRule:
         # Every new config first: DCBFConfig checks its fields as it is built, so a bad setting
         # raises here, before any policy has changed.
         configs = {name: replace(p.dcbf_config, **changes, **own[name]) for name, p in policies.items()}
+        if "neglect_bound" in changes:
+            self.site_bound_pending = False  # the bound is settled for this graph
         for name, policy in policies.items():
             policy.dcbf_config = configs[name]
             if "avoid_collisions" in changes:

@@ -30,6 +30,7 @@ from sb3_pm.agents.saved_teams import (
 )
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
+from sb3_pm.policies.dcbf import SITE_BOUND
 from sb3_pm.team_interface import Team
 
 #: DCBFConfig field -> the DCBF policy's keyword for it (where they differ).
@@ -203,7 +204,10 @@ class LearnedTeam(DeploymentRule, Team):
                 "trains and acts through the same filter); set it to null"
             )
         territorial = checked is not None and checked["neglect_scope"] == "territory"
-        if territorial and isinstance(self.graph, GraphFamily):
+        # auto is calibrated where the team is deployed, on that graph's territories, so a team
+        # trained on a family takes it; a fixed territory bound needs the team's own graph.
+        site_bound = checked is not None and checked["neglect_bound"] == SITE_BOUND
+        if territorial and not site_bound and isinstance(self.graph, GraphFamily):
             raise InputError(
                 "deploy_filter scope 'territory' needs one graph: a team trained on the graph family "
                 f"{self.graph.name!r} has no territories"
@@ -223,9 +227,15 @@ class LearnedTeam(DeploymentRule, Team):
                 )
 
     def _apply_deploy_filter(self) -> None:
-        """Switch the :attr:`deploy_filter` on (nothing without one)."""
-        if self._deploy_filter is not None:
-            self.set_filter(**self._deploy_filter)
+        """Switch the :attr:`deploy_filter` on (nothing without one). ``auto`` has no number until
+        a site is calibrated: the team waits for it (:attr:`site_bound_pending`) with no bound."""
+        if self._deploy_filter is None:
+            return
+        if self._deploy_filter["neglect_bound"] == SITE_BOUND:
+            self.set_filter(neglect_bound=None)  # every learner must have the filter to take one
+            self.site_bound_pending = True
+            return
+        self.set_filter(**self._deploy_filter)
 
     def _training_filter(self) -> None:
         """Switch the :attr:`deploy_filter` off: every learner's bound as trained, that is none
@@ -234,6 +244,7 @@ class LearnedTeam(DeploymentRule, Team):
 
         if self._deploy_filter is None:
             return
+        self.site_bound_pending = False
         for model in self.model_files().values():
             policy = model.policy
             if getattr(policy, "dcbf_config", None) is None:

@@ -35,6 +35,7 @@ from sb3_pm.agents.pruned_inference import PrunedInference
 from sb3_pm.agents.saved_teams import check_same_graph
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
+from sb3_pm.policies.dcbf import SITE_BOUND
 from sb3_pm.team_interface import Observation, Team
 
 #: Buffers whose first dimension is the node count and whose rows are identical.
@@ -146,6 +147,11 @@ class TransferredTeam(DeploymentRule, Team):
         retarget_territories(self.policies, graph)
         #: how the team acts by default, as the source team's (rebuild_policy kept its temperature)
         self._deploy_temperature = getattr(source, "deploy_temperature", None)
+        if (getattr(source, "deploy_filter", None) or {}).get("neglect_bound") == SITE_BOUND:
+            # A bound calibrated on the source's graph says nothing of this one: none until this
+            # site is calibrated (evaluate() does it before the first episode).
+            self.set_filter(neglect_bound=None)
+            self.site_bound_pending = True
 
     def acting_policies(self) -> dict[str, Any]:
         """``{agent: policy}``: the rebuilt policies (:class:`DeploymentRule`)."""

@@ -198,7 +198,7 @@ def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwar
         # territory), so a calibration on another split would measure other territories.
         raise UsageError(
             f"--neglect-bound auto calibrates the {trained}-agent team's territories; deploy it with "
-            f"--agents {trained}, or give a number B for {args.agents} agents"
+            f"--agents {trained}, or give a number B (or off) for {args.agents} agents"
         )
     calibration = calibrate_neglect_bound(graph, args.agents, env_kwargs, max_cycles=args.steps)
     args.neglect_bound = BOUND_OFF if calibration.bound is None else calibration.bound
@@ -293,6 +293,9 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
     team = resolve_team(args.policy, graph=graph, device=args.device)
     calibration = None
+    if args.neglect_bound is None and getattr(team, "site_bound_pending", False):
+        args.neglect_bound = BOUND_AUTO  # its deploy_filter: the bound this site allows
+        print("the team's deploy_filter is auto: calibrating its territory bound here", file=sys.stderr)
     if args.neglect_bound == BOUND_AUTO:  # the site's own bound, from the team's env settings
         calibration = resolve_auto_bound(args, team, graph, team_env_kwargs(team))
     apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)

@@ -158,7 +158,11 @@ def evaluate(
 ) -> EvaluationResult:
     """Run ``team`` for ``episodes`` full episodes on ``graph`` and collect their metrics.
 
-    :param team: any :class:`~sb3_pm.team_interface.Team` (a baseline or a trained team).
+    :param team: any :class:`~sb3_pm.team_interface.Team` (a baseline or a trained team). A trained
+        team whose ``deploy_filter`` is ``{neglect_bound: auto}`` and has no bound for this graph
+        yet (``site_bound_pending``) gets one first, calibrated here with these ``n_agents``,
+        ``env_kwargs`` and ``max_cycles`` (:func:`~sb3_pm.evaluation.neglect_calibration.settle_site_bound`;
+        recorded in ``config["neglect_calibration"]``), and keeps it.
     :param graph: a preset name, a ``.graphml`` path or a :class:`~sb3_pm.graphs.GraphSpec`.
     :param n_agents: team size.
     :param episodes: number of episodes, at least 1.
@@ -197,6 +201,11 @@ def evaluate(
     spec = resolve_graph(graph)
     deterministic = team.acts_deterministically(deterministic)
     kwargs = dict(env_kwargs or {})
+    calibration = None
+    if getattr(team, "site_bound_pending", False):  # deploy_filter auto, no bound for this site yet
+        from sb3_pm.evaluation.neglect_calibration import settle_site_bound
+
+        calibration = settle_site_bound(team, spec, n_agents, kwargs, max_cycles)
     env = persistent_monitoring_v0.parallel_env(
         graph=spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs
     )
@@ -235,6 +244,8 @@ def evaluate(
     bound = acting_filter() if callable(acting_filter) else None
     if bound is not None:  # the neglect bound the learned team acted under (rule 8)
         config["neglect_bound"], config["neglect_scope"] = bound["neglect_bound"], bound["neglect_scope"]
+    if calibration is not None:  # how its deploy_filter auto found that bound (or none) here
+        config["neglect_calibration"] = calibration.to_dict()
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
 
 

@@ -142,4 +142,44 @@ def calibrate_neglect_bound(
     )
 
 
-__all__ = ["CALIBRATION_EPISODES", "CALIBRATION_SEED", "MARGIN", "CalibratedBound", "calibrate_neglect_bound"]
+#: Env settings of a deployment that a calibration leaves out: the bound is for the team as
+#: deployed, not as its agents fail.
+_NOT_CALIBRATED = ("failures", "failure_rate")
+
+
+def settle_site_bound(
+    team: Any, graph: GraphLike, n_agents: int, env_kwargs: Mapping[str, Any], max_cycles: int
+) -> CalibratedBound:
+    """Give a team whose ``deploy_filter`` is ``{neglect_bound: auto}`` its bound on ``graph``.
+
+    Calibrates (:func:`calibrate_neglect_bound`) with the team's size and the deployment's env
+    settings (agent failures left out) and sets the result on the team's territories, or no bound
+    where the territories cannot be held; the team's ``site_bound_pending`` is then settled.
+
+    :raises InputError: ``n_agents`` other than the team's size (the bound keeps the trained split,
+        and agents sharing a learner would share a territory), or a site that cannot be calibrated.
+    """
+    trained = int(team.n_agents)
+    if n_agents != trained:
+        raise InputError(
+            f"the team's deploy_filter auto calibrates its {trained} agents' territories, and "
+            f"{n_agents} agents were asked for: evaluate it with {trained}, or set the filter first "
+            "(team.set_filter(neglect_bound=B or None); sb3-pm evaluate --neglect-bound B or off)"
+        )
+    kwargs = {key: value for key, value in env_kwargs.items() if key not in _NOT_CALIBRATED}
+    calibration = calibrate_neglect_bound(graph, n_agents, kwargs, max_cycles=max_cycles)
+    if calibration.bound is None:
+        team.set_filter(neglect_bound=None)
+    else:
+        team.set_filter(neglect_bound=calibration.bound, neglect_scope="territory")
+    return calibration
+
+
+__all__ = [
+    "CALIBRATION_EPISODES",
+    "CALIBRATION_SEED",
+    "MARGIN",
+    "CalibratedBound",
+    "calibrate_neglect_bound",
+    "settle_site_bound",
+]

@@ -107,12 +107,16 @@ def check_bound_below_cap(bound: float | None, u_max: float) -> None:
 
 #: The DCBF settings a trained team may switch on for deployment (a config's ``deploy_filter``).
 DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope")
+#: ``deploy_filter: {neglect_bound: auto}``: a territory bound measured on each site the team is
+#: deployed on, before it acts there (:mod:`sb3_pm.evaluation.neglect_calibration`).
+SITE_BOUND = "auto"
 
 
 def check_deploy_filter(value: object) -> dict[str, object] | None:
     """A team's deployment filter: ``None`` (act with the filter it trained under) or a mapping
     ``{neglect_bound: B, neglect_scope: known | unserved | territory}`` (scope optional, ``known``
-    by default), checked as :class:`DCBFConfig` checks them.
+    by default), checked as :class:`DCBFConfig` checks them; or ``{neglect_bound: auto}``, a
+    territory bound calibrated on each deployment site (scope ``territory``, the only one it takes).
 
     :raises InputError: anything else, naming the problem.
     """
@@ -124,8 +128,16 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
     if unknown:
         raise InputError(f"unknown key {unknown[0]!r} (known: {', '.join(DEPLOY_FILTER_KEYS)})")
     bound = value.get("neglect_bound")
+    if bound == SITE_BOUND:
+        scope = value.get("neglect_scope", "territory")
+        if scope != "territory":
+            raise InputError(
+                f"neglect_bound auto is a territory bound (calibrated on each agent's territory); "
+                f"neglect_scope {scope!r} cannot go with it"
+            )
+        return {"neglect_bound": SITE_BOUND, "neglect_scope": "territory"}
     if bound is None or isinstance(bound, bool) or not isinstance(bound, (int, float)):
-        raise InputError(f"neglect_bound must be a number (the bound B), got {bound!r}")
+        raise InputError(f"neglect_bound must be a number (the bound B) or auto, got {bound!r}")
     if not math.isfinite(bound):
         raise InputError(f"neglect_bound must be finite, got {bound!r}")
     scope = value.get("neglect_scope", "known")
