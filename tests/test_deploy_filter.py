@@ -487,6 +487,7 @@ class TestSiteBound:
     def test_a_moved_team_calibrates_its_new_site_not_the_old_one(self) -> None:
         from sb3_pm.evaluation import evaluate
         from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+        from sb3_pm.graphs.territories import agent_territories
 
         team = tiny_team(deploy_filter=SITE_BOUND, policy_kwargs={"laplacian": "none"})
         other = path_graph(14, targets=[0, 2, 11, 13], name="longer")
@@ -496,14 +497,18 @@ class TestSiteBound:
             assert moved.site_bound_pending and moved.acting_filter() is None  # not the old site's B
             result = evaluate(moved, other, n_agents=2, episodes=1, max_cycles=20)
             expected = calibrate_neglect_bound(other, 2, {}, max_cycles=20)
+            assert expected.bound is not None
             assert result.config["neglect_calibration"] == expected.to_dict()
+            assert result.config["neglect_bound"] == expected.bound
             territory = moved.policies["agent_1"].dcbf_config.territory
-            assert territory and max(territory) < 14  # the new graph's territory
+            assert territory == agent_territories(other, 2)[1] != agent_territories(team.graph, 2)[1]
         finally:
             team.close()
 
-    def test_a_team_trained_on_a_family_takes_it(self) -> None:
+    def test_a_team_trained_on_a_family_takes_it_and_calibrates_where_it_is_deployed(self) -> None:
         from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.evaluation import evaluate
+        from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
         from sb3_pm.graphs.distributions import ErdosRenyiFamily
 
         team = IndependentPPO(
@@ -518,6 +523,11 @@ class TestSiteBound:
             assert team.site_bound_pending
             with pytest.raises(InputError, match="deploy_filter scope 'territory' needs one graph"):
                 team.deploy_filter = {"neglect_bound": 15, "neglect_scope": "territory"}
+            team.learn(10)
+            site = path_graph(12, targets=[0, 1, 10, 11])
+            result = evaluate(team.on_graph(site), site, n_agents=2, episodes=1, max_cycles=20)
+            expected = calibrate_neglect_bound(site, 2, {}, max_cycles=20)
+            assert result.config["neglect_calibration"] == expected.to_dict()
         finally:
             team.close()
 
@@ -543,3 +553,78 @@ class TestSiteBound:
         assert "deploy_filter is auto" in err and expected.describe() in err
         assert main([*argv[:-1], "3", "--episodes", "1", "--steps", "20"]) == 2
         assert "deploy it with --agents 2, or give a number B (or off)" in capsys.readouterr().err
+
+    def test_failures_are_left_out_of_the_calibration(self) -> None:
+        from sb3_pm.evaluation import evaluate
+
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        try:
+            failing = evaluate(
+                team,
+                team.graph,
+                n_agents=2,
+                episodes=1,
+                max_cycles=20,
+                env_kwargs={"failures": {"agent_1": 5}},
+            )
+        finally:
+            team.close()
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        try:
+            whole = evaluate(team, team.graph, n_agents=2, episodes=1, max_cycles=20)
+        finally:
+            team.close()
+        # the bound is for the team as deployed: the same calibration with or without the failure
+        assert failing.config["neglect_calibration"] == whole.config["neglect_calibration"]
+        assert failing.config["env_kwargs"]["failures"] == {"agent_1": 5}
+
+    def test_a_failed_evaluation_leaves_the_team_waiting_for_its_site(self) -> None:
+        from sb3_pm.evaluation import evaluate
+        from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        other = path_graph(14, targets=[0, 2, 11, 13], name="longer")
+        try:
+            with pytest.raises(InputError, match="graph"):  # not the team's graph: refused at reset
+                evaluate(team, other, n_agents=2, episodes=1, max_cycles=20)
+            assert team.site_bound_pending and team.acting_filter() is None  # not the other's bound
+            result = evaluate(team, team.graph, n_agents=2, episodes=1, max_cycles=20)
+            expected = calibrate_neglect_bound(team.graph, 2, {}, max_cycles=20)
+            assert result.config["neglect_calibration"] == expected.to_dict()
+        finally:
+            team.close()
+
+    def test_acting_without_a_calibrated_site_warns_once(self) -> None:
+        from sb3_pm.envs import persistent_monitoring_v0
+
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        env = persistent_monitoring_v0.parallel_env(graph=team.graph, n_agents=2, max_cycles=20)
+        try:
+            with pytest.warns(UserWarning, match="no neglect bound has been calibrated for this graph"):
+                team.reset(env, seed=0)
+            team.set_filter(neglect_bound=None)  # settled by the user: no bound, said
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                team.reset(env, seed=1)
+        finally:
+            env.close()
+            team.close()
+
+    def test_an_explicit_bound_on_the_command_line_is_a_territory_bound(self, tmp_path) -> None:
+        from sb3_pm.cli import main
+
+        team = tiny_team(deploy_filter=SITE_BOUND)
+        try:
+            team.learn(10)
+            team.save(tmp_path / "t")
+        finally:
+            team.close()
+        out = tmp_path / "e.json"
+        argv = ["evaluate", "--policy", str(tmp_path / "t"), "--graph", str(tmp_path / "t" / "graph.graphml")]
+        assert main([*argv, "--agents", "2", "--episodes", "1", "--steps", "20", "--neglect-bound", "12",
+                     "--json", str(out)]) == 0  # fmt: skip
+        config = json.loads(out.read_text())["config"]
+        assert (config["neglect_bound"], config["neglect_scope"]) == (12.0, "territory")
+        assert "neglect_calibration" not in config

@@ -679,17 +679,31 @@ def test_transfer_features_trains_the_transfer_config_with_one_flag(tmp_path: Pa
         assert cell.team_folder is not None  # one team per seed, deployed zero-shot on every graph
 
 
-@pytest.mark.parametrize(
-    ("name", "knowledge", "territory"),
-    [
-        ("zero_shot", "discovered", False),
-        ("zero_shot_scaling", "discovered", False),
-        ("transfer_features", "discovered", False),
-        ("transfer_known_map", "known", False),
-        ("transfer_eigen", "known", False),
-        ("transfer_territory", "known", True),
-    ],
-)
+#: The experiment files built on zoo/ippo_transfer.yml, with the map knowledge and territory
+#: settings each measured.
+TRANSFER_EXPERIMENTS = [
+    ("zero_shot", "discovered", False),
+    ("zero_shot_scaling", "discovered", False),
+    ("transfer_features", "discovered", False),
+    ("transfer_known_map", "known", False),
+    ("transfer_eigen", "known", False),
+    ("transfer_territory", "known", True),
+]
+
+
+def test_every_experiment_built_on_ippo_transfer_is_checked_for_what_it_measured() -> None:
+    """A new file that trains zoo/ippo_transfer.yml must join TRANSFER_EXPERIMENTS (and so pin
+    the settings it measures), or a change of the config would change what it measures."""
+    built_on = set()
+    for path in sorted((ZOO / "experiments").glob("*.yml")):
+        experiment = load_experiment(path)
+        configs = [experiment.config, *(variant.config for variant in experiment.variants)]
+        if any(config is not None and Path(config).name == "ippo_transfer.yml" for config in configs):
+            built_on.add(path.stem)
+    assert built_on == {name for name, _, _ in TRANSFER_EXPERIMENTS}
+
+
+@pytest.mark.parametrize(("name", "knowledge", "territory"), TRANSFER_EXPERIMENTS)
 def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
     tmp_path: Path, name: str, knowledge: str, territory: bool
 ) -> None:

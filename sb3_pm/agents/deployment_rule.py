@@ -27,6 +27,23 @@ class DeploymentRule:
     #: policies act with no bound. Any :meth:`set_filter` that sets ``neglect_bound`` (a number, or
     #: ``None`` for none) settles it.
     site_bound_pending: bool = False
+    #: whether :meth:`_warn_if_site_bound_pending` has warned (once per team)
+    _warned_pending: bool = False
+
+    def _warn_if_site_bound_pending(self) -> None:
+        """Say once that a team with ``deploy_filter`` auto acts with no bound on a graph it was
+        not calibrated on (an episode started without :func:`sb3_pm.evaluation.evaluate`)."""
+        if self.site_bound_pending and not self._warned_pending:
+            import warnings
+
+            warnings.warn(
+                "deploy_filter auto: no neglect bound has been calibrated for this graph, so the team "
+                "acts with none; evaluate() calibrates it first, or call "
+                "sb3_pm.evaluation.neglect_calibration.settle_site_bound(team, graph, n_agents, env_kwargs, "
+                "max_cycles), or set one with team.set_filter(neglect_bound=B or None)",
+                stacklevel=3,
+            )
+            self._warned_pending = True
 
     def acting_policies(self) -> Mapping[str, Any]:
         """``{name: policy}``: the policies that act for the team."""

@@ -122,6 +122,7 @@ class LearnedTeam(DeploymentRule, Team):
         (``deterministic=False``) actions are reproducible.
         """
         super().reset(env, seed)
+        self._warn_if_site_bound_pending()
         other = getattr(getattr(env, "unwrapped", env), "graph", None)
         if isinstance(self.graph, GraphFamily) and isinstance(other, GraphSpec):
             raise InputError(

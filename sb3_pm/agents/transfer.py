@@ -168,6 +168,7 @@ class TransferredTeam(DeploymentRule, Team):
 
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
+        self._warn_if_site_bound_pending()
         other = getattr(getattr(env, "unwrapped", env), "graph", None)
         if isinstance(other, GraphSpec):
             try:

@@ -218,7 +218,8 @@ def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None 
         team.set_filter(neglect_bound=None)
         return
     if scope is None:  # the team's own scope (its deploy_filter's), else known: said, not implied
-        scope = (team.acting_filter() or {}).get("neglect_scope", "known")
+        pending = getattr(team, "site_bound_pending", False)  # deploy_filter auto: a territory bound
+        scope = "territory" if pending else (team.acting_filter() or {}).get("neglect_scope", "known")
     team.set_filter(neglect_bound=bound, neglect_scope=scope)
 
 

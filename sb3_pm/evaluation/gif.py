@@ -35,6 +35,10 @@ def record_gif(
     path = Path(path)
     if not path.parent.exists():
         raise FileNotFoundError(f"directory for the GIF does not exist: {path.parent}")
+    if getattr(team, "site_bound_pending", False):  # deploy_filter auto: as evaluate() does
+        from sb3_pm.evaluation.neglect_calibration import settle_site_bound
+
+        settle_site_bound(team, resolve_graph(graph), n_agents, dict(env_kwargs or {}), max_cycles)
     env = persistent_monitoring_v0.parallel_env(
         graph=resolve_graph(graph),
         n_agents=n_agents,

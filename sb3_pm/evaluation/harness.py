@@ -222,6 +222,12 @@ def evaluate(
                     run_episode(team, env, env_seed, bar, deterministic=deterministic, recorder=recorder)
                 )
                 records[-1].episode = episode
+    except BaseException:
+        if calibration is not None:  # e.g. a graph the team refuses: the bound is not its site's
+            from sb3_pm.evaluation.neglect_calibration import unsettle_site_bound
+
+            unsettle_site_bound(team)
+        raise
     finally:
         if bar is not None:
             bar.close()

@@ -159,20 +159,33 @@ def settle_site_bound(
     :raises InputError: ``n_agents`` other than the team's size (the bound keeps the trained split,
         and agents sharing a learner would share a territory), or a site that cannot be calibrated.
     """
+    way_out = (
+        "or set the filter first (team.set_filter(neglect_bound=B or None); "
+        "sb3-pm evaluate --neglect-bound B or off)"
+    )
     trained = int(team.n_agents)
     if n_agents != trained:
         raise InputError(
             f"the team's deploy_filter auto calibrates its {trained} agents' territories, and "
-            f"{n_agents} agents were asked for: evaluate it with {trained}, or set the filter first "
-            "(team.set_filter(neglect_bound=B or None); sb3-pm evaluate --neglect-bound B or off)"
+            f"{n_agents} agents were asked for: deploy it with {trained}, {way_out}"
         )
     kwargs = {key: value for key, value in env_kwargs.items() if key not in _NOT_CALIBRATED}
-    calibration = calibrate_neglect_bound(graph, n_agents, kwargs, max_cycles=max_cycles)
+    try:
+        calibration = calibrate_neglect_bound(graph, n_agents, kwargs, max_cycles=max_cycles)
+    except InputError as error:
+        raise InputError(f"the team's deploy_filter auto: {error}; {way_out}") from None
     if calibration.bound is None:
         team.set_filter(neglect_bound=None)
     else:
         team.set_filter(neglect_bound=calibration.bound, neglect_scope="territory")
     return calibration
+
+
+def unsettle_site_bound(team: Any) -> None:
+    """Undo :func:`settle_site_bound` (the deployment it was for failed): no bound, and a site
+    still to calibrate."""
+    team.set_filter(neglect_bound=None)
+    team.site_bound_pending = True
 
 
 __all__ = [
@@ -182,4 +195,5 @@ __all__ = [
     "CalibratedBound",
     "calibrate_neglect_bound",
     "settle_site_bound",
+    "unsettle_site_bound",
 ]
