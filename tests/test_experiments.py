@@ -360,6 +360,20 @@ def test_resume_refuses_a_different_experiment(tmp_path: Path) -> None:
             "graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {timesteps: -3}}\n",
             "'timesteps' must be a positive integer",
         ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {train_agents: 4}}\n",
+            "'train_agents' applies to independent variants with a train_env",
+        ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\n"
+            "variants: {a: {train_env: paper-50, train_agents: 0}}\n",
+            "'train_agents' must be a positive integer, got 0",
+        ),
+        (
+            "graphs: [paper-50]\nseeds: [0]\nconfig: x.yml\nvariants: {a: {train_env: paper-50, "
+            "train_agents: 2, agents: {agent_3: {learning_rate: 0.001}}}}\n",
+            "unknown agent 'agent_3' \\(the team has agent_0 .. agent_1\\)",
+        ),
     ],
 )
 def test_malformed_experiment_files(tmp_path: Path, text: str, message: str) -> None:
@@ -596,6 +610,32 @@ def test_a_train_env_variant_trains_once_per_seed_and_deploys_on_every_graph(
         (Path(cell.folder) / "DONE").unlink()
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
     assert trained == []
+
+
+def test_a_train_agents_variant_trains_that_team_size_and_deploys_the_experiments(tmp_path: Path) -> None:
+    """``train_agents``: one team per seed of that size, deployed with the experiment's n_agents
+    (agent_i acting with learner agent_(i mod train_agents))."""
+    tiny_experiment(tmp_path)
+    (tmp_path / "config.yml").write_text(
+        (tmp_path / "config.yml").read_text().replace("gat_heads: 1}", "gat_heads: 1, laplacian: none}")
+    )
+    (tmp_path / "scaled.yml").write_text(
+        "name: scaled\ngraphs: [tiny.graphml]\nseeds: [0]\nepisodes: 1\nmax_cycles: 20\n"
+        "n_agents: 3\nconfig: config.yml\nvariants:\n"
+        "  small: {train_env: 'family:er', train_agents: 2, timesteps: 32}\n"
+    )
+    experiment = load_experiment(tmp_path / "scaled.yml").with_graphs([str(tmp_path / "tiny.graphml")])
+    (cell,) = plan_cells(experiment, tmp_path / "out")
+    assert runner_module.cell_config(cell, runner_module.Variant(**cell.variant)).n_agents == 2
+    reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
+    from sb3_pm.agents.team import IndependentPPO
+
+    team = IndependentPPO.load(tmp_path / "out" / "trained" / "small" / "family-er" / "seed0" / "team")
+    assert team.n_agents == 2
+    (result,) = json.loads((tmp_path / "out" / "results.json").read_text())["results"]["small"]
+    assert result["config"]["n_agents"] == 3
+    record = runner_module.experiment_record(experiment)  # a changed team size is another experiment
+    assert record["variants"]["small"]["train_agents"] == 2
 
 
 @pytest.mark.parametrize("path", sorted((ZOO / "experiments").glob("*.yml")), ids=lambda p: p.stem)

@@ -206,7 +206,8 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
     assert source is not None
     # Per-agent overrides go through the loader, which validates them as a file's own ``agents``
     # (agent names against the cell's team size).
-    overrides = {"agents": variant.agents, "n_agents": cell.n_agents} if variant.agents else None
+    team_size = variant.train_agents or cell.n_agents  # train_agents: a team deployed with n_agents
+    overrides = {"agents": variant.agents, "n_agents": team_size} if variant.agents else None
     config = load_config(source, variant.train_env or cell.graph, overrides)
     pins = {**cell.hyperparams, **variant.hyperparams}
     config.deploy_temperature = pinned_deploy_temperature(config, pins)
@@ -221,7 +222,7 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
             **variant.policy_kwargs,
         }
     config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
-    config.n_agents = cell.n_agents
+    config.n_agents = team_size
     return config
 
 
@@ -472,6 +473,7 @@ _RECORD_DEFAULTS: dict[str, Any] = {
     "train_env": None,
     "timesteps": None,
     "agents": {},
+    "train_agents": None,
 }
 
 

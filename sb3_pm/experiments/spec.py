@@ -36,7 +36,10 @@ once per seed on this graph or graph family, e.g. ``family:er``, and evaluate th
 zero-shot on every graph of the experiment, instead of training on each graph), ``timesteps``
 (learned variants: this variant's budget per learner, instead of the experiment's), ``agents``
 (independent variants: per-agent overrides, ``{agent_1: {learning_rate: 0.0007}}``, set as the
-config file's own ``agents`` key would be, replacing it, and validated the same way).
+config file's own ``agents`` key would be, replacing it, and validated the same way),
+``train_agents`` (independent variants with ``train_env``: the team size it trains with, instead
+of the experiment's ``n_agents``; the cells deploy that team with ``n_agents``, agent_i acting
+with learner agent_(i mod train_agents), e.g. a 4-agent team in the 16-agent regime).
 """
 
 from __future__ import annotations
@@ -80,6 +83,7 @@ _VARIANT_KEYS = {
     "train_env",
     "timesteps",
     "agents",
+    "train_agents",
 }
 
 
@@ -106,6 +110,8 @@ class Variant:
     timesteps: int | None = None
     #: Per-agent overrides (``agent_i -> hyperparameters``), as a config entry's ``agents`` key.
     agents: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The team size a ``train_env`` variant trains with (``None``: the experiment's ``n_agents``).
+    train_agents: int | None = None
 
     @property
     def learned(self) -> bool:
@@ -248,7 +254,19 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"variant {key!r}: 'train' applies to learned variants, not baselines")
         if settings.get("agents") and kind != "independent":
             raise _fail(path, f"variant {key!r}: 'agents' applies to independent variants only")
-        team_size = raw.get("n_agents", 4)
+        train_agents = settings.get("train_agents")
+        if train_agents is not None:
+            if isinstance(train_agents, bool) or not isinstance(train_agents, int) or train_agents < 1:
+                raise _fail(
+                    path, f"variant {key!r}: 'train_agents' must be a positive integer, got {train_agents!r}"
+                )
+            if kind != "independent" or settings.get("train_env") is None:
+                raise _fail(
+                    path,
+                    f"variant {key!r}: 'train_agents' applies to independent variants with a train_env "
+                    "(one team per seed, deployed with the experiment's n_agents)",
+                )
+        team_size = train_agents if train_agents is not None else raw.get("n_agents", 4)
         for agent, values in settings.get("agents", {}).items():
             # Checked here, not only when a cell starts training, so a typo fails before the sweep.
             if isinstance(team_size, int) and agent not in {f"agent_{i}" for i in range(team_size)}:
@@ -298,6 +316,7 @@ def load_experiment(path: str | Path) -> Experiment:
                 train_env=None if train_env is None else str(train_env),
                 timesteps=timesteps,
                 agents={str(agent): dict(values) for agent, values in settings.get("agents", {}).items()},
+                train_agents=train_agents,
             )
         )
     config = raw.get("config")
