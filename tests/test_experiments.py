@@ -728,7 +728,13 @@ TRANSFER_EXPERIMENTS = [
     ("transfer_known_map", "known", False),
     ("transfer_eigen", "known", False),
     ("transfer_territory", "known", True),
+    ("regime_100", "known", True),
+    ("regime_200", "known", True),
 ]
+
+
+def _built_on_ippo_transfer(config: object) -> bool:
+    return config is not None and Path(str(config)).name == "ippo_transfer.yml"
 
 
 def test_every_experiment_built_on_ippo_transfer_is_checked_for_what_it_measured() -> None:
@@ -738,7 +744,7 @@ def test_every_experiment_built_on_ippo_transfer_is_checked_for_what_it_measured
     for path in sorted((ZOO / "experiments").glob("*.yml")):
         experiment = load_experiment(path)
         configs = [experiment.config, *(variant.config for variant in experiment.variants)]
-        if any(config is not None and Path(config).name == "ippo_transfer.yml" for config in configs):
+        if any(_built_on_ippo_transfer(config) for config in configs):
             built_on.add(path.stem)
     assert built_on == {name for name, _, _ in TRANSFER_EXPERIMENTS}
 
@@ -748,12 +754,14 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
     tmp_path: Path, name: str, knowledge: str, territory: bool
 ) -> None:
     """zoo/ippo_transfer.yml gives a known map and the territory input and reward; the files that
-    measured other settings pin them, so every learned variant there trains (and, keeping its env
+    measured other settings pin them, so every variant built on it trains (and, keeping its env
     settings, deploys) as measured."""
     experiment = load_experiment(name)
     learned = 0
     for cell in plan_cells(experiment, tmp_path):
-        if cell.variant["kind"] == "baseline":
+        if cell.variant["kind"] == "baseline" or not _built_on_ippo_transfer(
+            cell.variant["config"] or cell.config
+        ):
             continue
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
         where = (name, cell.variant["key"])
