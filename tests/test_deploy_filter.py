@@ -184,17 +184,21 @@ class TestTransfer:
         assert policies["agent_0"].dcbf_config is known
 
 
-@pytest.fixture(scope="module")
-def saved(tmp_path_factory) -> Path:
-    """A trained two-agent team saved with a territory deploy filter."""
-    team = tiny_team()
-    folder = tmp_path_factory.mktemp("deploy") / "team"
+def saved_tiny_team(folder: Path, deploy_filter=TERRITORY_BOUND) -> Path:
+    """A tiny team with ``deploy_filter``, trained a little and saved to ``folder``."""
+    team = tiny_team(deploy_filter=deploy_filter)
     try:
         team.learn(10)
         team.save(folder)
     finally:
         team.close()
     return folder
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> Path:
+    """A trained two-agent team saved with a territory deploy filter."""
+    return saved_tiny_team(tmp_path_factory.mktemp("deploy") / "team")
 
 
 class TestCommandLine:
@@ -536,14 +540,9 @@ class TestSiteBound:
         from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
         from sb3_pm.graphs import load_graphml
 
-        team = tiny_team(deploy_filter=SITE_BOUND)
-        try:
-            team.learn(10)
-            team.save(tmp_path / "t")
-        finally:
-            team.close()
-        out, graph = tmp_path / "e.json", tmp_path / "t" / "graph.graphml"
-        argv = ["evaluate", "--policy", str(tmp_path / "t"), "--graph", str(graph), "--agents", "2"]
+        saved = saved_tiny_team(tmp_path / "t", SITE_BOUND)
+        out, graph = tmp_path / "e.json", saved / "graph.graphml"
+        argv = ["evaluate", "--policy", str(saved), "--graph", str(graph), "--agents", "2"]
         assert main([*argv, "--episodes", "1", "--steps", "20", "--json", str(out)]) == 0
         config = json.loads(out.read_text())["config"]
         expected = calibrate_neglect_bound(load_graphml(graph), 2, max_cycles=20)
@@ -615,14 +614,9 @@ class TestSiteBound:
     def test_an_explicit_bound_on_the_command_line_is_a_territory_bound(self, tmp_path) -> None:
         from sb3_pm.cli import main
 
-        team = tiny_team(deploy_filter=SITE_BOUND)
-        try:
-            team.learn(10)
-            team.save(tmp_path / "t")
-        finally:
-            team.close()
+        saved = saved_tiny_team(tmp_path / "t", SITE_BOUND)
         out = tmp_path / "e.json"
-        argv = ["evaluate", "--policy", str(tmp_path / "t"), "--graph", str(tmp_path / "t" / "graph.graphml")]
+        argv = ["evaluate", "--policy", str(saved), "--graph", str(saved / "graph.graphml")]
         assert main([*argv, "--agents", "2", "--episodes", "1", "--steps", "20", "--neglect-bound", "12",
                      "--json", str(out)]) == 0  # fmt: skip
         config = json.loads(out.read_text())["config"]

@@ -164,6 +164,13 @@ def tiny_experiment(tmp_path: Path) -> Path:
     return tmp_path / "experiment.yml"
 
 
+def size_independent_config(tmp_path: Path) -> None:
+    """Make the tiny experiment's team config size-independent (``laplacian: none``), so its team
+    runs on graphs of other sizes."""
+    path = tmp_path / "config.yml"
+    path.write_text(path.read_text().replace("gat_heads: 1}", "gat_heads: 1, laplacian: none}"))
+
+
 def load_tiny(tmp_path: Path):
     experiment = load_experiment(tiny_experiment(tmp_path))
     # Graph paths in an experiment file are taken as given; make this one absolute for the test.
@@ -574,9 +581,7 @@ def test_a_train_env_variant_trains_once_per_seed_and_deploys_on_every_graph(
 
     tiny_experiment(tmp_path)
     save_graphml(erdos_renyi(9, 0.4, n_targets=2, seed=4), tmp_path / "other.graphml")
-    (tmp_path / "config.yml").write_text(
-        (tmp_path / "config.yml").read_text().replace("gat_heads: 1}", "gat_heads: 1, laplacian: none}")
-    )
+    size_independent_config(tmp_path)
     (tmp_path / "zero_shot.yml").write_text(
         "name: zs\ngraphs: [tiny.graphml, other.graphml]\nseeds: [0, 1]\nepisodes: 1\nmax_cycles: 20\n"
         "n_agents: 2\nconfig: config.yml\nvariants:\n"
@@ -616,9 +621,7 @@ def test_a_train_agents_variant_trains_that_team_size_and_deploys_the_experiment
     """``train_agents``: one team per seed of that size, deployed with the experiment's n_agents
     (agent_i acting with learner agent_(i mod train_agents))."""
     tiny_experiment(tmp_path)
-    (tmp_path / "config.yml").write_text(
-        (tmp_path / "config.yml").read_text().replace("gat_heads: 1}", "gat_heads: 1, laplacian: none}")
-    )
+    size_independent_config(tmp_path)
     (tmp_path / "scaled.yml").write_text(
         "name: scaled\ngraphs: [tiny.graphml]\nseeds: [0]\nepisodes: 1\nmax_cycles: 20\n"
         "n_agents: 3\nconfig: config.yml\nvariants:\n"
