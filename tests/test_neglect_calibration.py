@@ -17,13 +17,15 @@ from tests.conftest import path_graph
 PAIRS = path_graph(10, targets=[0, 1, 8, 9])
 
 
-def test_the_bound_is_1_2_times_the_worst_peak_of_the_territory_rule() -> None:
+def test_the_bound_is_the_worst_peak_of_the_territory_rule_times_the_margin() -> None:
     rule = evaluate(make_team("territory_patrol"), PAIRS, n_agents=2, episodes=3, seed=5, max_cycles=40)
     peak = max(record.metrics["peak_uncertainty"] for record in rule.episodes)
     assert 0 < peak < 100  # the rule holds the pairs, after walking to them
     found = calibrate_neglect_bound(PAIRS, 2, episodes=3, seed=5, max_cycles=40)
-    assert found.peak == peak and found.bound == max(1, math.ceil(1.2 * peak))
+    assert found.peak == peak and found.bound == max(1, math.ceil(peak))  # the default margin, 1
     assert found == calibrate_neglect_bound(PAIRS, 2, episodes=3, seed=5, max_cycles=40)  # seeded
+    wider = calibrate_neglect_bound(PAIRS, 2, episodes=3, seed=5, max_cycles=40, margin=1.2)
+    assert wider.peak == peak and wider.bound == max(1, math.ceil(1.2 * peak))
     assert f"neglect bound {found.bound:g} on each agent's territory" in found.describe()
 
 

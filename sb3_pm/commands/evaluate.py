@@ -65,7 +65,7 @@ def register(subparsers: Any) -> None:
         metavar="B",
         help="deploy a trained DCBF team with the filter's neglect bound B (rule 8) instead of its own "
         "setting (its config's deploy_filter, saved with it), 'off' to act with none, or 'auto': a "
-        "territory bound calibrated on this graph, 1.2x the worst peak uncertainty of "
+        "territory bound calibrated on this graph, the worst peak uncertainty of "
         "territory_patrol over 10 episodes of its own, none where that rule lets a target reach "
         "u_max; prints how often the bound forced the agents' moves",
     )
