@@ -30,6 +30,16 @@ class DeploymentRule:
     #: whether :meth:`_warn_if_site_bound_pending` has warned (once per team)
     _warned_pending: bool = False
 
+    def await_site_bound(self) -> None:
+        """No bound until a site is calibrated: the policies act with none, and
+        :attr:`site_bound_pending` says a calibration is due (``deploy_filter`` auto on a team built,
+        loaded or moved, or whose calibrated deployment failed).
+
+        :raises InputError: a policy without the DCBF filter, which could never take the bound.
+        """
+        self.set_filter(neglect_bound=None)
+        self.site_bound_pending = True
+
     def _warn_if_site_bound_pending(self) -> None:
         """Say once that a team with ``deploy_filter`` auto acts with no bound on a graph it was
         not calibrated on (an episode started without :func:`sb3_pm.evaluation.evaluate`)."""

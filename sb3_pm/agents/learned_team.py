@@ -233,8 +233,7 @@ class LearnedTeam(DeploymentRule, Team):
         if self._deploy_filter is None:
             return
         if self._deploy_filter["neglect_bound"] == SITE_BOUND:
-            self.set_filter(neglect_bound=None)  # every learner must have the filter to take one
-            self.site_bound_pending = True
+            self.await_site_bound()
             return
         self.set_filter(**self._deploy_filter)
 

@@ -150,8 +150,7 @@ class TransferredTeam(DeploymentRule, Team):
         if (getattr(source, "deploy_filter", None) or {}).get("neglect_bound") == SITE_BOUND:
             # A bound calibrated on the source's graph says nothing of this one: none until this
             # site is calibrated (evaluate() does it before the first episode).
-            self.set_filter(neglect_bound=None)
-            self.site_bound_pending = True
+            self.await_site_bound()
 
     def acting_policies(self) -> dict[str, Any]:
         """``{agent: policy}``: the rebuilt policies (:class:`DeploymentRule`)."""

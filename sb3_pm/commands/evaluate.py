@@ -177,14 +177,15 @@ def require_filter(team: Any) -> None:
 
 def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwargs: dict[str, Any]) -> Any:
     """``--neglect-bound auto``: calibrate the territory bound on ``graph`` for the team's agents
-    and put the number (or ``off`` where the territories cannot be held) in ``args``, with scope
-    ``territory``. Returns the :class:`~sb3_pm.evaluation.neglect_calibration.CalibratedBound`.
+    and set it on the team (:func:`~sb3_pm.evaluation.neglect_calibration.settle_site_bound`), and
+    put the number (or ``off`` where the territories cannot be held) in ``args`` for the messages
+    that follow. Returns the :class:`~sb3_pm.evaluation.neglect_calibration.CalibratedBound`.
 
     :param env_kwargs: the team's environment settings, without ``--fail``/``--failure-rate``
         (the bound is for the team as deployed, not as it fails).
     """
     from sb3_pm.errors import UsageError
-    from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
+    from sb3_pm.evaluation.neglect_calibration import settle_site_bound
 
     require_filter(team)
     if args.neglect_scope not in (None, "territory"):
@@ -200,7 +201,7 @@ def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwar
             f"--neglect-bound auto calibrates the {trained}-agent team's territories; deploy it with "
             f"--agents {trained}, or give a number B (or off) for {args.agents} agents"
         )
-    calibration = calibrate_neglect_bound(graph, args.agents, env_kwargs, max_cycles=args.steps)
+    calibration = settle_site_bound(team, graph, args.agents, env_kwargs, max_cycles=args.steps)
     args.neglect_bound = BOUND_OFF if calibration.bound is None else calibration.bound
     args.neglect_scope = None if calibration.bound is None else "territory"
     print(calibration.describe(), file=sys.stderr)
@@ -299,7 +300,8 @@ def run(args: argparse.Namespace) -> int:
         print("the team's deploy_filter is auto: calibrating its territory bound here", file=sys.stderr)
     if args.neglect_bound == BOUND_AUTO:  # the site's own bound, from the team's env settings
         calibration = resolve_auto_bound(args, team, graph, team_env_kwargs(team))
-    apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
+    else:
+        apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
     acting_filter = team.acting_filter() if hasattr(team, "acting_filter") else None  # after the flags

@@ -14,10 +14,10 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 
-#: What :meth:`MonitoringCore._build_tables` derives from the graph (rebuilt on unpickling a
-#: core written before one of them existed).
 #: The default cap on a target's uncertainty (``u_max``), here and in the PettingZoo env.
 DEFAULT_U_MAX = 100
+#: What :meth:`MonitoringCore._build_tables` derives from the graph (rebuilt on unpickling a
+#: core written before one of them existed).
 _DERIVED_TABLES = frozenset({"n_nodes", "_legal_sets", "_next_u"})
 
 

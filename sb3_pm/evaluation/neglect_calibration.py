@@ -177,7 +177,7 @@ def settle_site_bound(
     try:
         calibration = calibrate_neglect_bound(graph, n_agents, kwargs, max_cycles=max_cycles)
     except InputError as error:
-        raise InputError(f"the team's deploy_filter auto: {error}; {way_out}") from None
+        raise InputError(f"neglect bound auto: {error}; {way_out}") from None
     if calibration.bound is None:
         team.set_filter(neglect_bound=None)
     else:
@@ -188,8 +188,7 @@ def settle_site_bound(
 def unsettle_site_bound(team: Any) -> None:
     """Undo :func:`settle_site_bound` (the deployment it was for failed): no bound, and a site
     still to calibrate."""
-    team.set_filter(neglect_bound=None)
-    team.site_bound_pending = True
+    team.await_site_bound()
 
 
 __all__ = [
