@@ -7,7 +7,10 @@ from typing import Any
 
 import numpy as np
 
+from sb3_pm.envs.territory_rule import nearest_first
 from sb3_pm.graphs import GraphSpec
+
+__all__ = ["agent_positions", "env_graph", "nearest_first", "own_uncertainty", "step_towards"]
 
 
 def agent_positions(observations: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], np.ndarray]:
@@ -22,20 +25,6 @@ def agent_positions(observations: Mapping[str, Mapping[str, Any]]) -> tuple[list
 def env_graph(env: Any) -> GraphSpec:
     """The graph of ``env`` (the topology is static problem data, not hidden state)."""
     return env.unwrapped.graph
-
-
-def nearest_first(
-    candidates: np.ndarray, distances: np.ndarray, keys: np.ndarray | None = None
-) -> np.ndarray:
-    """``candidates`` sorted by descending ``keys`` (if given), then ascending distance, then index.
-
-    ``np.lexsort`` sorts by its *last* key first, so the keys are passed in reverse priority.
-    Ties are broken deterministically, which keeps every baseline reproducible without an rng.
-    """
-    order_keys: list[np.ndarray] = [candidates, distances[candidates]]
-    if keys is not None:
-        order_keys.append(-keys[candidates])
-    return candidates[np.lexsort(order_keys)]
 
 
 def step_towards(

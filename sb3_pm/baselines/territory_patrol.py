@@ -5,15 +5,11 @@ from the site and its own index (:mod:`sb3_pm.graphs.territories`); agent ``agen
 territory ``i``. No agent reads another's state and nothing is communicated: the split is a
 convention fixed before the mission, so the team is not ``omniscient``.
 
-Rule, per agent and step, on the agent's own view:
-
-1. On one of its targets whose observed ``u`` is positive: dwell.
-2. Else keep heading for the goal chosen earlier until it is reached; otherwise choose, among its
-   territory's other targets, the one with the highest own-map estimate ``min(u_last + age, u_max)``
-   (``u`` grows by at most one per unobserved step; ties: nearest, then lowest index) and take one
-   step along a shortest path of the site's road network.
-3. An agent whose territory holds one target stays there once it has arrived; an agent with no
-   territory (fewer targets than agents) acts as ``local_greedy`` does.
+The rule, per agent and step, on the agent's own view, is :func:`sb3_pm.envs.territory_rule.territory_move`
+(the env's ``advice_input`` flags the same move in a learned agent's observation): dwell on one of
+its targets while its observed ``u`` is positive, else head for the goal chosen earlier, else for
+its territory's most stale target by its own map. An agent with no territory (fewer targets than
+agents) acts as ``local_greedy`` does.
 
 Without a teammate's territory in its rule, an agent leaves a failed teammate's targets to nobody.
 """
@@ -24,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pm.baselines._common import env_graph, nearest_first, own_uncertainty
+from sb3_pm.baselines._common import env_graph
 from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.envs.mental_map import AGE, U
+from sb3_pm.envs.territory_rule import territory_move
 from sb3_pm.errors import InputError
 from sb3_pm.graphs.territories import target_territories
 from sb3_pm.team_interface import Observation, Team
@@ -69,20 +66,22 @@ class TerritoryPatrolTeam(Team):
         own = self.territory[agent]
         if own.size == 0:
             return self._fallback.act(agent, obs)
-        position = int(obs["position"])
-        if position in own and own_uncertainty(obs, position) > 0:
+        nodes = np.asarray(obs["nodes"])
+        move, goal = territory_move(
+            int(obs["position"]),
+            own,
+            nodes[:, U],
+            nodes[:, AGE],
+            self._goals.get(agent),
+            self.u_max,
+            self.distances,
+            self.next_hop,
+        )
+        if goal is None:
             self._goals.pop(agent, None)
-            return position
-        goal = self._goals.get(agent)
-        if goal is None or goal == position:
-            others = own[own != position]
-            if others.size == 0:
-                return position  # a territory of one target: hold it
-            nodes = np.asarray(obs["nodes"])
-            estimate = np.minimum(nodes[:, U] + nodes[:, AGE], self.u_max)
-            goal = int(nearest_first(others, self.distances[position], estimate)[0])
+        else:
             self._goals[agent] = goal
-        return int(self.next_hop[position, goal])
+        return move
 
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
         return {agent: self.act(agent, obs) for agent, obs in observations.items()}

@@ -60,6 +60,14 @@ territory_input (``False``)
     needs ``graph_knowledge`` and ``target_knowledge`` ``"known"`` and ``observation="map"``. A
     team deployed on another graph or with another team size sees that problem's split; on a graph
     family, each episode's graph gives its own (and the ``territory`` reward is then allowed).
+advice_input (``False``)
+    ``True`` adds one more node feature to map observations (after ``territory_input``'s, if
+    any): 1 on the node the territory rule would move to next, 0 elsewhere
+    (:mod:`sb3_pm.envs.territory_rule`, the rule the ``territory_patrol`` baseline acts by). The
+    rule reads only the agent's own map, the site plan and its own territory, so the advice is as
+    decentralized as the map; the rule keeps its own goal from step to step whatever the agent
+    did. An agent with no territory (fewer targets than agents) or a failed one gets an all-zero
+    column. Same requirements as ``territory_input``.
 illegal_action (``"raise"``)
     ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
     and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``
@@ -90,7 +98,8 @@ Observation with ``observation="map"`` (a ``Dict``):
 
 ``nodes``        ``Box(N, 5) float32``: per node ``[u, age, target, occupied, self]`` from the mental
                  map (:mod:`sb3_pm.envs.mental_map`); ``Box(N, 6)`` with ``territory_input``, whose
-                 sixth column flags the agent's own territory.
+                 sixth column flags the agent's own territory; one more column with
+                 ``advice_input`` flags the territory rule's next move.
 ``adjacency``    ``Box(N, N) int8``: the known adjacency.
 ``position``     ``Discrete(N)``: the agent's node.
 ``dwell``        ``Box(1,) float32``: steps the agent has stayed on its node (0 on arrival).
@@ -127,9 +136,10 @@ from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from sb3_pm.envs.core import DEFAULT_U_MAX, MonitoringCore
-from sb3_pm.envs.mental_map import FEATURES, MentalMaps
+from sb3_pm.envs.mental_map import AGE, FEATURES, MentalMaps, U
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
+from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
 from sb3_pm.graphs.territories import territory_nodes
@@ -164,6 +174,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         graph_knowledge: str = "discovered",
         target_knowledge: str = "discovered",
         territory_input: bool = False,
+        advice_input: bool = False,
         illegal_action: str = "raise",
         shared_map: bool = False,
         failures: Mapping[str, int] | None = None,
@@ -171,8 +182,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
-        if territory_input is not False and territory_input is not True:
-            raise InputError(f"territory_input must be true or false, got {territory_input!r}")
+        for flag, value in (("territory_input", territory_input), ("advice_input", advice_input)):
+            if value is not False and value is not True:
+                raise InputError(f"{flag} must be true or false, got {value!r}")
         problem = resolve_graph_or_family(graph)
         #: The family each reset draws a graph from (``None``: one fixed graph).
         self.family: GraphFamily | None = problem if isinstance(problem, GraphFamily) else None
@@ -194,17 +206,18 @@ class PersistentMonitoringEnv(ParallelEnv):
                     f"{n_agents} agents do not fit the graph family {self.family.name!r}: "
                     f"its smallest graph has {self.family.min_nodes} nodes"
                 )
-        if territory_input:
+        for flag, value in (("territory_input", territory_input), ("advice_input", advice_input)):
+            if not value:
+                continue
             if observation != "map":
-                raise InputError(
-                    "territory_input is a node feature of map observations: it needs observation='map'"
-                )
+                raise InputError(f"{flag} is a node feature of map observations: it needs observation='map'")
             if graph_knowledge != "known" or target_knowledge != "known":
                 raise InputError(
-                    "territory_input needs graph_knowledge and target_knowledge 'known': an agent computes "
+                    f"{flag} needs graph_knowledge and target_knowledge 'known': an agent computes "
                     f"its territory from the site plan (got {graph_knowledge!r} and {target_knowledge!r})"
                 )
         self.territory_input = bool(territory_input)
+        self.advice_input = bool(advice_input)
         assert isinstance(problem, GraphSpec)
         self.graph: GraphSpec = problem
         if max_cycles < 1:
@@ -244,6 +257,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         self.illegal_action = illegal_action
         self.shared_map = bool(shared_map)
         self.render_mode = render_mode
+        self._advice: TerritoryAdvice | None = None
 
         self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
         self.agents: list[str] = []
@@ -287,13 +301,19 @@ class PersistentMonitoringEnv(ParallelEnv):
         #: ``territory_input`` only).
         self._territory = (
             territory_nodes(hops, graph.target_indices, self.n_agents, graph.n_nodes)
-            if "territory" in self.reward_weights or self.territory_input
+            if "territory" in self.reward_weights or self.territory_input or self.advice_input
             else None
         )
         #: ``(n_agents, N, 1)`` float32, the ``territory_input`` feature column (``None`` without it).
         self._territory_column = (
             self._territory[:, :, None].astype(np.float32)
             if self.territory_input and self._territory is not None
+            else None
+        )
+        #: The territory rule whose next move ``advice_input`` flags (``None`` without it).
+        self._advice = (
+            TerritoryAdvice(self._territory, hops, graph.next_hop, self.u_max)
+            if self.advice_input and self._territory is not None
             else None
         )
         self.metrics = EpisodeMetrics(graph.target_indices, self.u_max, self.max_cycles, self.n_agents)
@@ -318,6 +338,8 @@ class PersistentMonitoringEnv(ParallelEnv):
             self._territory, self._rows = None, np.arange(self.n_agents)
         if "territory_input" not in state:  # written before the territory input existed
             self.territory_input, self._territory_column = False, None
+        if "advice_input" not in state:  # written before the rule's advice existed
+            self.advice_input, self._advice = False, None
         if "target_knowledge" not in state:  # written before known targets existed
             self.target_knowledge = "discovered"
             self.maps.target_knowledge, self.maps._known_targets = "discovered", None
@@ -347,8 +369,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         n = self.space_nodes
         mask = spaces.Box(0, 1, shape=(n,), dtype=np.int8)
         if self.observation_mode == "map":
-            # territory_input appends one 0/1 column after FEATURES
-            high = np.ones((n, len(FEATURES) + int(self.territory_input)), dtype=np.float32)
+            # territory_input, then advice_input, each append one 0/1 column after FEATURES
+            extra = int(self.territory_input) + int(self.advice_input)
+            high = np.ones((n, len(FEATURES) + extra), dtype=np.float32)
             high[:, FEATURES.index("u")] = self.u_max
             high[:, FEATURES.index("age")] = self.max_cycles
             return spaces.Dict(
@@ -427,6 +450,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         self._step_count = 0
         self._dwell[:] = 0
         self.maps.reset_features()
+        if self._advice is not None:
+            self._advice.reset()
         self.rewards_computer.reset()
         self.metrics.reset()
         counts = np.bincount(self.core.positions, minlength=n_nodes)
@@ -580,6 +605,8 @@ class PersistentMonitoringEnv(ParallelEnv):
             nodes = self.maps.features  # a fresh array; rows handed out as views
             if self._territory_column is not None:
                 nodes = np.concatenate((nodes, self._territory_column), axis=-1)
+            if self._advice is not None:
+                nodes = np.concatenate((nodes, self._advice_column(positions)), axis=-1)
             dwell = self._dwell.astype(np.float32)[:, None]
             adjacency: Sequence[np.ndarray] | np.ndarray
             if self.space_nodes > self.core.n_nodes:
@@ -597,6 +624,16 @@ class PersistentMonitoringEnv(ParallelEnv):
                 for i, (agent, position) in enumerate(zip(self.possible_agents, positions.tolist()))
             }
         return {agent: self._local_observation(i, masks[i]) for i, agent in enumerate(self.possible_agents)}
+
+    def _advice_column(self, positions: np.ndarray) -> np.ndarray:
+        """``(n_agents, N, 1)`` float32: 1 on each agent's next move by the territory rule."""
+        assert self._advice is not None
+        channels = self.maps.channels
+        moves = self._advice.moves(positions, channels[U], channels[AGE], self._active)
+        column = np.zeros((self.n_agents, self.core.n_nodes, 1), dtype=np.float32)
+        advised = moves >= 0
+        column[advised.nonzero()[0], moves[advised], 0] = 1.0
+        return column
 
     def _padded(self, nodes: np.ndarray, masks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Map observations padded from the graph's N nodes to the space's M.

@@ -1,0 +1,112 @@
+"""The territory rule: each agent patrols its own territory's targets, most stale first.
+
+One decision, written once, used two ways:
+
+* the ``territory_patrol`` baseline (:mod:`sb3_pm.baselines.territory_patrol`) acts by it;
+* the env's ``advice_input`` option flags, in each agent's map observation, the node the rule
+  would move to next (:class:`TerritoryAdvice`), so a learned policy can take the rule's move as
+  an input and learn when to follow it.
+
+The rule reads only what the agent itself knows: its position, its own map's ``u`` and ``age`` of
+each node, the site's road network and its own territory (a convention every agent derives alike
+from the site plan, :mod:`sb3_pm.graphs.territories`). Nothing is communicated.
+
+Per agent and step:
+
+1. on one of its targets whose observed ``u`` is positive: dwell;
+2. else keep heading for the goal chosen earlier until it is reached; otherwise choose, among its
+   territory's other targets, the one with the highest own-map estimate ``min(u + age, u_max)``
+   (``u`` grows by at most one per unobserved step; ties: nearest, then lowest index) and take one
+   step along a shortest path of the road network;
+3. a territory of one target is held once reached.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def nearest_first(
+    candidates: np.ndarray, distances: np.ndarray, keys: np.ndarray | None = None
+) -> np.ndarray:
+    """``candidates`` sorted by descending ``keys`` (if given), then ascending distance, then index.
+
+    ``np.lexsort`` sorts by its *last* key first, so the keys are passed in reverse priority.
+    Ties are broken deterministically, which keeps every rule reproducible without an rng.
+    """
+    order_keys: list[np.ndarray] = [candidates, distances[candidates]]
+    if keys is not None:
+        order_keys.append(-keys[candidates])
+    return candidates[np.lexsort(order_keys)]
+
+
+def territory_move(
+    position: int,
+    own: np.ndarray,
+    u: np.ndarray,
+    age: np.ndarray,
+    goal: int | None,
+    u_max: float,
+    distances: np.ndarray,
+    next_hop: np.ndarray,
+) -> tuple[int, int | None]:
+    """One agent's move by the territory rule, and the goal it keeps for its next step.
+
+    :param position: the agent's node.
+    :param own: ``(T_i,)`` int, the targets of its territory (at least one).
+    :param u: ``(N,)`` its own map's last observed uncertainty of each node.
+    :param age: ``(N,)`` its own map's steps since each node was last observed.
+    :param goal: the goal it kept from the previous step (``None``: none).
+    :param u_max: the uncertainty cap.
+    :param distances: ``(N, N)`` hop distances of the road network.
+    :param next_hop: ``(N, N)`` the first node of a shortest path (``next_hop[i, i] == i``).
+    :return: ``(destination node, goal to keep or None)``.
+    """
+    if position in own and u[position] > 0:
+        return position, None
+    if goal is None or goal == position:
+        others = own[own != position]
+        if others.size == 0:
+            return position, goal  # a territory of one target: hold it
+        estimate = np.minimum(u + age, u_max)
+        goal = int(nearest_first(others, distances[position], estimate)[0])
+    return int(next_hop[position, goal]), goal
+
+
+class TerritoryAdvice:
+    """The territory rule's next move for every agent of a team, step by step (``advice_input``).
+
+    Each agent's rule keeps its own goal between steps, as the baseline does; the goal follows the
+    rule's own moves, whatever the agent actually did (a goal is dropped once the agent stands on
+    it, or while it dwells on one of its targets).
+
+    :param territory: ``(n_agents, N)`` bool, each agent's territory.
+    :param distances: ``(N, N)`` hop distances; ``next_hop``: ``(N, N)`` first hop of a shortest path.
+    :param u_max: the uncertainty cap.
+    """
+
+    def __init__(
+        self, territory: np.ndarray, distances: np.ndarray, next_hop: np.ndarray, u_max: float
+    ) -> None:
+        #: Each agent's own targets, ``(T_i,)`` int node indices (empty: no territory, no advice).
+        self.own = [np.flatnonzero(row) for row in territory]
+        self.distances = distances
+        self.next_hop = next_hop
+        self.u_max = float(u_max)
+        self.goals: list[int | None] = [None] * len(self.own)
+
+    def reset(self) -> None:
+        """A new episode: no goal kept."""
+        self.goals = [None] * len(self.own)
+
+    def moves(self, positions: np.ndarray, u: np.ndarray, age: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """``(n_agents,)`` int: each agent's move by the rule, ``-1`` for an agent with no territory
+        or a failed one. ``u``, ``age``: ``(n_agents, N)`` each agent's own map."""
+        moves = np.full(len(self.own), -1, dtype=np.int64)
+        for i, own in enumerate(self.own):
+            if own.size == 0 or not active[i]:
+                continue
+            moves[i], self.goals[i] = territory_move(
+                int(positions[i]), own, u[i], age[i], self.goals[i], self.u_max, self.distances, self.next_hop
+            )
+        return moves
