@@ -644,8 +644,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         depend on the padding; with ``eigen`` the padded Laplacian's extra zero eigenvalues shift
         the encoding slightly (measured up to 2.4e-4 in the logits of an untrained policy).
 
-        Shapes: nodes ``(n_agents, N, F)`` -> ``(n_agents, M, F)`` (F = 5, or 6 with
-        ``territory_input``); the maps' known adjacency ``(n_agents, N, N)`` -> ``(n_agents, M, M)``;
+        Shapes: nodes ``(n_agents, N, F)`` -> ``(n_agents, M, F)`` (F = 5, plus one column
+        each for ``territory_input`` and ``advice_input``); the maps' known adjacency ``(n_agents, N, N)`` -> ``(n_agents, M, M)``;
         masks ``(n_agents, N)`` -> ``(n_agents, M)``.
         """
         n, m = self.graph.n_nodes, self.space_nodes

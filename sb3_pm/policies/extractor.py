@@ -57,8 +57,8 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         (:class:`~sb3_pm.policies.layers.GraphAttention`); the DCBF policy's ``gat_sparse_kernel``.
 
     Shapes:
-        - input: the preprocessed dict, ``nodes`` ``(B, N, F)`` (F = 5, or 6 with the env's
-          ``territory_input``), ``adjacency`` ``(B, N, N)``,
+        - input: the preprocessed dict, ``nodes`` ``(B, N, F)`` (F = 5, plus one column
+          each for the env's ``territory_input`` and ``advice_input``), ``adjacency`` ``(B, N, N)``,
           ``position`` ``(B, N)`` one-hot
         - output: ``(B, N * hidden_dim)``; :meth:`node_embeddings` gives ``(B, N, hidden_dim)``
     """

@@ -267,7 +267,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         hidden = extractor.hidden_dim
         self.estimator: StateEstimator | None = None
         if self.use_estimator:
-            # every node column of the map, FEATURES and any the env appends (territory_input)
+            # every node column of the map, FEATURES and any the env appends (territory_input, advice_input)
             self.estimator = StateEstimator(
                 int(extractor.inv_high.shape[-1]), self.u_max, extractor.inv_high, self.estimator_hidden
             )
