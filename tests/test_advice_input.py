@@ -15,6 +15,7 @@ import pytest
 import torch as th
 from pettingzoo.test import parallel_api_test
 
+from sb3_pm.agents.stacked_inference import stack_problem
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.envs import persistent_monitoring_v0
@@ -225,3 +226,73 @@ def test_a_saved_team_keeps_the_option_and_acts_legally_on_other_graphs(tmp_path
             for agent, action in actions.items():
                 assert observations[agent]["action_mask"][action] == 1
             observations, *_ = env.step(actions)
+
+
+def small_team(env_kwargs: dict, **policy_kwargs) -> IndependentPPO:
+    return IndependentPPO(
+        "paper-50",
+        n_agents=2,
+        n_envs=1,
+        seed=0,
+        env_kwargs={"max_cycles": 20, **KNOWN, **env_kwargs},
+        hyperparams={
+            "n_steps": 16,
+            "batch_size": 16,
+            "n_epochs": 1,
+            "policy_kwargs": {"laplacian": "none", "hidden_dim": 8, **policy_kwargs},
+        },
+    )
+
+
+def test_the_advice_prior_adds_its_weight_to_the_advised_nodes_logit_only() -> None:
+    """The same parameters with and without the prior: the logits differ by ``b`` on the node the
+    column flags and by nothing elsewhere, in acting and in training's ``evaluate_actions``."""
+    with_prior = small_team({"advice_input": True}, advice_prior=2.5)
+    without = small_team({"advice_input": True})
+    policy, plain = with_prior.models["agent_0"].policy, without.models["agent_0"].policy
+    plain.load_state_dict(policy.state_dict())
+    env = make_env(max_cycles=20, n_agents=2)
+    observations, _ = env.reset(seed=0)
+    for _ in range(5):
+        obs, _ = policy.obs_to_tensor(observations["agent_0"])
+        pre = policy._preprocess(obs)
+        u_hat = policy.uncertainty(pre)
+        masks = policy._masks(pre, u_hat, None)
+        difference = policy._logits(pre, u_hat, masks) - plain._logits(pre, u_hat, masks)
+        expected = 2.5 * th.as_tensor(observations["agent_0"]["nodes"][:, -1])
+        th.testing.assert_close(difference[0], expected, rtol=0, atol=1e-6)
+        heads, _ = policy._heads(pre, u_hat, masks)
+        th.testing.assert_close(heads, policy._logits(pre, u_hat, masks), rtol=0, atol=0)
+        observations, *_ = env.step({a: advised(o) for a, o in observations.items()})
+    with_prior.close()
+    without.close()
+
+
+def test_a_team_with_the_prior_acts_one_policy_at_a_time_and_saves_it(tmp_path) -> None:
+    team = small_team({"advice_input": True}, advice_prior=2.0)
+    team.learn(16)
+    policies = [team.models[a].policy for a in team.agents]
+    assert "advice_prior" in str(stack_problem(policies))
+    team.save(tmp_path / "team")
+    team.close()
+    loaded = load_trained_team(tmp_path / "team", "karate")
+    assert all(policy.advice_prior == 2.0 for policy in loaded.policies.values())
+
+
+@pytest.mark.parametrize(
+    ("env_kwargs", "prior", "message"),
+    [
+        ({}, 2.0, "advice_prior adds to the node the env's advice_input flags"),
+        (
+            {"territory_input": True},
+            2.0,
+            r"advice_prior \(set for \['agent_0', 'agent_1'\]\) needs env_kwargs advice_input",
+        ),
+        ({"advice_input": True}, -1.0, "advice_prior must be a finite number >= 0, got -1.0"),
+        ({"advice_input": True}, float("inf"), "advice_prior must be a finite number >= 0"),
+        ({"advice_input": True}, True, "advice_prior must be a finite number >= 0, got True"),
+    ],
+)
+def test_a_prior_it_cannot_apply_is_refused_by_name(env_kwargs: dict, prior, message: str) -> None:
+    with pytest.raises(InputError, match=message):
+        small_team(env_kwargs, advice_prior=prior)

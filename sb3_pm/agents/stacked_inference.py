@@ -90,6 +90,8 @@ def stack_problem(policies: Sequence[Any]) -> str | None:
         return "not every policy is a DCBFActorCriticPolicy"
     if any(p.device.type != "cpu" for p in policies):
         return "the stacked pass is verified on the CPU only"
+    if any(getattr(p, "advice_prior", 0.0) for p in policies):
+        return "advice_prior adds the env's advice column to the logits, which this pass does not"
     if first.actor_nodes != "all":
         return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
     extractor = first.features_extractor

@@ -189,6 +189,7 @@ class IndependentPPO(LearnedTeam):
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
             try:
+                self._check_advice_prior()
                 self._apply_deploy_temperature(self.deploy_temperature)
                 if self._deploy_filter is not None:
                     self._check_training_bound()
@@ -206,6 +207,18 @@ class IndependentPPO(LearnedTeam):
                     )
 
     # ------------------------------------------------------------ building
+    def _check_advice_prior(self) -> None:
+        """A policy's ``advice_prior`` reads the map's last column as the territory rule's move:
+        refuse it unless the env appends that column (``advice_input``)."""
+        if self.env_kwargs.get("advice_input") is True:
+            return
+        with_prior = [a for a, m in self.models.items() if getattr(m.policy, "advice_prior", 0.0)]
+        if with_prior:
+            raise InputError(
+                f"advice_prior (set for {with_prior}) needs env_kwargs advice_input: true, "
+                "whose column it adds to the logits"
+            )
+
     def _make_env(self) -> Any:
         from sb3_pm.envs import persistent_monitoring_v0
 

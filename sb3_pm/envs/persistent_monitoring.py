@@ -645,8 +645,8 @@ class PersistentMonitoringEnv(ParallelEnv):
         the encoding slightly (measured up to 2.4e-4 in the logits of an untrained policy).
 
         Shapes: nodes ``(n_agents, N, F)`` -> ``(n_agents, M, F)`` (F = 5, plus one column
-        each for ``territory_input`` and ``advice_input``); the maps' known adjacency ``(n_agents, N, N)`` -> ``(n_agents, M, M)``;
-        masks ``(n_agents, N)`` -> ``(n_agents, M)``.
+        each for ``territory_input`` and ``advice_input``); the maps' known adjacency
+        ``(n_agents, N, N)`` -> ``(n_agents, M, M)``; masks ``(n_agents, N)`` -> ``(n_agents, M)``.
         """
         n, m = self.graph.n_nodes, self.space_nodes
         padded_nodes = np.zeros((self.n_agents, m, nodes.shape[-1]), dtype=nodes.dtype)

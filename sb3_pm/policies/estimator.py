@@ -37,7 +37,8 @@ GATHER_MIN_ROWS = 1024
 class StateEstimator(nn.Module):
     """Per-node MLP ``M_{k-1} -> û_k``.
 
-    :param n_features: node feature columns of the map (5, plus one each for ``territory_input`` and ``advice_input``).
+    :param n_features: node feature columns of the map (5, plus one each for ``territory_input``
+        and ``advice_input``).
     :param u_max: the cap on ``u`` (the nodes space's high of column ``u``).
     :param inv_high: ``(N, n_features)`` reciprocal highs used to normalize the map.
     :param hidden: hidden layer sizes.

@@ -36,7 +36,7 @@ from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_pm.envs.mental_map import U
+from sb3_pm.envs.mental_map import FEATURES, U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap, dcbf_filter_from_map
 from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
@@ -56,6 +56,18 @@ def _mlp(in_dim: int, hidden: list[int], activation: type[nn.Module]) -> tuple[n
         layers += [nn.Linear(in_dim, width), activation()]
         in_dim = width
     return nn.Sequential(*layers), in_dim
+
+
+def check_advice_prior(value: Any, observation_space: spaces.Dict) -> float:
+    """``advice_prior`` as a float: finite, ``>= 0``, and positive only with a node column after the
+    map's own (the env's ``advice_input``, which the team checks is on)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+        raise InputError(f"advice_prior must be a finite number >= 0, got {value!r}")
+    if value > 0 and observation_space["nodes"].shape[-1] <= len(FEATURES):
+        raise InputError(
+            "advice_prior adds to the node the env's advice_input flags: it needs advice_input: true"
+        )
+    return float(value)
 
 
 def own_positions(pre: dict[str, th.Tensor]) -> th.Tensor:
@@ -132,6 +144,12 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         amplifies that into a different team. Over 5 training seeds ``"allowed"`` trained worse
         teams (docs/RESULTS.md, "Faster arithmetic"), a difference we could not tell from chance
         but could not rule out either, so it is not the default.
+    :param advice_prior: a fixed number added to the logit of the node the map's last column
+        flags, which is the env's ``advice_input`` (the territory rule's next move; the team
+        refuses the option without it). ``0`` (default): no prior. With ``b > 0`` an untrained
+        actor already takes the rule's move with probability ``e^b / (e^b + d)`` among ``d + 1``
+        allowed nodes, and learning changes the actor only where leaving the rule pays. The
+        stacked and pruned acting passes do not cover it, so such a team acts one policy at a time.
     """
 
     def __init__(
@@ -172,6 +190,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         estimator_epochs: int = 5,
         estimator_batch_size: int = 256,
         actor_nodes: str = "all",
+        advice_prior: float = 0.0,
     ) -> None:
         if actor_nodes not in ACTOR_NODES:
             raise InputError(f"actor_nodes must be one of {ACTOR_NODES}, got {actor_nodes!r}")
@@ -193,6 +212,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self.avoid_collisions, self.extra_attention = bool(avoid_collisions), bool(extra_attention)
         self.estimator_target = estimator_target
         self.actor_nodes = actor_nodes
+        self.advice_prior = check_advice_prior(advice_prior, observation_space)
         if neglect_bound is not None and not use_dcbf:
             raise InputError("neglect_bound is rule 8 of the DCBF filter: it needs use_dcbf=True")
         self.dcbf_config = DCBFConfig(
@@ -329,6 +349,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             estimator_epochs=self.estimator_epochs,
             estimator_batch_size=self.estimator_batch_size,
             actor_nodes=self.actor_nodes,
+            advice_prior=self.advice_prior,
         )
         return data
 
@@ -423,7 +444,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     ) -> tuple[th.Tensor, th.Tensor]:
         """Per-node logits ``(B, N)`` (see :meth:`_actor_logits`) and values ``(B, 1)``."""
         embeddings, own = self._node_inputs(pre, u_hat)
-        return self._actor_logits(embeddings, own, masks), self._value(embeddings, own)
+        logits = self._with_advice(self._actor_logits(embeddings, own, masks), pre)
+        return logits, self._value(embeddings, own)
 
     def _value(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
         """The critic on ``[mean_m embeddings_m, own]``: ``(B, N, d)``, ``(B, h)`` -> ``(B, 1)``."""
@@ -432,7 +454,15 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     def _logits(self, pre: dict[str, th.Tensor], u_hat: th.Tensor, masks: th.Tensor) -> th.Tensor:
         """Per-node logits ``(B, N)`` alone: acting needs no critic."""
         embeddings, own = self._node_inputs(pre, u_hat)
-        return self._actor_logits(embeddings, own, masks)
+        return self._with_advice(self._actor_logits(embeddings, own, masks), pre)
+
+    def _with_advice(self, logits: th.Tensor, pre: dict[str, th.Tensor]) -> th.Tensor:
+        """The logits ``(B, N)`` plus ``advice_prior`` on the node the env's ``advice_input``
+        column (the map's last) flags: the territory rule's move starts out as the likely one, and
+        the actor learns where to leave it. A fixed input, not a parameter."""
+        if not self.advice_prior:
+            return logits
+        return logits + self.advice_prior * pre["nodes"][..., -1]
 
     def _actor_logits(self, embeddings: th.Tensor, own: th.Tensor, masks: th.Tensor) -> th.Tensor:
         """One logit per node; with ``actor_nodes="allowed"`` only the allowed nodes' are computed.
