@@ -699,9 +699,14 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert not known["known_map"].hyperparams and not known["known_map"].policy_kwargs
     transfer_known = _variants("transfer_known_map")
     # the same map, and ippo_transfer.yml's env of the time pinned (before its territory input)
-    before_territory = {"territory_input": False, "reward": {"clearing": 0.04, "collision": 0.001}}
+    before_territory = {
+        "territory_input": False,
+        "advice_input": False,
+        "reward": {"clearing": 0.04, "collision": 0.001},
+    }
     assert transfer_known["known_map"].env_kwargs == {**known["known_map"].env_kwargs, **before_territory}
-    assert transfer_known["known_map"].config is None and not transfer_known["known_map"].policy_kwargs
+    assert transfer_known["known_map"].config is None
+    assert transfer_known["known_map"].policy_kwargs == {"advice_prior": 0.0}  # pinned: no prior
     derived = _variants("derived_features")
     assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
     assert derived["derived"].policy_kwargs == {"derived_features": True}
@@ -715,24 +720,27 @@ def test_transfer_features_trains_the_transfer_config_with_one_flag(tmp_path: Pa
     zero_shot = load_experiment(ZOO / "experiments" / "zero_shot.yml")
     assert set(zero_shot.graphs) < set(experiment.graphs) and "paper-50" in experiment.graphs
     derived = {v.key: v for v in experiment.variants}["derived"]
-    assert derived.train_env == "paper-50" and derived.policy_kwargs == {"derived_features": True}
+    assert derived.train_env == "paper-50"
+    assert derived.policy_kwargs == {"derived_features": True, "advice_prior": 0.0}
     learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline"]
     assert {c.graph for c in learned} == set(experiment.graphs)
     for cell in learned:
         assert cell.team_folder is not None  # one team per seed, deployed zero-shot on every graph
 
 
-#: The experiment files built on zoo/ippo_transfer.yml, with the map knowledge and territory
-#: settings each measured.
+#: The experiment files built on zoo/ippo_transfer.yml, with the map knowledge, territory
+#: settings, the rule's advice (input, and the variants' priors) and deploy filter each measured.
+AUTO = {"neglect_bound": "auto", "neglect_scope": "territory"}
 TRANSFER_EXPERIMENTS = [
-    ("zero_shot", "discovered", False),
-    ("zero_shot_scaling", "discovered", False),
-    ("transfer_features", "discovered", False),
-    ("transfer_known_map", "known", False),
-    ("transfer_eigen", "known", False),
-    ("transfer_territory", "known", True),
-    ("regime_100", "known", True),
-    ("regime_200", "known", True),
+    ("zero_shot", "discovered", False, False, {}, None),
+    ("zero_shot_scaling", "discovered", False, False, {}, None),
+    ("transfer_features", "discovered", False, False, {}, None),
+    ("transfer_known_map", "known", False, False, {}, None),
+    ("transfer_eigen", "known", False, False, {}, None),
+    ("transfer_territory", "known", True, False, {}, None),
+    ("regime_100", "known", True, False, {}, None),
+    ("regime_200", "known", True, False, {}, None),
+    ("transfer_advice", "known", True, True, {"advice_prior": 2.0, "advice": 0.0}, AUTO),
 ]
 
 
@@ -749,16 +757,24 @@ def test_every_experiment_built_on_ippo_transfer_is_checked_for_what_it_measured
         configs = [experiment.config, *(variant.config for variant in experiment.variants)]
         if any(_built_on_ippo_transfer(config) for config in configs):
             built_on.add(path.stem)
-    assert built_on == {name for name, _, _ in TRANSFER_EXPERIMENTS}
+    assert built_on == {name for name, *_ in TRANSFER_EXPERIMENTS}
 
 
-@pytest.mark.parametrize(("name", "knowledge", "territory"), TRANSFER_EXPERIMENTS)
+@pytest.mark.parametrize(
+    ("name", "knowledge", "territory", "advice", "priors", "deploy"), TRANSFER_EXPERIMENTS
+)
 def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
-    tmp_path: Path, name: str, knowledge: str, territory: bool
+    tmp_path: Path,
+    name: str,
+    knowledge: str,
+    territory: bool,
+    advice: bool,
+    priors: dict[str, float],
+    deploy: dict | None,
 ) -> None:
-    """zoo/ippo_transfer.yml gives a known map and the territory input and reward; the files that
-    measured other settings pin them, so every variant built on it trains (and, keeping its env
-    settings, deploys) as measured."""
+    """zoo/ippo_transfer.yml gives a known map, the territory input and reward, the rule's advice
+    with a prior, and the calibrated bound; the files that measured other settings pin them, so
+    every variant built on it trains (and, keeping its env settings, deploys) as measured."""
     experiment = load_experiment(name)
     learned = 0
     for cell in plan_cells(experiment, tmp_path):
@@ -771,7 +787,11 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
         for key in ("target_knowledge", "graph_knowledge"):  # unset: the env's default, discovered
             assert config.env_kwargs.get(key, "discovered") == knowledge, (*where, key)
         assert config.env_kwargs.get("territory_input", False) is territory, where
-        assert config.deploy_filter is None, where  # measured as trained, not under the site's bound
+        assert config.env_kwargs.get("advice_input", False) is advice, where
+        prior = config.hyperparams["policy_kwargs"].get("advice_prior", 0.0)
+        assert prior == priors.get(cell.variant["key"], 0.0), where
+        assert "advice_prior" in cell.variant["policy_kwargs"], where  # pinned, not the config's
+        assert config.deploy_filter == deploy, where
         assert ("territory" in config.env_kwargs["reward"]) is territory, where
         learned += 1
     assert learned > 0
@@ -954,7 +974,9 @@ def test_only_the_headline_acts_under_paper_50s_deploy_filter(tmp_path: Path, na
         if cell.variant["kind"] == "baseline" or not (cell.variant.get("config") or cell.config):
             continue
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
-        assert config.deploy_filter is None, (name, cell.variant["key"], cell.graph)
+        # transfer_advice was measured under the site's calibrated bound (auto), as it ships
+        measured = AUTO if name == "transfer_advice" else None
+        assert config.deploy_filter == measured, (name, cell.variant["key"], cell.graph)
 
 
 def test_the_report_names_a_variants_own_training_budget(tmp_path: Path) -> None:

@@ -206,12 +206,14 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
     assert model.num_timesteps == 128
 
 
-def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_and_its_territory() -> None:
+def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_territory_and_advice() -> None:
     transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo", "paper-50")
     t_kwargs, d_kwargs = transfer.team_kwargs(), default.team_kwargs()
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
     d_policy = dict(d_kwargs["hyperparams"].pop("policy_kwargs"))
     assert t_policy.pop("laplacian") == "none" and "laplacian" not in d_policy
+    # The territory rule's move as an input, with a prior of 2 on its logit.
+    assert t_policy.pop("advice_prior") == 2.0 and "advice_prior" not in d_policy
     # A known static map: each agent's map lists the targets and edges from the first step; the
     # default knows the edges only and discovers the targets.
     t_env, d_env = dict(t_kwargs.pop("env_kwargs")), dict(d_kwargs.pop("env_kwargs"))
@@ -220,6 +222,7 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_an
     # Told its territory on whatever graph it runs (computed from the known map), and paid the
     # territory reward as the default is: the convention travels with the team.
     assert t_env.pop("territory_input") is True and "territory_input" not in d_env
+    assert t_env.pop("advice_input") is True and "advice_input" not in d_env
     assert t_env["reward"] == d_env["reward"] and t_env["reward"]["territory"] == 0.04
     # Deployed by sampling at temperature 0.25, the default by its most likely actions.
     assert (t_kwargs.pop("deploy_temperature"), d_kwargs.pop("deploy_temperature")) == (0.25, None)

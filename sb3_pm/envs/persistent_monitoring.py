@@ -182,9 +182,9 @@ class PersistentMonitoringEnv(ParallelEnv):
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
-        for flag, value in (("territory_input", territory_input), ("advice_input", advice_input)):
-            if value is not False and value is not True:
-                raise InputError(f"{flag} must be true or false, got {value!r}")
+        for flag, setting in (("territory_input", territory_input), ("advice_input", advice_input)):
+            if setting is not False and setting is not True:
+                raise InputError(f"{flag} must be true or false, got {setting!r}")
         problem = resolve_graph_or_family(graph)
         #: The family each reset draws a graph from (``None``: one fixed graph).
         self.family: GraphFamily | None = problem if isinstance(problem, GraphFamily) else None
@@ -206,8 +206,8 @@ class PersistentMonitoringEnv(ParallelEnv):
                     f"{n_agents} agents do not fit the graph family {self.family.name!r}: "
                     f"its smallest graph has {self.family.min_nodes} nodes"
                 )
-        for flag, value in (("territory_input", territory_input), ("advice_input", advice_input)):
-            if not value:
+        for flag, setting in (("territory_input", territory_input), ("advice_input", advice_input)):
+            if not setting:
                 continue
             if observation != "map":
                 raise InputError(f"{flag} is a node feature of map observations: it needs observation='map'")

@@ -63,7 +63,8 @@ def check_advice_prior(value: Any, observation_space: spaces.Dict) -> float:
     map's own (the env's ``advice_input``, which the team checks is on)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
         raise InputError(f"advice_prior must be a finite number >= 0, got {value!r}")
-    if value > 0 and observation_space["nodes"].shape[-1] <= len(FEATURES):
+    columns = observation_space["nodes"].shape
+    if value > 0 and (columns is None or columns[-1] <= len(FEATURES)):
         raise InputError(
             "advice_prior adds to the node the env's advice_input flags: it needs advice_input: true"
         )
