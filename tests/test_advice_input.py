@@ -296,3 +296,15 @@ def test_a_team_with_the_prior_acts_one_policy_at_a_time_and_saves_it(tmp_path) 
 def test_a_prior_it_cannot_apply_is_refused_by_name(env_kwargs: dict, prior, message: str) -> None:
     with pytest.raises(InputError, match=message):
         small_team(env_kwargs, advice_prior=prior)
+
+
+def test_a_centralized_team_refuses_a_prior_without_its_column_too() -> None:
+    """Without advice_input the map's last column is the territory's: the prior would land there."""
+    from sb3_pm.sharing.centralized import CentralizedPPO
+
+    env_kwargs = {"max_cycles": 20, "territory_input": True, **KNOWN}
+    hyperparams = {"n_steps": 8, "batch_size": 8, "policy_kwargs": {"advice_prior": 2.0, "laplacian": "none"}}
+    with pytest.raises(
+        InputError, match=r"advice_prior \(set for \['shared policy'\]\) needs env_kwargs advice_input"
+    ):
+        CentralizedPPO("paper-50", n_agents=2, env_kwargs=env_kwargs, hyperparams=hyperparams)

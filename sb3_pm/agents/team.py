@@ -60,6 +60,7 @@ from sb3_pm.agents.transfer import on_graph, transfer_problem
 from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike
+from sb3_pm.policies.policy import check_advice_source
 from sb3_pm.team_interface import Observation, Team
 from sb3_pm.zoo.registry import uses_masks
 
@@ -189,7 +190,7 @@ class IndependentPPO(LearnedTeam):
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
             try:
-                self._check_advice_prior()
+                check_advice_source({a: m.policy for a, m in self.models.items()}, self.env_kwargs)
                 self._apply_deploy_temperature(self.deploy_temperature)
                 if self._deploy_filter is not None:
                     self._check_training_bound()
@@ -207,18 +208,6 @@ class IndependentPPO(LearnedTeam):
                     )
 
     # ------------------------------------------------------------ building
-    def _check_advice_prior(self) -> None:
-        """A policy's ``advice_prior`` reads the map's last column as the territory rule's move:
-        refuse it unless the env appends that column (``advice_input``)."""
-        if self.env_kwargs.get("advice_input") is True:
-            return
-        with_prior = [a for a, m in self.models.items() if getattr(m.policy, "advice_prior", 0.0)]
-        if with_prior:
-            raise InputError(
-                f"advice_prior (set for {with_prior}) needs env_kwargs advice_input: true, "
-                "whose column it adds to the logits"
-            )
-
     def _make_env(self) -> Any:
         from sb3_pm.envs import persistent_monitoring_v0
 

@@ -23,7 +23,7 @@ exactly like training; a mask given by the caller is intersected with it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from functools import partial
 from itertools import islice
 from typing import Any
@@ -69,6 +69,20 @@ def check_advice_prior(value: Any, observation_space: spaces.Dict) -> float:
             "advice_prior adds to the node the env's advice_input flags: it needs advice_input: true"
         )
     return float(value)
+
+
+def check_advice_source(policies: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
+    """Refuse a policy's ``advice_prior`` unless the env appends the advice column: the policy
+    adds it to the map's *last* column, which without ``advice_input`` is another feature (the
+    territory's, with ``territory_input``). ``policies``: name -> policy (or anything else)."""
+    if env_kwargs.get("advice_input") is True:
+        return
+    with_prior = [name for name, policy in policies.items() if getattr(policy, "advice_prior", 0.0)]
+    if with_prior:
+        raise InputError(
+            f"advice_prior (set for {with_prior}) needs env_kwargs advice_input: true, "
+            "whose column it adds to the logits"
+        )
 
 
 def own_positions(pre: dict[str, th.Tensor]) -> th.Tensor:

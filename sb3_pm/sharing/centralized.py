@@ -28,6 +28,7 @@ from sb3_pm.agents.learners import learn_seed, resolve_hyperparams
 from sb3_pm.agents.saved_teams import load_model_file
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec
+from sb3_pm.policies.policy import check_advice_source
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
 from sb3_pm.team_interface import Observation
 from sb3_pm.zoo.registry import uses_masks
@@ -102,8 +103,9 @@ class CentralizedPPO(LearnedTeam):
                 **kwargs,
             )
             try:
+                check_advice_source({"shared policy": self.model.policy}, self.env_kwargs)
                 self._apply_deploy_temperature(self.deploy_temperature)
-            except InputError:  # a sampling rule for a model without the DCBF policy
+            except InputError:  # a prior without its column, or a sampling rule without the DCBF policy
                 self.close()
                 raise
 
