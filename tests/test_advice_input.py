@@ -193,21 +193,28 @@ def test_the_advice_object_alone_matches_the_rule_on_random_maps() -> None:
     assert advice.goals[0] == stale
 
 
-def test_a_saved_team_keeps_the_option_and_acts_legally_on_other_graphs(tmp_path) -> None:
-    """A team trained with the column, saved and loaded, is evaluated on other graphs in envs
-    that carry it (its saved env settings), and acts legally there."""
-    team = IndependentPPO(
-        erdos_renyi(16, 0.3, n_targets=5, seed=2),
-        n_agents=3,
+def small_team(env_kwargs: dict, graph="paper-50", n_agents: int = 2, **policy_kwargs) -> IndependentPPO:
+    """A tiny team with a known map and no Laplacian rows (so it can move to other graphs)."""
+    return IndependentPPO(
+        graph,
+        n_agents=n_agents,
         n_envs=1,
         seed=0,
-        env_kwargs={"max_cycles": 20, "advice_input": True, "territory_input": True, **KNOWN},
+        env_kwargs={"max_cycles": 20, **KNOWN, **env_kwargs},
         hyperparams={
             "n_steps": 16,
             "batch_size": 16,
             "n_epochs": 1,
-            "policy_kwargs": {"laplacian": "none", "hidden_dim": 8},
+            "policy_kwargs": {"laplacian": "none", "hidden_dim": 8, **policy_kwargs},
         },
+    )
+
+
+def test_a_saved_team_keeps_the_option_and_acts_legally_on_other_graphs(tmp_path) -> None:
+    """A team trained with the column, saved and loaded, is evaluated on other graphs in envs
+    that carry it (its saved env settings), and acts legally there."""
+    team = small_team(
+        {"advice_input": True, "territory_input": True}, erdos_renyi(16, 0.3, n_targets=5, seed=2), 3
     )
     team.learn(16)
     team.save(tmp_path / "team")
@@ -226,22 +233,6 @@ def test_a_saved_team_keeps_the_option_and_acts_legally_on_other_graphs(tmp_path
             for agent, action in actions.items():
                 assert observations[agent]["action_mask"][action] == 1
             observations, *_ = env.step(actions)
-
-
-def small_team(env_kwargs: dict, **policy_kwargs) -> IndependentPPO:
-    return IndependentPPO(
-        "paper-50",
-        n_agents=2,
-        n_envs=1,
-        seed=0,
-        env_kwargs={"max_cycles": 20, **KNOWN, **env_kwargs},
-        hyperparams={
-            "n_steps": 16,
-            "batch_size": 16,
-            "n_epochs": 1,
-            "policy_kwargs": {"laplacian": "none", "hidden_dim": 8, **policy_kwargs},
-        },
-    )
 
 
 def test_the_advice_prior_adds_its_weight_to_the_advised_nodes_logit_only() -> None:
