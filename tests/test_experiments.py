@@ -730,17 +730,19 @@ def test_transfer_features_trains_the_transfer_config_with_one_flag(tmp_path: Pa
 
 #: The experiment files built on zoo/ippo_transfer.yml, with the map knowledge, territory
 #: settings, the rule's advice (input, and the variants' priors) and deploy filter each measured.
+#: The advice columns: the variants with ``advice_input`` on; the priors: each variant's
+#: ``advice_prior`` where it is not 0.
 AUTO = {"neglect_bound": "auto", "neglect_scope": "territory"}
 TRANSFER_EXPERIMENTS = [
-    ("zero_shot", "discovered", False, False, {}, None),
-    ("zero_shot_scaling", "discovered", False, False, {}, None),
-    ("transfer_features", "discovered", False, False, {}, None),
-    ("transfer_known_map", "known", False, False, {}, None),
-    ("transfer_eigen", "known", False, False, {}, None),
-    ("transfer_territory", "known", True, False, {}, None),
-    ("regime_100", "known", True, False, {}, None),
-    ("regime_200", "known", True, False, {}, None),
-    ("transfer_advice", "known", True, True, {"advice_prior": 2.0, "advice": 0.0}, AUTO),
+    ("zero_shot", "discovered", False, set(), {}, None),
+    ("zero_shot_scaling", "discovered", False, set(), {}, None),
+    ("transfer_features", "discovered", False, set(), {}, None),
+    ("transfer_known_map", "known", False, set(), {}, None),
+    ("transfer_eigen", "known", False, set(), {}, None),
+    ("transfer_territory", "known", True, set(), {}, None),
+    ("regime_100", "known", True, {"transfer_advice"}, {"transfer_advice": 2.0}, None),
+    ("regime_200", "known", True, {"transfer_advice"}, {"transfer_advice": 2.0}, None),
+    ("transfer_advice", "known", True, {"advice_prior", "advice"}, {"advice_prior": 2.0}, AUTO),
 ]
 
 
@@ -768,7 +770,7 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
     name: str,
     knowledge: str,
     territory: bool,
-    advice: bool,
+    advice: set[str],
     priors: dict[str, float],
     deploy: dict | None,
 ) -> None:
@@ -787,7 +789,7 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
         for key in ("target_knowledge", "graph_knowledge"):  # unset: the env's default, discovered
             assert config.env_kwargs.get(key, "discovered") == knowledge, (*where, key)
         assert config.env_kwargs.get("territory_input", False) is territory, where
-        assert config.env_kwargs.get("advice_input", False) is advice, where
+        assert config.env_kwargs.get("advice_input", False) is (cell.variant["key"] in advice), where
         prior = config.hyperparams["policy_kwargs"].get("advice_prior", 0.0)
         assert prior == priors.get(cell.variant["key"], 0.0), where
         assert "advice_prior" in cell.variant["policy_kwargs"], where  # pinned, not the config's
