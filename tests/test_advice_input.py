@@ -58,7 +58,7 @@ def test_the_advice_is_the_territory_patrol_move_on_every_step_of_several_episod
         rule.reset(env, seed=episode)
         while env.agents:
             moves = rule.predict(observations)
-            kept_goals += len(rule._goals)
+            kept_goals += sum(goal is not None for goal in rule.rule.goals)
             for agent, observation in observations.items():
                 assert advised(observation) == moves[agent]
                 assert env.observation_space(agent)["nodes"].contains(observation["nodes"])

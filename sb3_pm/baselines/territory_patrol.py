@@ -5,11 +5,12 @@ from the site and its own index (:mod:`sb3_pm.graphs.territories`); agent ``agen
 territory ``i``. No agent reads another's state and nothing is communicated: the split is a
 convention fixed before the mission, so the team is not ``omniscient``.
 
-The rule, per agent and step, on the agent's own view, is :func:`sb3_pm.envs.territory_rule.territory_move`
-(the env's ``advice_input`` flags the same move in a learned agent's observation): dwell on one of
-its targets while its observed ``u`` is positive, else head for the goal chosen earlier, else for
-its territory's most stale target by its own map. An agent with no territory (fewer targets than
-agents) acts as ``local_greedy`` does.
+The rule, per agent and step, on the agent's own view, is
+:func:`sb3_pm.envs.territory_rule.territory_move`, each agent's goal kept step to step by
+:class:`~sb3_pm.envs.territory_rule.TerritoryAdvice` (the env's ``advice_input`` flags the same
+move in a learned agent's observation): dwell on one of its targets while its observed ``u`` is
+positive, else head for the goal chosen earlier, else for its territory's most stale target by its
+own map. An agent with no territory (fewer targets than agents) acts as ``local_greedy`` does.
 
 Without a teammate's territory in its rule, an agent leaves a failed teammate's targets to nobody.
 """
@@ -23,7 +24,7 @@ import numpy as np
 from sb3_pm.baselines._common import env_graph
 from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.envs.mental_map import AGE, U
-from sb3_pm.envs.territory_rule import territory_move
+from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
 from sb3_pm.graphs.territories import target_territories
 from sb3_pm.team_interface import Observation, Team
@@ -50,12 +51,11 @@ class TerritoryPatrolTeam(Team):
         if key not in self._owners:
             self._owners[key] = target_territories(graph.hop_distances, graph.target_indices, len(agents))
         owner = self._owners[key]
-        #: Each agent's own targets, ``(T_i,)`` int node indices.
-        self.territory = {agent: graph.target_indices[owner == i] for i, agent in enumerate(agents)}
-        self.distances = graph.hop_distances
-        self.next_hop = graph.next_hop
-        self.u_max = float(env.unwrapped.u_max)
-        self._goals: dict[str, int] = {}
+        territory = np.zeros((len(agents), graph.n_nodes), dtype=bool)  # (n_agents, N)
+        territory[owner, graph.target_indices] = True
+        #: The rule, with each agent's goal kept between steps (the env's advice_input runs the same).
+        self.rule = TerritoryAdvice(territory, graph.hop_distances, graph.next_hop, env.unwrapped.u_max)
+        self._index = {agent: i for i, agent in enumerate(agents)}
 
     def act(self, agent: str, obs: Observation) -> int:
         """One agent's destination from its own observation."""
@@ -63,25 +63,11 @@ class TerritoryPatrolTeam(Team):
             raise InputError(
                 "territory_patrol needs mental-map observations: create the env with observation='map'"
             )
-        own = self.territory[agent]
-        if own.size == 0:
+        i = self._index[agent]
+        if self.rule.own[i].size == 0:
             return self._fallback.act(agent, obs)
         nodes = np.asarray(obs["nodes"])
-        move, goal = territory_move(
-            int(obs["position"]),
-            own,
-            nodes[:, U],
-            nodes[:, AGE],
-            self._goals.get(agent),
-            self.u_max,
-            self.distances,
-            self.next_hop,
-        )
-        if goal is None:
-            self._goals.pop(agent, None)
-        else:
-            self._goals[agent] = goal
-        return move
+        return self.rule.move(i, int(obs["position"]), nodes[:, U], nodes[:, AGE])
 
     def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
         return {agent: self.act(agent, obs) for agent, obs in observations.items()}

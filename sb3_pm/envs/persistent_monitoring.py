@@ -603,10 +603,11 @@ class PersistentMonitoringEnv(ParallelEnv):
         masks = self._reachable_i8[positions]  # fresh (n_agents, N); rows handed out as views
         if self.observation_mode == "map":
             nodes = self.maps.features  # a fresh array; rows handed out as views
-            if self._territory_column is not None:
-                nodes = np.concatenate((nodes, self._territory_column), axis=-1)
+            extra = [self._territory_column] if self._territory_column is not None else []
             if self._advice is not None:
-                nodes = np.concatenate((nodes, self._advice_column(positions)), axis=-1)
+                extra.append(self._advice_column(positions))
+            if extra:  # one copy for every appended column
+                nodes = np.concatenate((nodes, *extra), axis=-1)
             dwell = self._dwell.astype(np.float32)[:, None]
             adjacency: Sequence[np.ndarray] | np.ndarray
             if self.space_nodes > self.core.n_nodes:

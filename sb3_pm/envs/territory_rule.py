@@ -99,14 +99,19 @@ class TerritoryAdvice:
         """A new episode: no goal kept."""
         self.goals = [None] * len(self.own)
 
+    def move(self, i: int, position: int, u: np.ndarray, age: np.ndarray) -> int:
+        """Agent ``i``'s move by the rule (it must own a target), keeping its goal for the next
+        step. ``u``, ``age``: ``(N,)`` its own map."""
+        move, self.goals[i] = territory_move(
+            position, self.own[i], u, age, self.goals[i], self.u_max, self.distances, self.next_hop
+        )
+        return move
+
     def moves(self, positions: np.ndarray, u: np.ndarray, age: np.ndarray, active: np.ndarray) -> np.ndarray:
         """``(n_agents,)`` int: each agent's move by the rule, ``-1`` for an agent with no territory
         or a failed one. ``u``, ``age``: ``(n_agents, N)`` each agent's own map."""
         moves = np.full(len(self.own), -1, dtype=np.int64)
         for i, own in enumerate(self.own):
-            if own.size == 0 or not active[i]:
-                continue
-            moves[i], self.goals[i] = territory_move(
-                int(positions[i]), own, u[i], age[i], self.goals[i], self.u_max, self.distances, self.next_hop
-            )
+            if own.size and active[i]:
+                moves[i] = self.move(i, int(positions[i]), u[i], age[i])
         return moves
