@@ -740,9 +740,30 @@ TRANSFER_EXPERIMENTS = [
     ("transfer_known_map", "known", False, set(), {}, None),
     ("transfer_eigen", "known", False, set(), {}, None),
     ("transfer_territory", "known", True, set(), {}, None),
-    ("regime_100", "known", True, {"transfer_advice"}, {"transfer_advice": 2.0}, None),
-    ("regime_200", "known", True, {"transfer_advice"}, {"transfer_advice": 2.0}, None),
-    ("transfer_advice", "known", True, {"advice_prior", "advice"}, {"advice_prior": 2.0}, AUTO),
+    (
+        "regime_100",
+        "known",
+        True,
+        {"transfer_advice", "transfer_family"},
+        {"transfer_advice": 2.0, "transfer_family": 2.0},
+        None,
+    ),
+    (
+        "regime_200",
+        "known",
+        True,
+        {"transfer_advice", "transfer_family"},
+        {"transfer_advice": 2.0, "transfer_family": 2.0},
+        None,
+    ),
+    (
+        "transfer_advice",
+        "known",
+        True,
+        {"advice_prior", "advice_prior_family", "advice"},
+        {"advice_prior": 2.0, "advice_prior_family": 2.0},
+        AUTO,
+    ),
 ]
 
 
@@ -793,6 +814,9 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
         prior = config.hyperparams["policy_kwargs"].get("advice_prior", 0.0)
         assert prior == priors.get(cell.variant["key"], 0.0), where
         assert "advice_prior" in cell.variant["policy_kwargs"], where  # pinned, not the config's
+        # The graph it trains on is pinned too: the config's env (what `sb3-pm train --config
+        # ippo_transfer` trains on without --env) is not what these files measured.
+        assert cell.variant["train_env"] is not None, where
         assert config.deploy_filter == deploy, where
         assert ("territory" in config.env_kwargs["reward"]) is territory, where
         learned += 1
@@ -1038,3 +1062,22 @@ def test_jobs_side_by_side_share_the_cores_between_their_teams(
     monkeypatch.setattr(update_slots.UpdateSlots, "__init__", recorded)
     reproduce(experiment, tmp_path / "one", n_jobs=1, progress=False)  # in this process
     assert counts == [10, 10]  # one job at a time: every core; one learn() per learned cell
+
+
+@pytest.mark.parametrize(
+    ("name", "variant"),
+    [
+        ("transfer_advice", "advice_prior_family"),
+        ("regime_100", "transfer_family"),
+        ("regime_200", "transfer_family"),
+    ],
+)
+def test_the_shipped_transfer_team_rows_train_on_the_config_family(name: str, variant: str) -> None:
+    """The rows that measure today's zoo/ippo_transfer.yml train where the config does (family:er),
+    and the rows of the team before it on paper-50."""
+    from sb3_pm.zoo.config import default_env
+
+    variants = {v.key: v for v in load_experiment(name).variants}
+    assert str(variants[variant].train_env) == default_env("ippo_transfer") == "family:er"
+    before = "advice_prior" if name == "transfer_advice" else "transfer_advice"
+    assert str(variants[before].train_env) == "paper-50"

@@ -235,14 +235,15 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_te
     assert t_kwargs.pop("deploy_filter") == {"neglect_bound": "auto", "neglect_scope": "territory"}
     assert d_kwargs.pop("deploy_filter") == {"neglect_bound": 50.0, "neglect_scope": "territory"}
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
-    # It names the graph it trains on without --env; the default trains on the command line's.
-    assert (transfer.env, default.env) == ("paper-50", None)
+    # It names what it trains on without --env, a graph family; the default trains on the
+    # command line's graph.
+    assert (transfer.env, default.env) == ("family:er", None)
 
 
 def test_a_config_env_is_what_train_uses_without_env(tmp_path: Path) -> None:
     from sb3_pm.zoo.config import default_env
 
-    assert default_env("ippo_transfer") == "paper-50" and default_env("ippo") is None
+    assert default_env("ippo_transfer") == "family:er" and default_env("ippo") is None
     bad = tmp_path / "bad.yml"
     bad.write_text("default:\n  env: [paper-50]\n  algo: dcbf_ppo\n")
     with pytest.raises(ConfigError, match=r"default.env: expected a graph or family name"):
