@@ -814,8 +814,8 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
         prior = config.hyperparams["policy_kwargs"].get("advice_prior", 0.0)
         assert prior == priors.get(cell.variant["key"], 0.0), where
         assert "advice_prior" in cell.variant["policy_kwargs"], where  # pinned, not the config's
-        # The graph it trains on is pinned too: the config's env (what `sb3-pm train --config
-        # ippo_transfer` trains on without --env) is not what these files measured.
+        # The graph it trains on is pinned too: without train_env the runner would train one team
+        # per graph of the file, not the shared team these files measured zero-shot.
         assert cell.variant["train_env"] is not None, where
         assert config.deploy_filter == deploy, where
         assert ("territory" in config.env_kwargs["reward"]) is territory, where
