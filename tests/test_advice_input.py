@@ -15,7 +15,8 @@ import pytest
 import torch as th
 from pettingzoo.test import parallel_api_test
 
-from sb3_pm.agents.stacked_inference import stack_problem
+from sb3_pm.agents.pruned_inference import prune_problem
+from sb3_pm.agents.stacked_inference import StackedInference, stack_problem
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.envs import persistent_monitoring_v0
@@ -259,11 +260,33 @@ def test_the_advice_prior_adds_its_weight_to_the_advised_nodes_logit_only() -> N
     without.close()
 
 
-def test_a_team_with_the_prior_acts_one_policy_at_a_time_and_saves_it(tmp_path) -> None:
+def test_a_team_with_the_prior_acts_stacked_as_it_acts_one_policy_at_a_time_and_saves_it(tmp_path) -> None:
+    """The stacked pass adds the prior as the serial pass does: the same logits, bit for bit, on
+    every step of an episode; the pruned pass refuses it (the prior is outside the actor's bound)."""
     team = small_team({"advice_input": True}, advice_prior=2.0)
     team.learn(16)
     policies = [team.models[a].policy for a in team.agents]
-    assert "advice_prior" in str(stack_problem(policies))
+    assert stack_problem(policies) is None
+    assert "advice_prior" in str(prune_problem(policies))
+    stacked = StackedInference()
+    env = make_env(max_cycles=30, n_agents=2)
+    observations, _ = env.reset(seed=3)
+    compared = 0
+    while env.agents:
+        ordered = [observations[a] for a in team.agents]
+        result = stacked.logits(policies, ordered)
+        assert result is not None, stacked.problem(policies)
+        logits, masks = result
+        for k, (policy, observation) in enumerate(zip(policies, ordered)):
+            obs, _ = policy.obs_to_tensor(observation)
+            pre = policy._preprocess(obs)
+            u_hat = policy.uncertainty(pre)
+            serial_masks = policy._masks(pre, u_hat, None)
+            assert th.equal(logits[k], policy._logits(pre, u_hat, serial_masks)[0])
+            assert th.equal(masks[k], serial_masks[0])
+            compared += 1
+        observations, *_ = env.step({a: advised(o) for a, o in observations.items()})
+    assert compared == 60
     team.save(tmp_path / "team")
     team.close()
     loaded = load_trained_team(tmp_path / "team", "karate")

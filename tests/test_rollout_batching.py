@@ -27,6 +27,7 @@ def make_team(
     algo: str | None = None,
     graph: Any = GRAPH,
     concurrent_updates: bool = True,
+    env_kwargs: dict[str, Any] | None = None,
     **policy_kwargs: Any,
 ) -> IndependentPPO:
     hyperparams: dict[str, Any] = dict(TINY)
@@ -38,7 +39,7 @@ def make_team(
         n_envs=n_envs,
         seed=seed,
         algo=algo,
-        env_kwargs={"max_cycles": 20},
+        env_kwargs={"max_cycles": 20, **(env_kwargs or {})},
         hyperparams=hyperparams,
         concurrent_updates=concurrent_updates,
     )
@@ -85,6 +86,8 @@ def filter_counts(team: IndependentPPO) -> dict[str, dict[str, int]]:
     return {a: {k: int(v) for k, v in team.models[a].policy.filter_counts.items()} for a in team.agents}
 
 
+#: The territory rule's move as an input (it needs a known map), for ``advice_prior``.
+ADVICE = {"advice_input": True, "target_knowledge": "known", "graph_knowledge": "known"}
 FAMILY = ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="small-er")
 
 
@@ -101,6 +104,7 @@ FAMILY = ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="sm
         {"concurrent_updates": False},
         {"twice": True},
         {"graph": FAMILY, "laplacian": "none"},
+        {"env_kwargs": ADVICE, "advice_prior": 2.0},
     ],
     ids=[
         "small",
@@ -113,6 +117,7 @@ FAMILY = ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="sm
         "serial-updates",
         "learn-twice",
         "graph-family-padded",
+        "advice-prior",
     ],
 )
 def test_batched_rollouts_train_the_same_parameters_bit_for_bit(

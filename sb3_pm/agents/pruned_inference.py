@@ -89,6 +89,8 @@ _CHECK_ALLOWED = 16
 def prune_problem(policies: Sequence[DCBFActorCriticPolicy]) -> str | None:
     """Why ``policies`` (already able to act stacked) cannot act pruned, or ``None``."""
     first = policies[0]
+    if first.advice_prior:
+        return "advice_prior lifts the advised node's logit past the actor's bound"
     if first.n_nodes < MIN_NODES:
         return f"{first.n_nodes} nodes: below {MIN_NODES}, the full pass is faster"
     body = list(first.actor_body)

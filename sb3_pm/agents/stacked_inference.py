@@ -33,7 +33,8 @@ round as the serial path does, the pass:
 Sampled actions keep the serial path (their draws from torch's generator come in a fixed order).
 
 This pass covers the configurations the package trains by default: the dense GAT kernel, the
-estimator (or none), any positional encoding, one or more heads, and an actor with a hidden layer.
+estimator (or none), any positional encoding, one or more heads, an actor with a hidden layer, and
+the fixed ``advice_prior`` on the advised node's logit.
 A step runs serially instead (:meth:`StackedInference.actions` returns ``None``, and
 :func:`stack_problem` says why) for other policies, policies that differ in anything but their
 parameters, policies off the CPU (not verified there), ``extra_attention``, ``derived_features``,
@@ -90,8 +91,6 @@ def stack_problem(policies: Sequence[Any]) -> str | None:
         return "not every policy is a DCBFActorCriticPolicy"
     if any(p.device.type != "cpu" for p in policies):
         return "the stacked pass is verified on the CPU only"
-    if any(getattr(p, "advice_prior", 0.0) for p in policies):
-        return "advice_prior adds the env's advice column to the logits, which this pass does not"
     if first.actor_nodes != "all":
         return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
     extractor = first.features_extractor
@@ -420,7 +419,10 @@ class StackedInference:
     def _logits_given(self, stack: _Stack, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> th.Tensor:
         """Each policy's logits ``(K * B, N)`` on its own ``B`` maps, given ``û`` ``(K * B, N)``."""
         first = stack.policies[0]
-        return self._actor(stack, *first._with_estimate(self._embed(stack, pre), pre, u_hat))
+        logits = self._actor(stack, *first._with_estimate(self._embed(stack, pre), pre, u_hat))
+        # advice_prior is a constructor parameter, so every stacked policy has the same one; the
+        # serial pass adds it elementwise, which rounds the same on any batch.
+        return first._with_advice(logits, pre)
 
     def _heads_given(
         self, stack: _Stack, pre: dict[str, th.Tensor], u_hat: th.Tensor
@@ -434,7 +436,7 @@ class StackedInference:
         values = th.cat(
             [p._value(embeddings[rows].clone(), own[rows].clone()) for p, rows in zip(stack.policies, groups)]
         )
-        return self._actor(stack, embeddings, own), values
+        return first._with_advice(self._actor(stack, embeddings, own), pre), values
 
     @staticmethod
     def _mlp(stack: _Stack, prefix: str, layers: nn.Sequential, x: th.Tensor, start: int = 0) -> th.Tensor:

@@ -164,7 +164,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         refuses the option without it). ``0`` (default): no prior. With ``b > 0`` an untrained
         actor already takes the rule's move with probability ``e^b / (e^b + d)`` among ``d + 1``
         allowed nodes, and learning changes the actor only where leaving the rule pays. The
-        stacked and pruned acting passes do not cover it, so such a team acts one policy at a time.
+        stacked pass adds it as this policy does; the pruned pass refuses it (it lifts one logit
+        past the bound that pass decides by).
     """
 
     def __init__(
