@@ -37,7 +37,8 @@ mode differ (it then returns that node) where this pass does not see it.
 
 **Where it runs.** On graphs of at least :data:`MIN_NODES` nodes, where the stacked pass runs
 (:func:`~sb3_pm.agents.stacked_inference.stack_problem`) and :func:`prune_problem` finds nothing
-against it. ``tests/test_pruned_inference.py`` compares the actions with the serial path's on every
+against it (it refuses ``advice_prior``, which lifts one logit past the bound the margin rests
+on). ``tests/test_pruned_inference.py`` compares the actions with the serial path's on every
 step of several episodes, checks the margin's fallback on built logits, and checks that a pass
 that would round differently is refused.
 """
