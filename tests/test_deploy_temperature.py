@@ -248,9 +248,9 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
         "transfer_known_map": {"known_map_family": 0.25},
         "transfer_eigen": {"known_map_eigen": 0.25},
         "transfer_territory": {"known_map_territory": 0.25, "known_map_territory_family": 0.25},
-        "transfer_advice": {"advice_prior": 0.25, "advice": 0.25},
-        "regime_100": {"transfer": 0.25, "transfer_advice": 0.25},
-        "regime_200": {"transfer": 0.25, "transfer_advice": 0.25},
+        "transfer_advice": {"advice_prior": 0.25, "advice_prior_family": 0.25, "advice": 0.25},
+        "regime_100": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
+        "regime_200": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
     }
     assert experiment_record(load_experiment("transfer_known_map"))["deploy_temperature"] == {
         "known_map_family": 0.25
