@@ -1,4 +1,4 @@
-"""A team's deterministic actions through one stacked pass equal the serial passes, bit for bit."""
+"""A team's actions through one stacked pass equal the serial passes', bit for bit (drawn ones too)."""
 
 from __future__ import annotations
 
@@ -272,10 +272,41 @@ def test_what_cannot_stack_says_why_and_runs_serially() -> None:
     assert stacker.logits(policies, [observations[a] for a in team.agents]) is not None
 
 
-def test_sampled_actions_keep_the_serial_path() -> None:
+@pytest.mark.parametrize("temperature", [None, 0.25], ids=["T1", "T0.25"])
+def test_sampled_actions_through_the_stacked_pass_are_the_serial_draws(
+    temperature: float | None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Sampled actions take the stacked logits and draw agent by agent, as the serial passes do:
+    the same actions on every step from the same seed, at T = 1 and at a deployment temperature,
+    with every stacked step served by the stacked pass."""
+    served: list[bool] = []
+    original = StackedInference.sampled_actions
+
+    def spy(self: StackedInference, policies: Any, observations: Any) -> Any:
+        result = original(self, policies, observations)
+        served.append(result is not None)
+        return result
+
+    monkeypatch.setattr(StackedInference, "sampled_actions", spy)
+
+    def sharp_team() -> IndependentPPO:
+        """Untrained logits differ by about 1e-5, so any row would draw alike; spread them apart
+        (the same for both teams) so that a draw depends on its own row and on the temperature."""
+        team = make_team(dcbf_barrier=False)  # without rules 2-4 an agent has a choice
+        generator = th.Generator().manual_seed(5)
+        with th.no_grad():
+            for agent in team.agents:
+                weight = team.models[agent].policy.action_net.weight
+                weight.copy_(th.randn(weight.shape, generator=generator))
+        team.deploy_temperature = temperature
+        return team
+
     draws = []
     for stacked in (False, True):
-        team = make_team()
+        team = sharp_team()
         team.stacked_inference = stacked
-        draws.append(play(team, 20, seed=2, deterministic=False))
+        draws.append(play(team, 30, seed=2, deterministic=False))
     assert draws[0] == draws[1]
+    assert len(served) == 30 and all(served)  # the serial run never asked; the stacked one always
+    # the draws are not all the most likely actions (so the test compares draws, not argmaxes)
+    assert play(sharp_team(), 30, seed=2, deterministic=True) != draws[0]

@@ -30,7 +30,10 @@ round as the serial path does, the pass:
   so where an element falls in the loop would otherwise depend on the batch. With the default
   sizes (32 and 64 units, an even number of nodes) it stays batched.
 
-Sampled actions keep the serial path (their draws from torch's generator come in a fixed order).
+Sampled actions (:meth:`StackedInference.sampled_actions`) take the stacked logits and then draw
+policy by policy, in the team's order, each from its own row at its own policy's temperature, as
+the serial path draws them: the same logits give the same distribution, and torch's generator is
+consumed in the same order, so the draws are the serial path's too.
 
 This pass covers the configurations the package trains by default: the dense GAT kernel, the
 estimator (or none), any positional encoding, one or more heads, an actor with a hidden layer, and
@@ -58,6 +61,7 @@ from sb3_pm.policies.estimator import GATHER_MIN_ROWS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.layers import GraphAttention
 from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
+from sb3_pm.policies.sampling import tempered_logits
 
 #: Elements per map (a multiple of) that keep every element of a transcendental activation in its
 #: vectorized loop's body: two vectors of the widest instruction set torch uses (2 x 16 floats),
@@ -298,6 +302,34 @@ class StackedInference:
         logits, masks = result
         return masked_mode(logits, masks).cpu().numpy()
 
+    def sampled_actions(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+    ) -> np.ndarray | None:
+        """An action of ``policies[k]`` drawn on ``observations[k]`` for every ``k``, as the serial
+        ``policy.predict(obs, deterministic=False, action_masks=obs["action_mask"])`` calls draw
+        them one after another: each policy's own row of the stacked logits, at its own
+        ``sampling_temperature``, through its own distribution, in the order of ``policies``.
+        ``None`` where this step must run serially.
+
+        Shapes:
+            - observations: ``K`` mental-map observations (numpy), one per policy
+            - output: ``(K,)`` int64
+        """
+        result = self.logits(policies, observations)
+        if result is None:
+            return None
+        logits, masks = result
+        actions = np.empty(len(policies), dtype=np.int64)
+        with th.no_grad():
+            for k, policy in enumerate(policies):
+                # the serial pass's (1, N) row and its arithmetic (DCBFActorCriticPolicy._predict)
+                row, allowed = logits[k : k + 1], masks[k : k + 1]
+                if policy.sampling_temperature != 1.0:
+                    row = tempered_logits(row, allowed, policy.sampling_temperature)
+                drawn = policy._distribution(row, allowed).get_actions(deterministic=False)
+                actions[k] = int(drawn.reshape(-1)[0])
+        return actions
+
     def logits(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
     ) -> tuple[th.Tensor, th.Tensor] | None:
@@ -400,14 +432,19 @@ class StackedInference:
         ]
 
     def predict(
-        self, observations: Mapping[str, Mapping[str, Any]], policy_for: Callable[[str], Any]
+        self,
+        observations: Mapping[str, Mapping[str, Any]],
+        policy_for: Callable[[str], Any],
+        deterministic: bool = True,
     ) -> dict[str, int] | None:
-        """A team's deterministic actions ``{agent: node}``, agent ``a`` acting with
-        ``policy_for(a)``; ``None`` where this step must run serially."""
+        """A team's actions ``{agent: node}``, agent ``a`` acting with ``policy_for(a)``: the most
+        likely ones, or with ``deterministic=False`` drawn agent by agent in the order of
+        ``observations``; ``None`` where this step must run serially."""
         agents = list(observations)
         if not agents:
             return None
-        actions = self.actions([policy_for(a) for a in agents], [observations[a] for a in agents])
+        policies, maps = [policy_for(a) for a in agents], [observations[a] for a in agents]
+        actions = self.actions(policies, maps) if deterministic else self.sampled_actions(policies, maps)
         return None if actions is None else {agent: int(action) for agent, action in zip(agents, actions)}
 
     # -------------------------------------------------------------- the pass

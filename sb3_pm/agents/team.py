@@ -416,16 +416,19 @@ class IndependentPPO(LearnedTeam):
         at :attr:`sampling_temperature` (the rule's temperature if it has one, else 1 unless
         :meth:`set_sampling_temperature` said otherwise).
 
-        Deterministic actions of DCBF learners come from one stacked forward pass for the whole
-        team (:mod:`sb3_pm.agents.stacked_inference`; the same logits as one pass per agent, bit for
-        bit), which computes only the allowed nodes' logits where that decides the same action
-        (:mod:`sb3_pm.agents.pruned_inference`); set :attr:`stacked_inference` to ``False`` to run
+        The actions of DCBF learners come from one stacked forward pass for the whole team
+        (:mod:`sb3_pm.agents.stacked_inference`; the same logits as one pass per agent, bit for
+        bit; sampled actions are then drawn agent by agent, as one pass per agent draws them).
+        Deterministic ones compute only the allowed nodes' logits where that decides the same action
+        (:mod:`sb3_pm.agents.pruned_inference`). Set :attr:`stacked_inference` to ``False`` to run
         them one by one, :attr:`pruned_inference` to ``False`` to compute every node's logit.
         """
         deterministic = self.acts_deterministically(deterministic)
-        if deterministic and self.stacked_inference:
+        if self.stacked_inference:
             self._stacker.prune = self.pruned_inference
-            stacked = self._stacker.predict(observations, lambda a: self.models[self.learner_for(a)].policy)
+            stacked = self._stacker.predict(
+                observations, lambda a: self.models[self.learner_for(a)].policy, deterministic
+            )
             if stacked is not None:
                 return stacked
         actions: dict[str, int] = {}

@@ -181,13 +181,15 @@ class TransferredTeam(DeploymentRule, Team):
     def predict(
         self, observations: dict[str, Observation], deterministic: bool | None = None
     ) -> dict[str, int]:
-        """Each agent's action from its learner's rebuilt policy; deterministic actions through one
-        stacked pass where it applies, as in ``IndependentPPO.predict`` (``None``: the team's
-        :attr:`deploy_temperature` decides)."""
+        """Each agent's action from its learner's rebuilt policy, through one stacked pass where it
+        applies, as in ``IndependentPPO.predict`` (``None``: the team's :attr:`deploy_temperature`
+        decides)."""
         deterministic = self.acts_deterministically(deterministic)
-        if deterministic and self.stacked_inference:
+        if self.stacked_inference:
             self._stacker.prune = self.pruned_inference
-            stacked = self._stacker.predict(observations, lambda a: self.policies[self.learner_for(a)])
+            stacked = self._stacker.predict(
+                observations, lambda a: self.policies[self.learner_for(a)], deterministic
+            )
             if stacked is not None:
                 return stacked
         actions: dict[str, int] = {}
