@@ -16,7 +16,8 @@ team acting one forward pass per agent (``serial``, the earlier releases' path),
 pass for the whole team computing every node's logit (``full``,
 :mod:`sb3_pm.agents.stacked_inference`), and that pass deciding from the allowed nodes' logits
 where the margin allows (``stacked``, the default, :mod:`sb3_pm.agents.pruned_inference`; the
-same actions, bit for bit), and prints their ratios to ``serial`` with the share of steps the
+same actions, bit for bit; a team that samples its actions, at its ``deploy_temperature``, takes
+the full stacked pass under ``stacked`` too, since only most-likely actions are pruned), and prints their ratios to ``serial`` with the share of steps the
 pruned pass decided. An untrained team's logits are all within about 1e-4 of each other, below the
 pruned pass's margin, so its steps fall back to the full pass: ``--team DIR`` times a trained team
 instead (on each graph of ``--graphs``; one trained elsewhere is deployed there if it transfers,

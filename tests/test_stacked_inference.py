@@ -310,3 +310,55 @@ def test_sampled_actions_through_the_stacked_pass_are_the_serial_draws(
     assert len(served) == 30 and all(served)  # the serial run never asked; the stacked one always
     # the draws are not all the most likely actions (so the test compares draws, not argmaxes)
     assert play(sharp_team(), 30, seed=2, deterministic=True) != draws[0]
+
+
+def test_a_transferred_team_with_more_agents_and_the_rule_prior_samples_stacked_as_serially(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The shipped transfer team's case: a known map, the rule's move as an input with its prior,
+    moved to another graph with more agents than learners, sampling at T = 0.25 with a territory
+    bound (rule 8), and one learner at another temperature (4): the same draws either way."""
+    served: list[bool] = []
+    original = StackedInference.sampled_actions
+
+    def spy(self: StackedInference, policies: Any, observations: Any) -> Any:
+        result = original(self, policies, observations)
+        served.append(result is not None)
+        return result
+
+    monkeypatch.setattr(StackedInference, "sampled_actions", spy)
+    known = {"max_cycles": 40, "graph_knowledge": "known", "target_knowledge": "known"}
+    advice = {**known, "territory_input": True, "advice_input": True}
+    other = erdos_renyi(20, 0.25, n_targets=6, seed=9)
+    draws = []
+    for stacked in (False, True):
+        trained = IndependentPPO(
+            GRAPH,
+            n_agents=2,
+            seed=0,
+            env_kwargs=advice,
+            hyperparams={
+                **TINY,
+                "policy_kwargs": {"hidden_dim": 8, "laplacian": "none", "advice_prior": 2.0},
+            },
+        )
+        generator = th.Generator().manual_seed(5)
+        with th.no_grad():
+            for agent in trained.agents:  # spread the logits, as in the test above
+                weight = trained.models[agent].policy.action_net.weight
+                weight.copy_(th.randn(weight.shape, generator=generator))
+        team = trained.on_graph(other)
+        team.deploy_temperature = 0.25
+        team.policies["agent_1"].sampling_temperature = 4.0
+        team.set_filter(neglect_bound=30.0, neglect_scope="territory")
+        team.stacked_inference = stacked
+        env = persistent_monitoring_v0.parallel_env(graph=other, n_agents=3, **advice)
+        observations, _ = env.reset(seed=4)
+        team.reset(env, seed=4)
+        chosen = []
+        while env.agents:
+            chosen.append(team.predict(observations))
+            observations, *_ = env.step(chosen[-1])
+        draws.append(chosen)
+    assert len(draws[0]) == 40 and draws[0] == draws[1]
+    assert len(served) == 40 and all(served)  # every step of the stacked run was served stacked

@@ -38,7 +38,8 @@ consumed in the same order, so the draws are the serial path's too.
 This pass covers the configurations the package trains by default: the dense GAT kernel, the
 estimator (or none), any positional encoding, one or more heads, an actor with a hidden layer, and
 the fixed ``advice_prior`` on the advised node's logit.
-A step runs serially instead (:meth:`StackedInference.actions` returns ``None``, and
+A step runs serially instead (:meth:`StackedInference.actions` and
+:meth:`StackedInference.sampled_actions` return ``None``, and
 :func:`stack_problem` says why) for other policies, policies that differ in anything but their
 parameters, policies off the CPU (not verified there), ``extra_attention``, ``derived_features``,
 ``actor_nodes: allowed``, graphs large enough for the chunked attention kernel or the estimator's
@@ -178,7 +179,7 @@ class _Stack:
 
 
 class StackedInference:
-    """Deterministic actions of several DCBF policies in one stacked forward pass.
+    """Actions of several DCBF policies (most likely, or drawn) from one stacked forward pass.
 
     Remembers, for the last policy list it served, whether they can act stacked (and whether the
     stacked pass rounds as the serial one here, per torch thread count); the parameters themselves
