@@ -11,17 +11,17 @@ trained team's do) and times ``evaluate`` with each torch thread count, in episo
 ``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
 ``--arithmetic`` runs the policy with other kernels (``csr``, ``allowed``, ``fast``; see
-``benchmarks/train_speed.py``), for before/after ratios in one run. ``--inference`` times the
-team acting one forward pass per agent (``serial``, the earlier releases' path), one stacked
-pass for the whole team computing every node's logit (``full``,
-:mod:`sb3_pm.agents.stacked_inference`), and that pass deciding from the allowed nodes' logits
-where the margin allows (``stacked``, the default, :mod:`sb3_pm.agents.pruned_inference`; the
-same actions, bit for bit; a team that samples its actions, at its ``deploy_temperature``, takes
-the full stacked pass under ``stacked`` too, since only most-likely actions are pruned), and prints their ratios to ``serial`` with the share of steps the
-pruned pass decided. An untrained team's logits are all within about 1e-4 of each other, below the
-pruned pass's margin, so its steps fall back to the full pass: ``--team DIR`` times a trained team
-instead (on each graph of ``--graphs``; one trained elsewhere is deployed there if it transfers,
-with its own team size). Then renders and writes a GIF
+``benchmarks/train_speed.py``), for before/after ratios in one run. ``--inference`` times the team
+acting one forward pass per agent (``serial``, the earlier releases' path), one stacked pass for the
+whole team computing every node's logit (``full``, :mod:`sb3_pm.agents.stacked_inference`), and that
+pass deciding from the allowed nodes' logits where the margin allows (``stacked``, the default,
+:mod:`sb3_pm.agents.pruned_inference`; the same actions, bit for bit; a team that samples its
+actions, at its ``deploy_temperature``, takes the full stacked pass under ``stacked`` too, since
+only most-likely actions are pruned), and prints their ratios to ``serial`` with the share of steps
+the pruned pass decided. An untrained team's logits are all within about 1e-4 of each other, below
+the pruned pass's margin, so its steps fall back to the full pass: ``--team DIR`` times a trained
+team instead (on each graph of ``--graphs``; one trained elsewhere is deployed there if it
+transfers, with its own team size). Then renders and writes a GIF
 of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). ``--devices`` runs
 the team's forward passes on each torch device listed (``cpu``, ``cuda``); the environment and the
 baselines stay on the CPU. The load
