@@ -123,6 +123,21 @@ def play(team: Any, steps: int, seed: int, deterministic: bool = True) -> list[d
     return chosen
 
 
+def watch_sampled_steps(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    """A list that gets, for every call of ``StackedInference.sampled_actions``, whether the
+    stacked pass served it (``False``: the step fell back to the serial passes)."""
+    served: list[bool] = []
+    original = StackedInference.sampled_actions
+
+    def spy(self: StackedInference, policies: Any, observations: Any) -> Any:
+        result = original(self, policies, observations)
+        served.append(result is not None)
+        return result
+
+    monkeypatch.setattr(StackedInference, "sampled_actions", spy)
+    return served
+
+
 def test_rule_8_is_counted_per_learner_as_in_the_serial_path() -> None:
     counts = []
     for stacked in (False, True):
@@ -279,15 +294,7 @@ def test_sampled_actions_through_the_stacked_pass_are_the_serial_draws(
     """Sampled actions take the stacked logits and draw agent by agent, as the serial passes do:
     the same actions on every step from the same seed, at T = 1 and at a deployment temperature,
     with every stacked step served by the stacked pass."""
-    served: list[bool] = []
-    original = StackedInference.sampled_actions
-
-    def spy(self: StackedInference, policies: Any, observations: Any) -> Any:
-        result = original(self, policies, observations)
-        served.append(result is not None)
-        return result
-
-    monkeypatch.setattr(StackedInference, "sampled_actions", spy)
+    served = watch_sampled_steps(monkeypatch)
 
     def sharp_team() -> IndependentPPO:
         """Untrained logits differ by about 1e-5, so any row would draw alike; spread them apart
@@ -318,15 +325,7 @@ def test_a_transferred_team_with_more_agents_and_the_rule_prior_samples_stacked_
     """The shipped transfer team's case: a known map, the rule's move as an input with its prior,
     moved to another graph with more agents than learners, sampling at T = 0.25 with a territory
     bound (rule 8), and one learner at another temperature (4): the same draws either way."""
-    served: list[bool] = []
-    original = StackedInference.sampled_actions
-
-    def spy(self: StackedInference, policies: Any, observations: Any) -> Any:
-        result = original(self, policies, observations)
-        served.append(result is not None)
-        return result
-
-    monkeypatch.setattr(StackedInference, "sampled_actions", spy)
+    served = watch_sampled_steps(monkeypatch)
     known = {"max_cycles": 40, "graph_knowledge": "known", "target_knowledge": "known"}
     advice = {**known, "territory_input": True, "advice_input": True}
     other = erdos_renyi(20, 0.25, n_targets=6, seed=9)

@@ -310,11 +310,7 @@ class StackedInference:
         ``policy.predict(obs, deterministic=False, action_masks=obs["action_mask"])`` calls draw
         them one after another: each policy's own row of the stacked logits, at its own
         ``sampling_temperature``, through its own distribution, in the order of ``policies``.
-        ``None`` where this step must run serially.
-
-        Shapes:
-            - observations: ``K`` mental-map observations (numpy), one per policy
-            - output: ``(K,)`` int64
+        ``None`` where this step must run serially. Shapes as :meth:`actions`.
         """
         result = self.logits(policies, observations)
         if result is None:
