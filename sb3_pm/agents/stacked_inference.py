@@ -62,7 +62,6 @@ from sb3_pm.policies.estimator import GATHER_MIN_ROWS, StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.layers import GraphAttention
 from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
-from sb3_pm.policies.sampling import tempered_logits
 
 #: Elements per map (a multiple of) that keep every element of a transcendental activation in its
 #: vectorized loop's body: two vectors of the widest instruction set torch uses (2 x 16 floats),
@@ -318,13 +317,8 @@ class StackedInference:
         logits, masks = result
         actions = np.empty(len(policies), dtype=np.int64)
         with th.no_grad():
-            for k, policy in enumerate(policies):
-                # the serial pass's (1, N) row and its arithmetic (DCBFActorCriticPolicy._predict)
-                row, allowed = logits[k : k + 1], masks[k : k + 1]
-                if policy.sampling_temperature != 1.0:
-                    row = tempered_logits(row, allowed, policy.sampling_temperature)
-                drawn = policy._distribution(row, allowed).get_actions(deterministic=False)
-                actions[k] = int(drawn.reshape(-1)[0])
+            for k, policy in enumerate(policies):  # the serial pass's (1, N) row, its own draw
+                actions[k] = int(policy.draw(logits[k : k + 1], masks[k : k + 1]).reshape(-1)[0])
         return actions
 
     def logits(

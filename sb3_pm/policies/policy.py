@@ -637,6 +637,19 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         if self.training != mode or any(child.training != mode for child in self.children()):
             super().set_training_mode(mode)
 
+    def draw(self, logits: th.Tensor, masks: th.Tensor) -> th.Tensor:
+        """Actions drawn from ``logits`` over the allowed nodes at :attr:`sampling_temperature`,
+        with get_distribution's arithmetic (acting, and the stacked pass's draws, which must equal
+        it). Consumes torch's generator.
+
+        Shapes:
+            - logits: ``(B, N)``; masks: ``(B, N)`` bool
+            - output: ``(B,)`` int64
+        """
+        if self._sampling_temperature != 1.0:
+            logits = tempered_logits(logits, masks, self._sampling_temperature)
+        return self._distribution(logits, masks).get_actions(deterministic=False)
+
     def _predict(  # type: ignore[override]
         self, observation: PyTorchObs, deterministic: bool = False, action_masks: np.ndarray | None = None
     ) -> th.Tensor:
@@ -644,10 +657,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         u_hat = self.uncertainty(pre)
         masks = self._masks(pre, u_hat, action_masks)
         logits = self._logits(pre, u_hat, masks)
-        if not deterministic:  # get_distribution's arithmetic, at the deployment temperature
-            if self._sampling_temperature != 1.0:
-                logits = tempered_logits(logits, masks, self._sampling_temperature)
-            return self._distribution(logits, masks).get_actions(deterministic=False)
+        if not deterministic:
+            return self.draw(logits, masks)
         # The most likely action without building the distribution (three Categorical objects per
         # call in sb3-contrib, with argument checks): the same arithmetic, the same action.
         return masked_mode(logits, masks)
