@@ -13,7 +13,7 @@ import torch as th
 
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.graphs import erdos_renyi
-from sb3_pm.policies import GraphAttention, attention
+from sb3_pm.policies import GraphAttention, attention, layers
 from sb3_pm.policies.attention import attention_bias, chunked_attention, unique_graphs, use_chunked
 
 # Graphs with many edges, and graphs with few edges and an isolated node (only its self loop).
@@ -175,4 +175,38 @@ def test_a_team_trains_the_same_parameters_with_either_kernel(
         trained.append([p.detach().clone() for a in team.agents for p in team.models[a].policy.parameters()])
         assert bool(count_custom_calls) == (threshold == minibatch_scores)
     for a, b in zip(*trained, strict=True):
+        assert th.equal(a, b)
+
+
+@pytest.mark.parametrize("chunked", [False, True])
+def test_one_adjacency_broadcasts_its_mask_with_the_same_bits(
+    chunked: bool, monkeypatch: pytest.MonkeyPatch, count_custom_calls: list[int]
+) -> None:
+    """With one adjacency for every map (a known topology), the mask broadcasts over the batch
+    instead of being gathered per map; outputs and gradients are equal to the gathered mask's, bit
+    for bit, through plain autograd and through the chunked kernel."""
+    th.manual_seed(0)
+    layer = GraphAttention(9, 32, heads=1, backend="dense")
+    x = th.randn(24, 60, 9)
+    adjacency = random_graphs(1, 60, 0.05).expand(24, 60, 60).contiguous()
+    monkeypatch.setattr(attention, "FUSED_MIN_BATCH_SCORES", 1 if chunked else 10**12)
+    shapes: list[tuple[int, ...]] = []
+    broadcast = attention.maps_bias
+
+    def recorded(bias: th.Tensor, index: th.Tensor) -> th.Tensor:
+        shapes.append(tuple(broadcast(bias, index).shape))
+        return broadcast(bias, index)
+
+    def gathered(bias: th.Tensor, index: th.Tensor) -> th.Tensor:
+        return bias[index]
+
+    for module in (attention, layers):
+        monkeypatch.setattr(module, "maps_bias", recorded)
+    with_broadcast = layer_outputs_and_grads(layer, x, adjacency, dense=True)
+    assert shapes and all(shape[0] == 1 for shape in shapes), "the mask was not broadcast"
+    for module in (attention, layers):
+        monkeypatch.setattr(module, "maps_bias", gathered)
+    with_copies = layer_outputs_and_grads(layer, x, adjacency, dense=True)
+    assert bool(count_custom_calls) == chunked
+    for a, b in zip(with_broadcast, with_copies, strict=True):
         assert th.equal(a, b)

@@ -22,6 +22,7 @@ from sb3_pm.policies.attention import (
     attention_probabilities,
     batched_edge_index,
     chunked_attention,
+    maps_bias,
     unique_graphs,
     use_chunked,
     use_dense,
@@ -168,7 +169,7 @@ class GraphAttention(nn.Module):
         if (self.training and conv.dropout > 0) or not chunked:
             # Whole batch at once: attention dropout needs the probabilities, and on small batches
             # recomputing the scores in the backward pass costs more than the memory traffic it saves.
-            alpha = attention_probabilities(alpha_dst, alpha_src, bias[index], conv.negative_slope)
+            alpha = attention_probabilities(alpha_dst, alpha_src, maps_bias(bias, index), conv.negative_slope)
             alpha = nn.functional.dropout(alpha, p=conv.dropout, training=self.training)
             out = th.matmul(alpha, h)
         else:
