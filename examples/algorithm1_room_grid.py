@@ -9,7 +9,8 @@ What it shows:
   grazing, tour_patrol ...), and :meth:`Comparison.write`: ``table.md``, ``table.csv``,
   ``table.tex``, ``anova.txt``, ``results.json``, ``uncertainty.png`` and ``table.png``.
 
-Command-line equivalent: ``sb3-pm compare --policies random local_greedy --graphs room.graphml``.
+Command-line equivalent:
+``sb3-pm compare --policies random local_greedy --graphs room.graphml --out runs/room_cli``.
 
 Usage::
 

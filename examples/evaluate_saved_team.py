@@ -10,7 +10,8 @@ What it shows:
   policy) and :func:`sb3_pm.evaluation.record_gif` (one rendered episode).
 
 Without ``--team`` it first trains a tiny team, so that it runs on its own.
-Command-line equivalent: ``sb3-pm compare --policies runs/my_team random local_greedy grazing``.
+Command-line equivalent:
+``sb3-pm compare --policies runs/my_team random local_greedy grazing --out runs/my_comparison``.
 
 Usage::
 

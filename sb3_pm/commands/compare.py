@@ -17,8 +17,8 @@ def register(subparsers: Any) -> None:
         "compare",
         help="compare policies over graphs x seeds x episodes",
         description=(
-            "Evaluate every policy on every graph and seed, then write table.md/.csv/.tex, anova.txt, "
-            "results.json, uncertainty.png and table.png into --out."
+            "Evaluate every policy on every graph and seed, then write table.md/.csv/.tex, by_graph.md, "
+            "effects.md, anova.txt, results.json, uncertainty.png and table.png into --out."
         ),
     )
     parser.add_argument(

@@ -26,7 +26,7 @@ def register(subparsers: Any) -> None:
         help="compare two sets of saved evaluation records (paired by episode)",
         description=(
             "Print how --policy's evaluation records differ from --reference's on each graph: the "
-            "difference of --metric with its 95%% interval, p over episodes and over runs, and each "
+            "difference of --metric with its 95% interval, p over episodes and over runs, and each "
             "side's per-run means, 90th percentile, max_neglect and episodes at the cap."
         ),
     )

@@ -29,7 +29,8 @@ def register(subparsers: Any) -> None:
         "--graph",
         default="paper-50",
         help="a preset (paper-50/100/200, er-50/100/200, rgg-60, rooms-4, cliques-6x8, karate) or a "
-        ".graphml path; a team trained on another graph runs if its parameters do not depend on N",
+        ".graphml path (default paper-50); a team trained on another graph runs if its parameters do "
+        "not depend on N",
     )
     parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
     parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")

@@ -1,4 +1,4 @@
-"""``sb3-pm reproduce``: rerun one of the paper's experiments (Table I or II) end to end."""
+"""``sb3-pm reproduce``: run an experiment file (the paper's tables, or any other) end to end, resumably."""
 
 from __future__ import annotations
 
@@ -15,8 +15,9 @@ def register(subparsers: Any) -> None:
         help="train and evaluate an experiment grid (zoo/experiments/*.yml), resumably",
         description=(
             "Train every (variant, graph, seed) cell that has no finished run in --out, evaluate every "
-            "cell on the same episodes, and write results.md/.csv/.tex, anova.txt, results.json and the "
-            "plots. Rerunning the same command resumes an interrupted sweep."
+            "cell on the same episodes, and write results.md/.csv/.tex, by_graph.md, effects.md, anova.txt, "
+            "results.json, the plots and report.md (all of them on one page). Rerunning the same command "
+            "resumes an interrupted sweep."
         ),
     )
     parser.add_argument(

@@ -340,7 +340,8 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
 
     :param overrides: entry keys to set on top of the file's (see :func:`apply_overrides`); they
         are validated like the file's own keys.
-    :param path: a config file, or the name of a shipped one (``ippo``, ``ippo_paper``).
+    :param path: a config file, or the name of a shipped one (``ippo``, ``ippo_paper``,
+        ``ippo_improved``, ``ippo_transfer``).
     :raises FileNotFoundError: if the file does not exist.
     :raises ConfigError: for malformed YAML, unknown keys or wrong types (naming file and key).
     """
