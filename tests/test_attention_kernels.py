@@ -178,18 +178,22 @@ def test_a_team_trains_the_same_parameters_with_either_kernel(
         assert th.equal(a, b)
 
 
-@pytest.mark.parametrize("chunked", [False, True])
+@pytest.mark.parametrize("path", ["plain", "chunked", "chunked-autograd"])
 def test_one_adjacency_broadcasts_its_mask_with_the_same_bits(
-    chunked: bool, monkeypatch: pytest.MonkeyPatch, count_custom_calls: list[int]
+    path: str, monkeypatch: pytest.MonkeyPatch, count_custom_calls: list[int]
 ) -> None:
     """With one adjacency for every map (a known topology), the mask broadcasts over the batch
     instead of being gathered per map; outputs and gradients are equal to the gathered mask's, bit
-    for bit, through plain autograd and through the chunked kernel."""
+    for bit, through plain autograd, the chunked kernel (5 chunks, the last one short) and its
+    autograd fallback."""
     th.manual_seed(0)
-    layer = GraphAttention(9, 32, heads=1, backend="dense")
+    chunked = path != "plain"
+    layer = GraphAttention(9, 32, heads=1, backend="dense", custom_kernel=path == "chunked")
     x = th.randn(24, 60, 9)
-    adjacency = random_graphs(1, 60, 0.05).expand(24, 60, 60).contiguous()
+    upper = th.triu((th.rand(60, 60, generator=th.Generator().manual_seed(1)) < 0.05).float(), diagonal=1)
+    adjacency = upper.expand(24, 60, 60).contiguous()  # one-way edges: a transposed mask would differ
     monkeypatch.setattr(attention, "FUSED_MIN_BATCH_SCORES", 1 if chunked else 10**12)
+    monkeypatch.setattr(attention, "CHUNK_FLOATS", 5 * 60 * 60)
     shapes: list[tuple[int, ...]] = []
     broadcast = attention.maps_bias
 
@@ -207,6 +211,6 @@ def test_one_adjacency_broadcasts_its_mask_with_the_same_bits(
     for module in (attention, layers):
         monkeypatch.setattr(module, "maps_bias", gathered)
     with_copies = layer_outputs_and_grads(layer, x, adjacency, dense=True)
-    assert bool(count_custom_calls) == chunked
+    assert bool(count_custom_calls) == (path == "chunked")
     for a, b in zip(with_broadcast, with_copies, strict=True):
         assert th.equal(a, b)

@@ -674,6 +674,11 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert updates["minibatch_125"].hyperparams == {"batch_size": 125}
     assert updates["epochs_5"].hyperparams == {"n_epochs": 5}
     assert updates["envs_4"].hyperparams == {"n_envs": 4, "n_steps": 125}  # rollout 4 x 125 = 2 x 250
+    epochs = _variants("fewer_epochs")  # today's default, unpinned, against the headline's cells
+    assert epochs["epochs_10"].hyperparams == {"n_epochs": 10}  # the default's own value
+    assert epochs["epochs_5"].hyperparams == {"n_epochs": 5}
+    for variant in (epochs["epochs_10"], epochs["epochs_5"]):
+        assert not variant.env_kwargs and not variant.policy_kwargs and variant.timesteps is None
     entropy = _variants("entropy")
     assert entropy["ent_001"].hyperparams == {"ent_coef": 0.01}  # the default's own value
     assert entropy["ent_0"].hyperparams == {"ent_coef": 0.0}
@@ -859,6 +864,9 @@ def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(
 
 #: The experiment that measures the default as it is now, for the README's headline table.
 HEADLINE = "headline"
+#: Files that measure today's default unpinned: the headline, and variants of it that change only
+#: the keys they name.
+CURRENT_DEFAULT_FILES = (HEADLINE, "fewer_epochs")
 #: Files measured on the default of its time with the topology known and staggered rates, before
 #: the territory reward: they pin only the reward.
 STAGGERED_DEFAULT_FILES = ("territory_reward",)
@@ -866,21 +874,26 @@ PREVIOUS_DEFAULT_FILES = sorted(
     path.stem
     for path in (ZOO / "experiments").glob("*.yml")
     if "\nconfig: ../ippo.yml\n" in path.read_text()
-    and path.stem != HEADLINE
+    and path.stem not in CURRENT_DEFAULT_FILES
     and path.stem not in STAGGERED_DEFAULT_FILES
 )
 REWARD_BEFORE_TERRITORY = {"clearing": 0.04, "collision": 0.001}
 
 
-def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path) -> None:
-    experiment = load_experiment(HEADLINE)
+@pytest.mark.parametrize("name", CURRENT_DEFAULT_FILES)
+def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path, name: str) -> None:
+    """The headline's cells are the default's; a file that varies the default changes only the
+    hyperparameters its variants name."""
+    experiment = load_experiment(name)
     assert not experiment.env_kwargs and not experiment.hyperparams
     default = load_config("ippo", "paper-50")
     learned = [cell for cell in plan_cells(experiment, tmp_path) if cell.variant["kind"] != "baseline"]
     assert learned
     for cell in learned:
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
-        assert config.team_kwargs() == {**default.team_kwargs(), "env_kwargs": config.env_kwargs}
+        expected = {**default.team_kwargs(), "env_kwargs": config.env_kwargs}
+        expected["hyperparams"] = {**expected["hyperparams"], **cell.variant["hyperparams"]}
+        assert config.team_kwargs() == expected
         assert config.env_kwargs == default.env_kwargs
 
 
@@ -935,10 +948,12 @@ def test_experiments_measured_on_the_staggered_default_pin_its_reward(tmp_path: 
     assert config.deploy_filter is None and today.deploy_filter is not None
 
 
-def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", CURRENT_DEFAULT_FILES)
+def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path, name: str) -> None:
     """The headline measures the default as a user gets it: trained unfiltered, acting under
     paper-50's deploy filter (the neglect bound on each agent's own territory)."""
-    cells = [c for c in plan_cells(load_experiment(HEADLINE), tmp_path) if c.variant["kind"] != "baseline"]
+    cells = [c for c in plan_cells(load_experiment(name), tmp_path) if c.variant["kind"] != "baseline"]
+    assert cells
     for cell in cells:
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
         assert config.deploy_filter == {"neglect_bound": 50.0, "neglect_scope": "territory"}
@@ -988,13 +1003,15 @@ def test_the_spread_is_recorded_and_a_centralized_variant_with_one_fails_before_
     assert not (tmp_path / "out" / "cells").exists()
 
 
-ALL_BUT_HEADLINE = sorted(path.stem for path in (ZOO / "experiments").glob("*.yml") if path.stem != HEADLINE)
+ALL_BUT_HEADLINE = sorted(
+    path.stem for path in (ZOO / "experiments").glob("*.yml") if path.stem not in CURRENT_DEFAULT_FILES
+)
 
 
 @pytest.mark.parametrize("name", ALL_BUT_HEADLINE)
 def test_only_the_headline_acts_under_paper_50s_deploy_filter(tmp_path: Path, name: str) -> None:
-    """Every other file was measured before the default's deploy filter: its learned cells, whatever
-    config a variant names, act under the filter they trained under."""
+    """Every file but those of today's default was measured before the default's deploy filter: its
+    learned cells, whatever config a variant names, act under the filter they trained under."""
     experiment = load_experiment(name)
     for cell in plan_cells(experiment, tmp_path):
         if cell.variant["kind"] == "baseline" or not (cell.variant.get("config") or cell.config):

@@ -254,7 +254,7 @@ def _attention_chunk(
     """Scores before the LeakyReLU and attention probabilities of one chunk.
 
     Shapes:
-        - a_dst, a_src: ``(b, H, N)``; bias: ``(b, 1, N, N)``
+        - a_dst, a_src: ``(b, H, N)``; bias: ``(b, 1, N, N)``, or ``(1, 1, N, N)`` for every map
         - output: both ``(b, H, N_target, N_source)``
     """
     pre = a_dst.unsqueeze(-1) + a_src.unsqueeze(-2)

@@ -156,7 +156,8 @@ class GraphAttention(nn.Module):
 
         The maths of :class:`~torch_geometric.nn.DenseGATConv`, with the softmax over the last,
         contiguous axis and the adjacency mask added as a precomputed bias (one per distinct
-        adjacency, ``bias[index]`` per map); DenseGATConv's own ``(B, N, N, heads)`` layout spends
+        adjacency, ``bias[index]`` per map, or broadcast when the batch has one adjacency:
+        :func:`~sb3_pm.policies.attention.maps_bias`); DenseGATConv's own ``(B, N, N, heads)`` layout spends
         most of its time in ``masked_fill``/``softmax`` over a strided axis.
         """
         conv = self.conv
