@@ -14,7 +14,8 @@ rollout is not timed, so the figures are throughput, not start-up cost.
 
 The team uses the config's entry for the graph (hyperparameters and ``policy_kwargs``, as
 ``sb3-pm train`` would); ``--n-envs``/``--n-steps`` override it, and ``batch_size`` follows
-``n_steps`` only when overridden. With ``--repeats R`` each team figure is the median of R timed
+``n_steps`` only when overridden. ``--n-epochs`` overrides the passes over each rollout (several
+values for the ratios in one run). With ``--repeats R`` each team figure is the median of R timed
 runs (the CPU may be shared; the load average is printed).
 
 ``--updates`` picks how the learners' update phases run: ``side-by-side`` (the default,
@@ -136,6 +137,7 @@ def team_speed(
     n_envs: int | None,
     n_steps: int | None,
     profile: bool = False,
+    n_epochs: int | None = None,
     concurrent: bool = True,
     arithmetic: str = "default",
     rollouts: str = "stacked",
@@ -159,6 +161,8 @@ def team_speed(
         options["n_envs"] = n_envs
     if n_steps is not None:
         options["hyperparams"] = {**options["hyperparams"], "n_steps": n_steps, "batch_size": n_steps}
+    if n_epochs is not None:
+        options["hyperparams"] = {**options["hyperparams"], "n_epochs": n_epochs}
     if options["algo"] != "dcbf_ppo":  # policy_kwargs of the DCBF policy mean nothing to others
         options["hyperparams"].pop("policy_kwargs", None)
     else:
@@ -217,6 +221,14 @@ def main() -> None:
     parser.add_argument("--config", default="ippo", help="team config: a path or shipped name (default ippo)")
     parser.add_argument("--n-envs", type=int, default=None, help="override the config's n_envs")
     parser.add_argument("--n-steps", type=int, default=None, help="override n_steps (and batch_size)")
+    parser.add_argument(
+        "--n-epochs",
+        type=int,
+        nargs="+",
+        default=[None],
+        help="override n_epochs, the passes over each rollout (default: the config's; give several "
+        "for the ratios)",
+    )
     parser.add_argument("--threads", type=int, default=th.get_num_threads(), help="torch threads")
     parser.add_argument("--repeats", type=int, default=1, help="timed runs per graph (median printed)")
     parser.add_argument("--profile", action="store_true", help="print where each team's time goes")
@@ -283,9 +295,15 @@ def main() -> None:
     print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<62} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
         combinations = itertools.product(
-            args.devices, args.updates, args.rollouts, args.arithmetic, args.attention, args.update_slots
+            args.devices,
+            args.updates,
+            args.rollouts,
+            args.arithmetic,
+            args.attention,
+            args.update_slots,
+            args.n_epochs,
         )
-        for device, mode, rollouts, arithmetic, attention_rule, slots in combinations:
+        for device, mode, rollouts, arithmetic, attention_rule, slots, epochs in combinations:
             runs = [
                 team_speed(
                     graph,
@@ -295,6 +313,7 @@ def main() -> None:
                     args.n_envs,
                     args.n_steps,
                     args.profile,
+                    n_epochs=epochs,
                     concurrent=mode == "side-by-side",
                     arithmetic=arithmetic,
                     rollouts=rollouts,
@@ -313,6 +332,7 @@ def main() -> None:
             updates = "serial" if device == "cuda" else mode
             rule = "" if args.attention == ["batch"] else f", attention {attention_rule}"
             rule += "" if args.update_slots == ["auto"] else f", update slots {slots}"
+            rule += "" if epochs is None else f", n_epochs {epochs}"
             options = f"{args.algo or 'config'}, {updates}, {rollouts}, {arithmetic}{where}{rule}"
             label = f"team {graph} ({options})"
             print(
