@@ -677,7 +677,8 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     epochs = _variants("fewer_epochs")  # today's default, unpinned, against the headline's cells
     assert epochs["epochs_10"].hyperparams == {"n_epochs": 10}  # the default's own value
     assert epochs["epochs_5"].hyperparams == {"n_epochs": 5}
-    for variant in (epochs["epochs_10"], epochs["epochs_5"]):
+    assert epochs["epochs_3"].hyperparams == {"n_epochs": 3}
+    for variant in (epochs["epochs_10"], epochs["epochs_5"], epochs["epochs_3"]):
         assert not variant.env_kwargs and not variant.policy_kwargs and variant.timesteps is None
     entropy = _variants("entropy")
     assert entropy["ent_001"].hyperparams == {"ent_coef": 0.01}  # the default's own value
