@@ -292,7 +292,7 @@ def main() -> None:
         + f"; load average {os.getloadavg()[0]:.2f}"
     )
     cartpole = cartpole_speed(args.cartpole_timesteps)
-    print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<62} {cartpole:>10.0f} steps/s")
+    print(f"{'SB3 PPO MlpPolicy CartPole-v1, 8 envs':<74} {cartpole:>10.0f} steps/s")
     for graph in args.graphs:
         combinations = itertools.product(
             args.devices,
@@ -336,7 +336,7 @@ def main() -> None:
             options = f"{args.algo or 'config'}, {updates}, {rollouts}, {arithmetic}{where}{rule}"
             label = f"team {graph} ({options})"
             print(
-                f"{label:<62} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
+                f"{label:<74} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "
                 f"paper budget ({args.agents} x 50,000): {paper / 60:.1f} min{spread}"
             )
 
