@@ -17,18 +17,12 @@ import hashlib
 import sys
 import time
 
-import torch as th
-
-from sb3_pm.agents.team import IndependentPPO
-from sb3_pm.zoo.config import load_config
+from _one_learner import first_learner_after_one_rollout  # this folder's helper
 
 
 def main() -> None:
     graph = sys.argv[1] if len(sys.argv) > 1 else "paper-50"
-    th.set_num_threads(1)
-    team = IndependentPPO(graph, seed=0, concurrent_updates=False, **load_config("ippo", graph).team_kwargs())
-    team.learn(500)
-    model = team.models[team.agents[0]]
+    model = first_learner_after_one_rollout(graph)
     start = time.perf_counter()
     model.train()
     seconds = time.perf_counter() - start
