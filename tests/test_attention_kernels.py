@@ -198,8 +198,9 @@ def test_one_adjacency_broadcasts_its_mask_with_the_same_bits(
     broadcast = attention.maps_bias
 
     def recorded(bias: th.Tensor, index: th.Tensor) -> th.Tensor:
-        shapes.append(tuple(broadcast(bias, index).shape))
-        return broadcast(bias, index)
+        mask = broadcast(bias, index)
+        shapes.append(tuple(mask.shape))
+        return mask
 
     def gathered(bias: th.Tensor, index: th.Tensor) -> th.Tensor:
         return bias[index]
