@@ -99,6 +99,37 @@ class TestEvaluate:
         code, _, _ = run_cli(capsys, *argv, "--device", "cuda")
         assert code == 0 and loaded[-1] == (team_dir, "cuda")
 
+    def test_a_trained_team_deploys_with_its_own_size_by_default(self, capsys, tmp_path, monkeypatch) -> None:
+        class FakePPO:
+            @staticmethod
+            def load(path, graph=None, device="cpu"):
+                team = make_team("sit_on_nodes")
+                team.n_agents, team.env_kwargs = 3, {}
+                return team
+
+        monkeypatch.setattr("sb3_pm.agents.team.IndependentPPO", FakePPO)
+        team_dir = tmp_path / "three"
+        team_dir.mkdir()
+        out_json = tmp_path / "r.json"
+        argv = [
+            "evaluate",
+            "--policy",
+            str(team_dir),
+            "--steps",
+            "5",
+            "--episodes",
+            "1",
+            "--json",
+            str(out_json),
+        ]
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 0 and "deploying" not in err  # no silent resize, and no resize at all
+        assert json.loads(out_json.read_text())["config"]["n_agents"] == 3
+        # A rule-based policy has no size of its own: the documented 4.
+        code, _, _ = run_cli(capsys, "evaluate", "--policy", "grazing", "--steps", "5", "--episodes", "1",
+                             "--json", str(out_json))  # fmt: skip
+        assert code == 0 and json.loads(out_json.read_text())["config"]["n_agents"] == 4
+
     def test_trained_team_without_learner(self, capsys, tmp_path, monkeypatch) -> None:
         monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", None)  # import fails
         code, _, err = run_cli(

@@ -16,6 +16,8 @@ SECOND_HALF = object()
 
 #: Runs with at least this many steps in all report progress (a bar on a terminal, lines elsewhere).
 PROGRESS_MIN_STEPS = 5000
+#: Team size for a rule-based policy (a trained team deploys with its own size by default).
+DEFAULT_AGENTS = 4
 
 
 def register(subparsers: Any) -> None:
@@ -32,7 +34,12 @@ def register(subparsers: Any) -> None:
         ".graphml path (default paper-50); a team trained on another graph runs if its parameters do "
         "not depend on N",
     )
-    parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
+    parser.add_argument(
+        "--agents",
+        type=int,
+        default=None,
+        help="team size (default: a trained team's own size; 4 for a rule-based policy)",
+    )
     parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")
     parser.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="episode e uses env seed SEED + e (default 0)")
@@ -295,6 +302,8 @@ def run(args: argparse.Namespace) -> int:
         except InputError:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
     team = resolve_team(args.policy, graph=graph, device=args.device)
+    if args.agents is None:  # a trained team deploys as it was trained unless told otherwise
+        args.agents = getattr(team, "n_agents", None) or DEFAULT_AGENTS
     calibration = None
     if args.neglect_bound is None and getattr(team, "site_bound_pending", False):
         args.neglect_bound = BOUND_AUTO  # its deploy_filter: the bound this site allows
