@@ -24,6 +24,8 @@ import torch as th
 from _one_learner import first_learner_after_one_rollout  # this folder's helper
 from torch.utils.flop_counter import FlopCounterMode
 
+from sb3_pm.zoo.config import load_config
+
 
 def matmul_rate(size: int = 1024, repeats: int = 20) -> float:
     """This core's single-thread ``float32`` matrix-product rate in FLOP/s (best of ``repeats``)."""
@@ -47,7 +49,9 @@ def main() -> None:
     model.train()
     seconds = time.perf_counter() - start
     rate = matmul_rate()
-    n_agents, rollouts = 4, 50_000 // (model.n_steps * model.n_envs)
+    config = load_config("ippo", graph)  # the team _one_learner trained: its size and budget
+    n_agents, budget = config.n_agents, config.n_timesteps
+    rollouts = budget // (model.n_steps * model.n_envs)
     cores = os.cpu_count() or 1
     floor = rollouts * n_agents * flops / (cores * rate)
     print(
@@ -59,7 +63,7 @@ def main() -> None:
         f"(train() runs its counted work at {flops / seconds / rate:.0%} of it)"
     )
     print(
-        f"paper budget ({n_agents} x 50,000 agent-steps, {rollouts} rollouts each): updates alone "
+        f"paper budget ({n_agents} x {budget:,} agent-steps, {rollouts} rollouts each): updates alone "
         f"need at least {floor:.0f} s on {cores} cores at that rate"
     )
 
