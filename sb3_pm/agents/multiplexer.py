@@ -47,7 +47,8 @@ env's own ``info["metrics"]`` is passed through.
 is aborted: every agent blocked in ``step_wait`` raises :class:`TeamAborted`, which
 :func:`~sb3_pm.agents.learner_threads.learn_concurrently` swallows, and the original error is
 re-raised to the caller. Blocked agents wake every :data:`POLL_INTERVAL` to check for an abort; a
-``timeout`` bounds how long an agent waits for the others.
+``timeout`` bounds how long an agent waits for the others, counting only the time the process ran
+(:class:`~sb3_pm.agents.awake_deadline.AwakeDeadline`: a sweep suspended for an hour resumes).
 """
 
 from __future__ import annotations
@@ -62,6 +63,7 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
 
 from sb3_pm.agents.agent_vec_env import AgentVecEnv
+from sb3_pm.agents.awake_deadline import AwakeDeadline
 from sb3_pm.agents.stream_turns import LearnerStreams
 from sb3_pm.agents.update_slots import UpdateSlots
 
@@ -219,14 +221,15 @@ class ParallelEnvMultiplexer(LearnerStreams):
         slots = self.update_slots
         if slots is None:
             return
-        deadline = None if self.timeout is None else time.monotonic() + self.timeout
+        deadline = AwakeDeadline(self.timeout, POLL_INTERVAL)
         wait = POLL_INTERVAL if self.timeout is None else min(POLL_INTERVAL, self.timeout)
         while not slots.take(index, wait):
-            if deadline is not None:  # wake at the deadline, not up to a poll interval after it
-                wait = max(0.0, min(POLL_INTERVAL, deadline - time.monotonic()))
-            if self._aborted is None and deadline is not None and time.monotonic() >= deadline:
-                with self._cond:
-                    self._time_out(self._waited_too_long(index, "an update slot"))
+            remaining = deadline.remaining()
+            if remaining is not None:  # wake at the deadline, not up to a poll interval after it
+                wait = max(0.0, min(POLL_INTERVAL, remaining))
+                if self._aborted is None and remaining <= 0:
+                    with self._cond:
+                        self._time_out(self._waited_too_long(index, "an update slot"))
             if self._aborted is not None:
                 raise TeamAborted(self._aborted)
         if self._aborted is not None:
@@ -263,15 +266,15 @@ class ParallelEnvMultiplexer(LearnerStreams):
     # ---------------------------------------------------------------- internal
     def _wait(self, index: int, ready: Callable[[], bool]) -> None:
         """Wait (holding ``_cond``) until ``ready()``; raise :class:`TeamAborted` on abort or timeout."""
-        deadline = None if self.timeout is None else time.monotonic() + self.timeout
+        deadline = AwakeDeadline(self.timeout, POLL_INTERVAL)
         while True:
             if self._aborted is not None:
                 raise TeamAborted(self._aborted)
             if ready():
                 return
             wait = POLL_INTERVAL
-            if deadline is not None:
-                remaining = deadline - time.monotonic()
+            remaining = deadline.remaining()
+            if remaining is not None:
                 if remaining <= 0:
                     self._time_out(self._waited_too_long(index, "the other agents"))
                     raise TeamAborted(self._aborted)

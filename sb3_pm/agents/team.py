@@ -109,6 +109,8 @@ class IndependentPPO(LearnedTeam):
         :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
         ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (about two
         minutes at a rollout's end for 16 learners on the 200-node graph, two updating at a time).
+        Only the time the process runs counts: a sweep suspended (``SIGSTOP``) for longer goes on
+        when it is resumed (:class:`~sb3_pm.agents.awake_deadline.AwakeDeadline`).
     """
 
     name = "ippo"
