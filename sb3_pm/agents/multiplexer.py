@@ -266,13 +266,15 @@ class ParallelEnvMultiplexer(LearnerStreams):
     # ---------------------------------------------------------------- internal
     def _wait(self, index: int, ready: Callable[[], bool]) -> None:
         """Wait (holding ``_cond``) until ``ready()``; raise :class:`TeamAborted` on abort or timeout."""
-        deadline = AwakeDeadline(self.timeout, POLL_INTERVAL)
+        deadline: AwakeDeadline | None = None  # set at the first slice: most calls find ready() at once
         while True:
             if self._aborted is not None:
                 raise TeamAborted(self._aborted)
             if ready():
                 return
             wait = POLL_INTERVAL
+            if deadline is None:
+                deadline = AwakeDeadline(self.timeout, POLL_INTERVAL)
             remaining = deadline.remaining()
             if remaining is not None:
                 if remaining <= 0:
