@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -879,6 +880,8 @@ PREVIOUS_DEFAULT_FILES = sorted(
     and path.stem not in STAGGERED_DEFAULT_FILES
 )
 REWARD_BEFORE_TERRITORY = {"clearing": 0.04, "collision": 0.001}
+#: The default's passes over each rollout before n_epochs 5: every file measured before pins it.
+EPOCHS_BEFORE = 10
 
 
 @pytest.mark.parametrize("name", CURRENT_DEFAULT_FILES)
@@ -928,6 +931,10 @@ def test_experiments_measured_on_the_previous_default_train_as_they_were_measure
         assert config.env_kwargs["reward"] == own_reward, (name, cell.variant["key"])
         # and acting under the filter they trained under, not paper-50's deploy bound
         assert config.deploy_filter is None, (name, cell.variant["key"])
+        # and with the passes over each rollout of their time (--quick sets its own)
+        if not quick:
+            own_epochs = cell.variant["hyperparams"].get("n_epochs", EPOCHS_BEFORE)
+            assert config.hyperparams["n_epochs"] == own_epochs, (name, cell.variant["key"])
 
 
 @pytest.mark.parametrize("name", STAGGERED_DEFAULT_FILES)
@@ -942,11 +949,38 @@ def test_experiments_measured_on_the_staggered_default_pin_its_reward(tmp_path: 
     assert config.env_kwargs["graph_knowledge"] == "known" and config.learning_rate_spread == 2.0
     territory = cells["territory"]
     config = runner_module.cell_config(territory, runner_module.Variant(**territory.variant))
-    # the variant that became the default, measured before paper-50's deploy bound
+    # the variant that became the default, measured before paper-50's deploy bound and with the
+    # passes over each rollout of its time
     expected = {**today.team_kwargs(), "env_kwargs": config.env_kwargs, "deploy_filter": None}
+    expected["hyperparams"] = {**expected["hyperparams"], "n_epochs": EPOCHS_BEFORE}
     assert config.team_kwargs() == expected
+    assert today.hyperparams["n_epochs"] != EPOCHS_BEFORE
     assert config.env_kwargs == today.env_kwargs
     assert config.deploy_filter is None and today.deploy_filter is not None
+
+
+def test_the_headline_default_is_the_fewer_epochs_variant_that_became_it(tmp_path: Path) -> None:
+    """The README's headline figures for n_epochs 5 are fewer_epochs.yml's ``epochs_5`` cells:
+    the same team config, graph, seeds and episodes as the headline's ``default`` cells."""
+
+    def learned(name: str, key: str) -> list[tuple[Any, ...]]:
+        experiment = load_experiment(name)
+        cells = [c for c in plan_cells(experiment, tmp_path / name) if c.variant["key"] == key]
+        assert cells
+        return [
+            (
+                cell.graph,
+                cell.seed,
+                cell.episodes,
+                runner_module.cell_config(cell, runner_module.Variant(**cell.variant)).team_kwargs(),
+            )
+            for cell in cells
+        ]
+
+    headline = {row[1]: row for row in learned(HEADLINE, "default")}
+    for row in learned("fewer_epochs", "epochs_5"):
+        assert row == headline[row[1]]
+    assert load_config("ippo", "paper-50").hyperparams["n_epochs"] == 5
 
 
 @pytest.mark.parametrize("name", CURRENT_DEFAULT_FILES)

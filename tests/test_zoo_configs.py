@@ -230,6 +230,8 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_te
     # staggers them (learning_rate_spread: 2).
     assert transfer.learning_rate_spread == 1.0 and default.learning_rate_spread == 2.0
     assert t_kwargs.pop("per_agent") == {} and len(d_kwargs.pop("per_agent")) == default.n_agents
+    # 10 passes over each rollout, as the transfer figures were measured; the default makes 5.
+    assert (t_kwargs["hyperparams"].pop("n_epochs"), d_kwargs["hyperparams"].pop("n_epochs")) == (10, 5)
     # No fixed bound: B = 50 belongs to paper-50; wherever it is deployed the bound is calibrated
     # there (auto), since a fixed one forced a third to two thirds of the moves elsewhere.
     assert t_kwargs.pop("deploy_filter") == {"neglect_bound": "auto", "neglect_scope": "territory"}
