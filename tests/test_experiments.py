@@ -913,8 +913,10 @@ def test_experiments_measured_on_the_previous_default_train_as_they_were_measure
     file's."""
     experiment = load_experiment(name)
     assert experiment.env_kwargs.get("graph_knowledge") == "discovered", name
+    assert experiment.hyperparams["n_epochs"] == EPOCHS_BEFORE, name
     if quick:
         experiment = experiment.quick()
+    pinned = experiment.hyperparams  # the file's pins, with --quick's budget over them
     for cell in plan_cells(experiment, tmp_path):
         own = cell.variant["env_kwargs"].get("graph_knowledge", "discovered")
         if cell.variant["kind"] == "baseline":
@@ -931,10 +933,22 @@ def test_experiments_measured_on_the_previous_default_train_as_they_were_measure
         assert config.env_kwargs["reward"] == own_reward, (name, cell.variant["key"])
         # and acting under the filter they trained under, not paper-50's deploy bound
         assert config.deploy_filter is None, (name, cell.variant["key"])
-        # and with the passes over each rollout of their time (--quick sets its own)
-        if not quick:
-            own_epochs = cell.variant["hyperparams"].get("n_epochs", EPOCHS_BEFORE)
-            assert config.hyperparams["n_epochs"] == own_epochs, (name, cell.variant["key"])
+        # and with the passes over each rollout of their time (--quick's own win where it sets them)
+        own_epochs = {**pinned, **cell.variant["hyperparams"]}.get("n_epochs", EPOCHS_BEFORE)
+        assert config.hyperparams["n_epochs"] == own_epochs, (name, cell.variant["key"])
+
+
+def test_quick_budget_keys_win_over_a_variants_own(tmp_path: Path) -> None:
+    """``--quick``'s rollout size and epochs replace a variant's, as its timesteps do, so a smoke test
+    stays small; the variant's other keys (its pins) hold. comparison.yml's ``default`` row pins
+    ``n_epochs: 10`` and ``learning_rate_spread: 1`` in the variant itself."""
+    experiment = load_experiment("comparison")
+    full = {c.variant["key"]: c for c in plan_cells(experiment, tmp_path / "full")}
+    quick = {c.variant["key"]: c for c in plan_cells(experiment.quick(), tmp_path / "quick")}
+    assert full["default"].variant["hyperparams"]["n_epochs"] == EPOCHS_BEFORE
+    config = runner_module.cell_config(quick["default"], runner_module.Variant(**quick["default"].variant))
+    assert config.hyperparams["n_epochs"] == 1 and config.hyperparams["n_steps"] == 50
+    assert config.learning_rate_spread == 1.0 and config.deploy_filter is None
 
 
 @pytest.mark.parametrize("name", STAGGERED_DEFAULT_FILES)

@@ -142,10 +142,19 @@ class Experiment:
     def quick(self) -> Experiment:
         """The ``--quick`` version: smaller budgets for smoke tests (its numbers are not results)."""
         overrides = _coerce_top(self.quick_overrides, self.source, base=self.source)
+        variants = self.variants
         if "hyperparams" in overrides:  # merged, so the file's pins (learning_rate_spread) hold
-            overrides["hyperparams"] = {**self.hyperparams, **overrides["hyperparams"]}
+            budget = overrides["hyperparams"]
+            overrides["hyperparams"] = {**self.hyperparams, **budget}
+            # The smoke test's own keys (rollout size, epochs) win over a variant's too, as its
+            # timesteps do; the variant's other keys (its pins) hold.
+            variants = tuple(
+                replace(v, hyperparams={k: x for k, x in v.hyperparams.items() if k not in budget})
+                for v in variants
+            )
         if "timesteps" in overrides:  # the smoke-test budget wins over every variant's own
-            overrides["variants"] = tuple(replace(v, timesteps=None) for v in self.variants)
+            variants = tuple(replace(v, timesteps=None) for v in variants)
+        overrides["variants"] = variants
         return replace(self, **overrides)
 
     def with_graphs(self, graphs: list[str]) -> Experiment:
