@@ -59,6 +59,18 @@ the learners' rollout inference (action, value and DCBF mask), PPO's ``train()``
 fit, and the rest (buffers, callbacks, the multiplexer's hand-offs). With serial updates only the
 learner holding the baton runs, so these phases add up to the wall time; with side-by-side
 updates the learners' update phases overlap, so their sums exceed it and no rest is printed.
+
+It also prints two bounds from the same run, for what no change to the rollout path can buy:
+
+* **rollout inference free**: the team's speed were its rollout inference to take no time at
+  all (wall time less that phase; the rollout phase runs on one core, between update phases, so
+  nothing else overlaps it). An upper bound for any speed-up of the acting pass.
+* **train() alone**: the paper's budget if nothing but the update phases ran, their summed time
+  spread perfectly over the cores this process may use (``os.sched_getaffinity``). A lower bound
+  on the budget's time with the update's arithmetic as it is (and its speed, as a ratio to
+  CartPole, an upper bound for any speed-up of the rest: rollouts, environment, hand-offs).
+  Measured with ``--updates serial`` it is a bound in the strict sense; side by side, the
+  threads' summed time includes their contention for the memory bus and so overstates it.
 """
 
 from __future__ import annotations
@@ -129,6 +141,32 @@ def _instrument(team: Any, phases: dict[str, float]) -> Callable[[], None]:
     return undo
 
 
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def print_bounds(
+    phases: dict[str, float], elapsed: float, agent_steps: int, cartpole: float, agents: int
+) -> None:
+    """The two bounds of ``--profile`` (module docstring) from one timed run's ``phases``."""
+    inference = phases.get("rollout inference", 0.0)
+    if inference < elapsed:
+        free = agent_steps / (elapsed - inference)
+        print(
+            f"    {'bound: rollout inference free':<44} {free:7.0f} agent-steps/s  "
+            f"{free / cartpole:.3f}x CartPole at most"
+        )
+    train = phases.get("train()", 0.0)
+    if train > 0:
+        seconds = train / cores()  # for this run's agent-steps
+        budget = seconds * agents * 50_000 / agent_steps
+        print(
+            f"    {f'bound: train() alone on {cores()} cores':<44} {budget / 60:7.1f} min for the paper "
+            f"budget at least ({agent_steps / seconds / cartpole:.3f}x CartPole at most)"
+        )
+
+
 def team_speed(
     graph: str,
     config: str,
@@ -145,8 +183,10 @@ def team_speed(
     attention_rule: str = "batch",
     n_agents: int = 4,
     update_slots: str = "auto",
+    cartpole: float | None = None,
 ) -> float:
-    """Agent-steps per second of one team after a one-rollout warm-up."""
+    """Agent-steps per second of one team after a one-rollout warm-up (with ``profile``, its phases
+    and, given ``cartpole``'s steps per second, the bounds of the module docstring are printed)."""
     from sb3_pm.agents.team import IndependentPPO
     from sb3_pm.policies import attention
     from sb3_pm.zoo.config import load_config
@@ -195,6 +235,10 @@ def team_speed(
             phases["rest (buffers, callbacks, hand-offs)"] = elapsed - sum(phases.values())
         for name, seconds in phases.items():
             print(f"    {name:<44} {seconds:7.2f} s  {100 * seconds / elapsed:5.1f}%")
+        if cartpole is not None:
+            print_bounds(
+                phases, elapsed, team.n_agents * (team.num_timesteps - rollout), cartpole, team.n_agents
+            )
     return team.n_agents * (team.num_timesteps - rollout) / elapsed
 
 
@@ -321,6 +365,7 @@ def main() -> None:
                     attention_rule=attention_rule,
                     n_agents=args.agents,
                     update_slots=slots,
+                    cartpole=cartpole,
                 )
                 for _ in range(args.repeats)
             ]
