@@ -1,0 +1,82 @@
+"""The stacked acting pass of a rollout step on ``paper-50``: its parts, and split between threads.
+
+    python docs/results/speed_probes/acting_pass_parts.py
+
+Builds the default team, trains one rollout, and on the last joint step's observations times
+(milliseconds per call, one torch thread, the training filter as during a rollout): the whole
+stacked pass for the four learners; its parts (the estimator, the DCBF filter, the GAT layers, and
+the heads with the GAT layers); and the pass split in two, learners 0-1 in this thread and 2-3 in
+a second one at the same time (each half checked equal to the whole, bit for bit).
+"""
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import torch as th
+
+import sb3_pm.agents.stacked_inference as stacked
+from sb3_pm.agents.rollout_batching import RolloutBatcher
+from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.zoo import load_config
+
+th.set_num_threads(1)
+team = IndependentPPO.from_config(load_config("ippo", "paper-50"), "paper-50", seed=0)
+batchers: list[RolloutBatcher] = []
+compute = RolloutBatcher._compute
+
+
+def remembering(self: RolloutBatcher, index: int, observation: object) -> None:
+    batchers.append(self)
+    compute(self, index, observation)
+
+
+RolloutBatcher._compute = remembering  # type: ignore[method-assign]
+team.learn(500)
+RolloutBatcher._compute = compute  # type: ignore[method-assign]
+team._training_filter()  # as during a rollout (learn() switched the deployment filter back on)
+batcher = batchers[-1]
+policies = [model.policy for model in batcher.models]
+published = [obs for obs in batcher.hub.published if isinstance(obs, dict)]
+whole = stacked.StackedInference()
+halves = (stacked.StackedInference(), stacked.StackedInference())
+pool = ThreadPoolExecutor(1)
+
+
+def milliseconds(function, calls: int = 300) -> float:
+    for _ in range(10):
+        function()
+    start = time.perf_counter()
+    for _ in range(calls):
+        function()
+    return (time.perf_counter() - start) / calls * 1e3
+
+
+def second_half():
+    with th.inference_mode():  # inference mode is per thread
+        return halves[1].rollout_heads(policies[2:], published[2:])
+
+
+def split():
+    future = pool.submit(second_half)
+    return halves[0].rollout_heads(policies[:2], published[:2]) + future.result()
+
+
+with th.inference_mode():
+    one, two = whole.rollout_heads(policies, published), split()
+    assert one is not None and two is not None
+    assert all(th.equal(a.logits, b.logits) and th.equal(a.values, b.values) for a, b in zip(one, two))
+    stack = whole._stack
+    maps = len(published[0]["nodes"])
+    pre, u_hat, _, _ = whole._prepare(policies, published, maps)
+    print(f"whole pass            {milliseconds(lambda: whole.rollout_heads(policies, published)):6.2f} ms")
+    print(f"  estimator           {milliseconds(lambda: whole._uncertainty(stack, pre)):6.2f} ms")
+    mask_ms = milliseconds(lambda: stacked._filtered_masks(policies, pre, u_hat, None))
+    print(f"  DCBF filter         {mask_ms:6.2f} ms")
+    print(f"  GAT layers          {milliseconds(lambda: whole._embed(stack, pre)):6.2f} ms")
+    print(f"  GAT layers + heads  {milliseconds(lambda: whole._heads_given(stack, pre, u_hat)):6.2f} ms")
+    for _ in range(3):
+        print(
+            f"whole {milliseconds(lambda: whole.rollout_heads(policies, published)):6.2f} ms, "
+            f"split between two threads {milliseconds(split):6.2f} ms"
+        )
+pool.shutdown()
