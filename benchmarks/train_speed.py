@@ -60,17 +60,20 @@ fit, and the rest (buffers, callbacks, the multiplexer's hand-offs). With serial
 learner holding the baton runs, so these phases add up to the wall time; with side-by-side
 updates the learners' update phases overlap, so their sums exceed it and no rest is printed.
 
-It also prints two bounds from the same run, for what no change to the rollout path can buy:
+It also prints two bounds from the same run, for what faster code in one part could buy at most:
 
-* **rollout inference free**: the team's speed were its rollout inference to take no time at
-  all (wall time less that phase; the rollout phase runs on one core, between update phases, so
-  nothing else overlaps it). An upper bound for any speed-up of the acting pass.
-* **train() alone**: the paper's budget if nothing but the update phases ran, their summed time
-  spread perfectly over the cores this process may use (``os.sched_getaffinity``). A lower bound
-  on the budget's time with the update's arithmetic as it is (and its speed, as a ratio to
-  CartPole, an upper bound for any speed-up of the rest: rollouts, environment, hand-offs).
-  Measured with ``--updates serial`` it is a bound in the strict sense; side by side, the
-  threads' summed time includes their contention for the memory bus and so overstates it.
+* **rollout inference free**: the team's speed if its rollout inference (the acting pass and the
+  draws; the tensor conversions around them count as "rest") took no time at all: the wall time
+  less that phase. The rollout phase runs on one core between update phases, overlapped by
+  nothing but a learner's first update starting while its teammates finish their last step, so
+  this is an upper bound for any speed-up of the acting pass.
+* **updates alone**: the paper's budget if nothing but the update phases (``train()`` and the
+  estimator fit) ran, their summed time spread perfectly over the cores this process may use
+  (``os.sched_getaffinity``): a lower bound on the budget's time with the update's arithmetic
+  as it is, and its speed, as a ratio to CartPole, an upper bound for any speed-up of the rest
+  (rollouts, environment, hand-offs). Measured with ``--updates serial`` it is a bound in the
+  strict sense; side by side, the threads' summed time includes their contention (the memory
+  bus, the interpreter lock) and so overstates it. Not printed for updates on a GPU.
 """
 
 from __future__ import annotations
@@ -147,7 +150,12 @@ def cores() -> int:
 
 
 def print_bounds(
-    phases: dict[str, float], elapsed: float, agent_steps: int, cartpole: float, agents: int
+    phases: dict[str, float],
+    elapsed: float,
+    agent_steps: int,
+    cartpole: float,
+    agents: int,
+    updates_on_cpu: bool = True,
 ) -> None:
     """The two bounds of ``--profile`` (module docstring) from one timed run's ``phases``."""
     inference = phases.get("rollout inference", 0.0)
@@ -157,12 +165,12 @@ def print_bounds(
             f"    {'bound: rollout inference free':<44} {free:7.0f} agent-steps/s  "
             f"{free / cartpole:.3f}x CartPole at most"
         )
-    train = phases.get("train()", 0.0)
-    if train > 0:
-        seconds = train / cores()  # for this run's agent-steps
+    updates = phases.get("train()", 0.0) + phases.get("estimator fit", 0.0)
+    if updates > 0 and updates_on_cpu:
+        seconds = updates / cores()  # for this run's agent-steps
         budget = seconds * agents * 50_000 / agent_steps
         print(
-            f"    {f'bound: train() alone on {cores()} cores':<44} {budget / 60:7.1f} min for the paper "
+            f"    {f'bound: updates alone on {cores()} cores':<44} {budget / 60:7.1f} min for the paper "
             f"budget at least ({agent_steps / seconds / cartpole:.3f}x CartPole at most)"
         )
 
@@ -236,9 +244,9 @@ def team_speed(
         for name, seconds in phases.items():
             print(f"    {name:<44} {seconds:7.2f} s  {100 * seconds / elapsed:5.1f}%")
         if cartpole is not None:
-            print_bounds(
-                phases, elapsed, team.n_agents * (team.num_timesteps - rollout), cartpole, team.n_agents
-            )
+            agent_steps = team.n_agents * (team.num_timesteps - rollout)
+            on_cpu = "cuda" not in (update_device or rollout_device)
+            print_bounds(phases, elapsed, agent_steps, cartpole, team.n_agents, updates_on_cpu=on_cpu)
     return team.n_agents * (team.num_timesteps - rollout) / elapsed
 
 

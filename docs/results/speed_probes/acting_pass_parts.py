@@ -5,8 +5,9 @@
 Builds the default team, trains one rollout, and on the last joint step's observations times
 (milliseconds per call, one torch thread, the training filter as during a rollout): the whole
 stacked pass for the four learners; its parts (the estimator, the DCBF filter, the GAT layers, and
-the heads with the GAT layers); and the pass split in two, learners 0-1 in this thread and 2-3 in
-a second one at the same time (each half checked equal to the whole, bit for bit).
+the actor and critic heads, timed with the GAT layers and the layers' time taken off, and the
+rest); and the pass split in two, learners 0-1 in this thread and 2-3 in a second one at the same
+time (each half checked equal to the whole, bit for bit).
 """
 
 import time
@@ -68,12 +69,20 @@ with th.inference_mode():
     stack = whole._stack
     maps = len(published[0]["nodes"])
     pre, u_hat, _, _ = whole._prepare(policies, published, maps)
-    print(f"whole pass            {milliseconds(lambda: whole.rollout_heads(policies, published)):6.2f} ms")
-    print(f"  estimator           {milliseconds(lambda: whole._uncertainty(stack, pre)):6.2f} ms")
-    mask_ms = milliseconds(lambda: stacked._filtered_masks(policies, pre, u_hat, None))
-    print(f"  DCBF filter         {mask_ms:6.2f} ms")
-    print(f"  GAT layers          {milliseconds(lambda: whole._embed(stack, pre)):6.2f} ms")
-    print(f"  GAT layers + heads  {milliseconds(lambda: whole._heads_given(stack, pre, u_hat)):6.2f} ms")
+    parts = {
+        "whole pass": lambda: whole.rollout_heads(policies, published),
+        "estimator": lambda: whole._uncertainty(stack, pre),
+        "DCBF filter": lambda: stacked._filtered_masks(policies, pre, u_hat, None),
+        "GAT layers": lambda: whole._embed(stack, pre),
+        "GAT layers and heads": lambda: whole._heads_given(stack, pre, u_hat),
+    }
+    times = {name: milliseconds(function) for name, function in parts.items()}
+    times["heads (actor, critic)"] = times["GAT layers and heads"] - times["GAT layers"]
+    named = ("estimator", "DCBF filter", "GAT layers", "heads (actor, critic)")
+    # the rest: checks, stacking the parameters, the observations' conversion, splitting the outputs
+    times["rest"] = times["whole pass"] - sum(times[name] for name in named)
+    for name in ("whole pass", *named, "rest"):
+        print(f"{name:<24} {times[name]:6.2f} ms")
     for _ in range(3):
         print(
             f"whole {milliseconds(lambda: whole.rollout_heads(policies, published)):6.2f} ms, "
