@@ -69,7 +69,7 @@ It also prints two bounds from the same run, for what faster code in one part co
   this is an upper bound for any speed-up of the acting pass.
 * **updates alone**: the paper's budget if nothing but the update phases (``train()`` and the
   estimator fit) ran, their summed time spread perfectly over the cores this process may use
-  (``os.sched_getaffinity``): a lower bound on the budget's time with the update's arithmetic
+  (:func:`sb3_pm.machine.usable_cores`): a lower bound on the budget's time with the update's arithmetic
   as it is, and its speed, as a ratio to CartPole, an upper bound for any speed-up of the rest
   (rollouts, environment, hand-offs). Measured with ``--updates serial`` it is a bound in the
   strict sense; side by side, the threads' summed time includes their contention (the memory
@@ -144,11 +144,6 @@ def _instrument(team: Any, phases: dict[str, float]) -> Callable[[], None]:
     return undo
 
 
-def cores() -> int:
-    """The CPU cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def print_bounds(
     phases: dict[str, float],
     elapsed: float,
@@ -165,12 +160,15 @@ def print_bounds(
             f"    {'bound: rollout inference free':<44} {free:7.0f} agent-steps/s  "
             f"{free / cartpole:.3f}x CartPole at most"
         )
+    from sb3_pm.machine import usable_cores
+
+    cores = usable_cores()
     updates = phases.get("train()", 0.0) + phases.get("estimator fit", 0.0)
     if updates > 0 and updates_on_cpu:
-        seconds = updates / cores()  # for this run's agent-steps
+        seconds = updates / cores  # for this run's agent-steps
         budget = seconds * agents * 50_000 / agent_steps
         print(
-            f"    {f'bound: updates alone on {cores()} cores':<44} {budget / 60:7.1f} min for the paper "
+            f"    {f'bound: updates alone on {cores} cores':<44} {budget / 60:7.1f} min for the paper "
             f"budget at least ({agent_steps / seconds / cartpole:.3f}x CartPole at most)"
         )
 
@@ -243,11 +241,11 @@ def team_speed(
             phases["rest (buffers, callbacks, hand-offs)"] = elapsed - sum(phases.values())
         for name, seconds in phases.items():
             print(f"    {name:<44} {seconds:7.2f} s  {100 * seconds / elapsed:5.1f}%")
-        if cartpole is not None:
-            agent_steps = team.n_agents * (team.num_timesteps - rollout)
-            on_cpu = "cuda" not in (update_device or rollout_device)
-            print_bounds(phases, elapsed, agent_steps, cartpole, team.n_agents, updates_on_cpu=on_cpu)
-    return team.n_agents * (team.num_timesteps - rollout) / elapsed
+    agent_steps = team.n_agents * (team.num_timesteps - rollout)
+    if profile and cartpole is not None:
+        on_cpu = "cuda" not in (update_device or rollout_device)
+        print_bounds(phases, elapsed, agent_steps, cartpole, team.n_agents, updates_on_cpu=on_cpu)
+    return agent_steps / elapsed
 
 
 def cartpole_speed(timesteps: int) -> float:

@@ -16,28 +16,15 @@ from concurrent.futures import ThreadPoolExecutor
 import torch as th
 
 import sb3_pm.agents.stacked_inference as stacked
-from sb3_pm.agents.rollout_batching import RolloutBatcher
 from sb3_pm.agents.team import IndependentPPO
 from sb3_pm.zoo import load_config
 
 th.set_num_threads(1)
 team = IndependentPPO.from_config(load_config("ippo", "paper-50"), "paper-50", seed=0)
-batchers: list[RolloutBatcher] = []
-compute = RolloutBatcher._compute
-
-
-def remembering(self: RolloutBatcher, index: int, observation: object) -> None:
-    batchers.append(self)
-    compute(self, index, observation)
-
-
-RolloutBatcher._compute = remembering  # type: ignore[method-assign]
 team.learn(500)
-RolloutBatcher._compute = compute  # type: ignore[method-assign]
 team._training_filter()  # as during a rollout (learn() switched the deployment filter back on)
-batcher = batchers[-1]
-policies = [model.policy for model in batcher.models]
-published = [obs for obs in batcher.hub.published if isinstance(obs, dict)]
+policies = [team.models[agent].policy for agent in team.agents]
+published = [obs for obs in team.hub.published if isinstance(obs, dict)]  # the last joint step's
 whole = stacked.StackedInference()
 halves = (stacked.StackedInference(), stacked.StackedInference())
 pool = ThreadPoolExecutor(1)
