@@ -70,7 +70,7 @@ def make_single_agent_env(
     :raises ValueError: for an unknown baseline name or an unloadable team folder.
     """
     from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
-    from sb3_pm.evaluation.teams import resolve_team, team_env_kwargs
+    from sb3_pm.evaluation.teams import resolve_team
     from sb3_pm.team_interface import Team
 
     team: Team | None
@@ -79,10 +79,10 @@ def make_single_agent_env(
     elif isinstance(teammates, (str, Path)):
         # Baselines by name; anything else is a saved team, checked against this graph on load.
         team = resolve_team(teammates, graph=graph)
-        if hasattr(team, "n_agents"):
+        if team.n_agents is not None:
             # A trained team fixes the team size and its training env options; the caller's
             # explicit kwargs still win (a mismatch then fails loudly in the team's checks).
-            env_kwargs = {"n_agents": int(team.n_agents), **team_env_kwargs(team), **env_kwargs}
+            env_kwargs = {"n_agents": int(team.n_agents), **team.env_settings(), **env_kwargs}
     else:
         raise TypeError(
             "teammates must be a baseline name, a saved team folder, a Team or None; "

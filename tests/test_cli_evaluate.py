@@ -77,7 +77,9 @@ class TestEvaluate:
             def load(path, graph=None, device="cpu"):
                 loaded.append((path, device))
                 team = make_team("sit_on_nodes")
-                team.n_agents, team.env_kwargs = 4, {"obs_radius": 2, "max_cycles": 7}
+                # a trained team of 4 that cannot be resized, trained with these env settings
+                team.n_agents, team.resizable = 4, False
+                team.env_settings = lambda: {"obs_radius": 2}
                 return team
 
         # Patch the class, not the module: the loader also imports the centralized team's module,
@@ -94,7 +96,7 @@ class TestEvaluate:
         config = json.loads((tmp_path / "r.json").read_text())["config"]
         assert config["env_kwargs"] == {"obs_radius": 2} and config["max_cycles"] == 5
         code, _, err = run_cli(capsys, *argv, "--agents", "3")
-        # This fake team has no learner_for, so it cannot be deployed with another size.
+        # This fake team is not resizable, so it cannot be deployed with another size.
         assert code == 2 and "has 4 agents and cannot be deployed with another number; pass --agents 4" in err
         code, _, _ = run_cli(capsys, *argv, "--device", "cuda")
         assert code == 0 and loaded[-1] == (team_dir, "cuda")

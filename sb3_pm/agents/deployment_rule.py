@@ -1,35 +1,123 @@
-""":class:`DeploymentRule`: how a trained team acts when the caller does not say, and the DCBF
-filter it acts under.
+""":class:`DeploymentRule`: how a trained team acts, kept in one place, and its only ``predict``.
 
-Shared by the trained teams (:class:`~sb3_pm.agents.learned_team.LearnedTeam`) and a trained team
-moved to another graph (:class:`~sb3_pm.agents.transfer.TransferredTeam`), which differ in where
-their policies live (:meth:`DeploymentRule.acting_policies`), which graph gives their territories
-(:meth:`DeploymentRule._filter_territories`) and whether a filter change is saved
-(:meth:`DeploymentRule._filter_changed`).
+Every trained team reaches it: :class:`~sb3_pm.agents.team.IndependentPPO` (one learner per
+agent), :class:`~sb3_pm.sharing.centralized.CentralizedPPO` (one shared network) and a trained team
+moved to another graph (:class:`~sb3_pm.agents.transfer.TransferredTeam`). They differ only in
+where their policies live (:meth:`DeploymentRule.policy_for`, :meth:`DeploymentRule.acting_policies`)
+and which graph gives their territories (:meth:`DeploymentRule._filter_territories`).
+
+The acting rule is three values, held here and nowhere else:
+
+* :attr:`DeploymentRule.deploy_temperature`: argmax (``None``) or a sampling temperature;
+* :attr:`DeploymentRule.filter_settings`: the DCBF filter settings the team acts under on top of
+  what each policy was trained with (``neglect_bound``, ``neglect_scope``, ...); each policy's
+  ``dcbf_config`` is derived from its trained config and these, never saved in its kwargs;
+* :attr:`DeploymentRule.site_bound_pending`: a ``deploy_filter`` of ``auto`` waiting for the bound
+  calibrated on the graph it acts on.
+
+A saved team's manifest records them (:mod:`sb3_pm.agents.saved_teams`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import fields, replace
 from typing import Any
 
+import numpy as np
 
-class DeploymentRule:
-    """The ``deploy_temperature`` rule, the sampling temperature and the DCBF filter settings of a
-    team's DCBF policies."""
+from sb3_pm.errors import InputError
+from sb3_pm.team_interface import Observation, Team, without_caller_keys
 
+
+class DeploymentRule(Team):
+    """The acting rule of a trained team (temperature, DCBF filter, pending calibration), its
+    environment settings and its one :meth:`predict`."""
+
+    learned = True
     _deploy_temperature: float | None = None
     #: the learners' algorithm (in error messages)
     algo: str
-    #: ``True`` while the team's ``deploy_filter`` is ``{neglect_bound: auto}`` and no bound has been
-    #: set for the graph it acts on: :func:`sb3_pm.evaluation.evaluate` then calibrates one there
-    #: before the first episode (:mod:`sb3_pm.evaluation.neglect_calibration`). Until then the
-    #: policies act with no bound. Any :meth:`set_filter` that sets ``neglect_bound`` (a number, or
-    #: ``None`` for none) settles it.
-    site_bound_pending: bool = False
+    #: the env settings the team was trained in (``env_kwargs`` of its config)
+    env_kwargs: dict[str, Any]
     #: whether :meth:`_warn_if_site_bound_pending` has warned (once per team)
     _warned_pending: bool = False
+    #: Act for the whole team in one batched pass where the policies allow it
+    #: (:mod:`sb3_pm.agents.stacked_inference`); ``False`` runs one pass per agent.
+    stacked_inference: bool = True
+    #: Compute only the allowed nodes' logits where that decides the same action
+    #: (:mod:`sb3_pm.agents.pruned_inference`); ``False`` computes every node's logit.
+    pruned_inference: bool = True
+    #: One network acts for every agent: its observations go through it as one batch.
+    shares_one_network: bool = False
 
+    # ------------------------------------------------------------ the env
+    def env_settings(self) -> dict[str, Any]:
+        """The env settings the team was trained in, less the caller's keys (graph, team size,
+        episode length, render mode): a trained team is evaluated in the env it was trained in."""
+        return without_caller_keys(self.env_kwargs)
+
+    def default_graph(self) -> Any:
+        """The graph the team acts on (``None`` for a team trained on a graph family)."""
+        from sb3_pm.graphs import GraphSpec
+
+        graph = getattr(self, "graph", None)
+        return graph if isinstance(graph, GraphSpec) else None
+
+    # ------------------------------------------------------------ acting
+    def policy_for(self, agent: str) -> Any:
+        """The policy that acts for ``agent``."""
+        raise NotImplementedError
+
+    def acting_policies(self) -> Mapping[str, Any]:
+        """``{name: policy}``: every policy that acts for the team."""
+        raise NotImplementedError
+
+    def predict(  # type: ignore[override]
+        self, observations: dict[str, Observation], deterministic: bool | None = None
+    ) -> dict[str, int]:
+        """One destination node per agent in ``observations``, each from its own policy
+        (:meth:`policy_for`). ``deterministic=None`` follows :attr:`deploy_temperature` (argmax
+        unless the config set one); ``False`` samples at :attr:`sampling_temperature`.
+
+        Policies of one architecture act in one stacked pass for the whole team
+        (:mod:`sb3_pm.agents.stacked_inference`, the same actions as one pass per agent); sampled
+        actions are drawn agent by agent, in the team's order.
+        """
+        deterministic = self.acts_deterministically(deterministic)
+        agents = list(observations)
+        if self.stacked_inference and not self.shares_one_network:
+            stacker = self._stacked_pass()
+            stacker.prune = self.pruned_inference
+            stacked = stacker.predict(observations, self.policy_for, deterministic)
+            if stacked is not None:
+                return stacked
+        groups = [agents] if self.shares_one_network else [[agent] for agent in agents]
+        actions: dict[str, int] = {}
+        for group in groups:
+            batch = [observations[agent] for agent in group]
+            actions.update(zip(group, _policy_actions(self.policy_for(group[0]), batch, deterministic)))
+        return actions
+
+    def _stacked_pass(self) -> Any:
+        stacker = self.__dict__.get("_stacker")
+        if stacker is None:
+            from sb3_pm.agents.pruned_inference import PrunedInference
+
+            stacker = self.__dict__["_stacker"] = PrunedInference()
+        return stacker
+
+    def acting_record(self, deterministic: bool) -> dict[str, Any]:
+        """The sampling temperature (when sampling) and the neglect bound the team acts under."""
+        record: dict[str, Any] = {}
+        if not deterministic and self.sampling_temperature is not None:
+            record["temperature"] = self.sampling_temperature
+        bound = self.acting_filter()
+        if bound is not None:
+            record.update(bound)
+        return record
+
+    # ------------------------------------------------ the pending site bound
     def await_site_bound(self) -> None:
         """No bound until a site is calibrated: the policies act with none, and
         :attr:`site_bound_pending` says a calibration is due (``deploy_filter`` auto on a team built,
@@ -55,12 +143,9 @@ class DeploymentRule:
             )
             self._warned_pending = True
 
-    def acting_policies(self) -> Mapping[str, Any]:
-        """``{name: policy}``: the policies that act for the team."""
-        raise NotImplementedError
-
+    # ------------------------------------------------------- temperature
     @property
-    def deploy_temperature(self) -> float | None:
+    def deploy_temperature(self) -> float | None:  # type: ignore[override]
         """How the team acts when nothing says otherwise (``predict(obs)``, ``evaluate()``,
         ``sb3-pm evaluate`` and ``compare``): ``None`` takes each agent's most likely allowed node
         (argmax); a temperature samples from ``softmax(logits / T)`` over the allowed nodes, as
@@ -87,15 +172,6 @@ class DeploymentRule:
         if temperature is not None or self.sampling_temperature not in (None, 1.0):
             self.set_sampling_temperature(1.0 if temperature is None else temperature)
 
-    def acting_filter(self) -> dict[str, Any] | None:
-        """The DCBF neglect bound the policies act under now, ``{"neglect_bound": B,
-        "neglect_scope": S}`` (the first bounded policy's), or ``None`` if no policy has one."""
-        for policy in self.acting_policies().values():
-            config = getattr(policy, "dcbf_config", None)
-            if config is not None and config.neglect_bound is not None:
-                return {"neglect_bound": config.neglect_bound, "neglect_scope": config.neglect_scope}
-        return None
-
     @property
     def sampling_temperature(self) -> float | None:
         """The temperature sampled actions are drawn at (:meth:`set_sampling_temperature`): the
@@ -115,6 +191,22 @@ class DeploymentRule:
 
         set_sampling_temperature(self.acting_policies(), temperature)
 
+    # ------------------------------------------------------ the DCBF filter
+    @property
+    def filter_settings(self) -> dict[str, Any]:
+        """The DCBF filter settings the team acts under on top of its policies' trained ones
+        (:meth:`set_filter`); ``{}``: as trained. Saved with the team."""
+        return dict(self.__dict__.get("_filter_settings", {}))
+
+    def acting_filter(self) -> dict[str, Any] | None:
+        """The DCBF neglect bound the policies act under now, ``{"neglect_bound": B,
+        "neglect_scope": S}`` (the first bounded policy's), or ``None`` if no policy has one."""
+        for policy in self.acting_policies().values():
+            config = getattr(policy, "dcbf_config", None)
+            if config is not None and config.neglect_bound is not None:
+                return {"neglect_bound": config.neglect_bound, "neglect_scope": config.neglect_scope}
+        return None
+
     def set_filter(self, **changes: Any) -> None:
         """Change the DCBF filter's settings of every acting policy (fields of
         :class:`~sb3_pm.policies.dcbf.DCBFConfig`, e.g. ``neglect_bound=40``), for deployment.
@@ -122,14 +214,12 @@ class DeploymentRule:
         The filter has no parameters, so a trained team can be deployed with another filter (the
         actor then meets masks it was not trained under), on its own graph or on one it was moved
         to. ``neglect_scope="territory"`` gives each policy its own agent's territory on the graph
-        the team acts on (:mod:`sb3_pm.graphs.territories`, :meth:`_filter_territories`).
+        the team acts on (:mod:`sb3_pm.graphs.territories`, :meth:`_filter_territories`). The
+        settings are kept in :attr:`filter_settings` and saved with the team.
 
         :raises InputError: a policy without the DCBF filter, or an unknown or invalid setting; no
             policy changes then.
         """
-        from dataclasses import fields, replace
-
-        from sb3_pm.errors import InputError
         from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap
 
         names = {f.name for f in fields(DCBFConfig)}
@@ -146,18 +236,32 @@ class DeploymentRule:
             if not getattr(policy, "use_dcbf", False):
                 raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
             check_bound_below_cap(bound, getattr(policy, "u_max", float("inf")))
-        territories = self._filter_territories() if changes.get("neglect_scope") == "territory" else {}
-        own = {name: {"territory": territories[name]} if territories else {} for name in policies}
+        settings = {**self.filter_settings, **changes}
+        territories = self._filter_territories() if settings.get("neglect_scope") == "territory" else {}
         # Every new config first: DCBFConfig checks its fields as it is built, so a bad setting
         # raises here, before any policy has changed.
-        configs = {name: replace(p.dcbf_config, **changes, **own[name]) for name, p in policies.items()}
+        configs = {
+            name: replace(
+                policy.trained_dcbf_config,
+                **settings,
+                **({"territory": territories[name]} if territories else {}),
+            )
+            for name, policy in policies.items()
+        }
         if "neglect_bound" in changes:
             self.site_bound_pending = False  # the bound is settled for this graph
         for name, policy in policies.items():
             policy.dcbf_config = configs[name]
-            if "avoid_collisions" in changes:
-                policy.avoid_collisions = bool(changes["avoid_collisions"])
-            self._filter_changed(name, {**changes, **own[name]})
+            policy.avoid_collisions = configs[name].avoid_collisions
+        self.__dict__["_filter_settings"] = settings
+
+    def reset_filter(self) -> None:
+        """Every policy back to the filter it was trained with (:attr:`filter_settings` empty)."""
+        for policy in self.acting_policies().values():
+            if getattr(policy, "use_dcbf", False):
+                policy.dcbf_config = policy.trained_dcbf_config
+                policy.avoid_collisions = policy.trained_dcbf_config.avoid_collisions
+        self.__dict__["_filter_settings"] = {}
 
     def filter_activity(self) -> dict[str, int]:
         """Summed over the acting policies since they were built: masks computed with the neglect
@@ -176,10 +280,19 @@ class DeploymentRule:
         """
         raise NotImplementedError
 
-    def _filter_changed(self, name: str, changes: Mapping[str, Any]) -> None:
-        """Called for each policy whose filter :meth:`set_filter` changed (``changes``: its new
-        :class:`~sb3_pm.policies.dcbf.DCBFConfig` fields); a team that saves its policies records
-        them here. Nothing by default."""
+
+def _policy_actions(policy: Any, observations: Sequence[Observation], deterministic: bool) -> list[int]:
+    """``policy``'s actions for a batch of observations (its own forward pass and masks)."""
+    from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+
+    batch = {key: np.stack([np.asarray(obs[key]) for obs in observations]) for key in observations[0]}
+    if isinstance(policy, MaskableActorCriticPolicy):
+        actions, _ = policy.predict(
+            batch, deterministic=deterministic, action_masks=np.asarray(batch["action_mask"], dtype=bool)
+        )
+    else:
+        actions, _ = policy.predict(batch, deterministic=deterministic)
+    return [int(action) for action in np.asarray(actions).reshape(-1)]
 
 
 __all__ = ["DeploymentRule"]

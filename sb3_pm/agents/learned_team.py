@@ -31,13 +31,9 @@ from sb3_pm.agents.saved_teams import (
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
 from sb3_pm.policies.dcbf import SITE_BOUND
-from sb3_pm.team_interface import Team
-
-#: DCBFConfig field -> the DCBF policy's keyword for it (where they differ).
-_POLICY_KWARG = {"barrier": "dcbf_barrier", "territory": "neglect_territory"}
 
 
-class LearnedTeam(DeploymentRule, Team):
+class LearnedTeam(DeploymentRule):
     """Base of the trained teams: the problem they were built for, the graph check, save and load.
 
     Subclasses set :attr:`MANIFEST_FORMAT`, call :meth:`_set_problem` first in ``__init__``, and
@@ -158,13 +154,6 @@ class LearnedTeam(DeploymentRule, Team):
             )
         return dict(zip(files, agent_territories(self.graph, self.n_agents)))
 
-    def _filter_changed(self, name: str, changes: Mapping[str, Any]) -> None:
-        """Record the filter's new settings in the model's ``policy_kwargs``, which SB3 saves and
-        rebuilds the policy from, so a saved team keeps them."""
-        model = self.model_files()[name]
-        kwargs = {_POLICY_KWARG.get(key, key): value for key, value in changes.items()}
-        model.policy_kwargs = {**model.policy_kwargs, **kwargs}
-
     @property
     def deploy_filter(self) -> dict[str, Any] | None:
         """The DCBF neglect bound the trained team acts under, ``{"neglect_bound": B,
@@ -240,23 +229,21 @@ class LearnedTeam(DeploymentRule, Team):
     def _training_filter(self) -> None:
         """Switch the :attr:`deploy_filter` off: every learner's bound as trained, that is none
         (a team with a deploy filter trains without a bound; nothing to do without one)."""
-        from dataclasses import replace
-
         if self._deploy_filter is None:
             return
         self.site_bound_pending = False
-        for model in self.model_files().values():
-            policy = model.policy
-            if getattr(policy, "dcbf_config", None) is None:
-                continue  # no DCBF filter, so no bound to switch off
-            policy.dcbf_config = replace(  # type: ignore[union-attr,type-var]
-                policy.dcbf_config, neglect_bound=None, neglect_scope="known", territory=()
-            )
-            model.policy_kwargs = {
-                key: value
-                for key, value in model.policy_kwargs.items()
-                if key not in ("neglect_bound", "neglect_scope", "neglect_territory")
-            }
+        self.reset_filter()
+
+    def _restore_acting_rule(self, manifest: Mapping[str, Any]) -> None:
+        """A loaded team's acting rule from its manifest: the temperature, the filter settings it
+        acted under when saved, then its ``deploy_filter`` (checked against the team)."""
+        self._apply_deploy_temperature(self.deploy_temperature)
+        settings = manifest.get("filter_settings") or {}
+        if not isinstance(settings, Mapping):
+            raise InputError(f"manifest filter_settings must be a mapping, got {settings!r}")
+        if settings:
+            self.set_filter(**settings)
+        self._apply_deploy_filter()
 
     # ---------------------------------------------------------- save / load
     def model_files(self) -> dict[str, BaseAlgorithm]:

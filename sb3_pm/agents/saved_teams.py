@@ -55,7 +55,10 @@ def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
         # how the team acts by default (None: argmax); manifests without it load as None
         "deploy_temperature": team.deploy_temperature,
         # the neglect bound it acts under once trained (None: as trained); older manifests load as None
-        "deploy_filter": getattr(team, "deploy_filter", None),
+        "deploy_filter": team.deploy_filter,
+        # the DCBF filter settings it acts under on top of the trained ones (a fixed deploy bound,
+        # or one set with set_filter); older manifests load as none
+        "filter_settings": team.filter_settings,
         "versions": package_versions(),
     }
 

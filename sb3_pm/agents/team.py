@@ -27,7 +27,6 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.utils import get_device, set_random_seed
 
@@ -52,7 +51,6 @@ from sb3_pm.agents.learner_callbacks import (
 from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
 from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_kwargs
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
-from sb3_pm.agents.pruned_inference import PrunedInference
 from sb3_pm.agents.rollout_batching import RolloutBatcher
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
@@ -61,8 +59,7 @@ from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike
 from sb3_pm.policies.policy import check_advice_source
-from sb3_pm.team_interface import Observation, Team
-from sb3_pm.zoo.registry import uses_masks
+from sb3_pm.team_interface import Team
 
 logger = logging.getLogger(__name__)
 
@@ -115,11 +112,7 @@ class IndependentPPO(LearnedTeam):
 
     name = "ippo"
     MANIFEST_FORMAT = "sb3_pm.team/1"
-    #: act deterministically through one stacked forward pass per step where it applies
-    stacked_inference: bool = True
-    #: in that pass, decide from the allowed nodes' logits where that gives the same action
-    #: (:mod:`sb3_pm.agents.pruned_inference`); ``False`` computes every node's logit
-    pruned_inference: bool = True
+    resizable = True
     #: while training, run the learners' rollout passes as one stacked pass per joint step where it
     #: applies (:mod:`sb3_pm.agents.rollout_batching`; the same parameters bit for bit)
     batched_rollouts: bool = True
@@ -151,7 +144,6 @@ class IndependentPPO(LearnedTeam):
     ) -> None:
         self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs, deploy_temperature)
         self._deploy_filter = self._checked_deploy_filter(deploy_filter)
-        self._stacker = PrunedInference()  # the stacked acting pass, pruned to the allowed nodes
         self.verbose = verbose
         self.device = device
         self.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
@@ -409,41 +401,9 @@ class IndependentPPO(LearnedTeam):
             raise InputError(f"no learner for {agent!r}: this team's agents are {self.agents}")
         return self.agents[int(index) % len(self.agents)]
 
-    def predict(
-        self, observations: dict[str, Observation], deterministic: bool | None = None
-    ) -> dict[str, int]:
-        """One destination node per agent in ``observations``, each from its own learner
-        (:meth:`learner_for` maps agents of a team of another size). ``deterministic=None`` follows
-        the team's :attr:`deploy_temperature` (argmax unless the config set one); ``False`` samples
-        at :attr:`sampling_temperature` (the rule's temperature if it has one, else 1 unless
-        :meth:`set_sampling_temperature` said otherwise).
-
-        The actions of DCBF learners come from one stacked forward pass for the whole team
-        (:mod:`sb3_pm.agents.stacked_inference`; the same logits as one pass per agent, bit for
-        bit; sampled actions are then drawn agent by agent, as one pass per agent draws them).
-        Deterministic ones compute only the allowed nodes' logits where that decides the same action
-        (:mod:`sb3_pm.agents.pruned_inference`). Set :attr:`stacked_inference` to ``False`` to run
-        them one by one, :attr:`pruned_inference` to ``False`` to compute every node's logit.
-        """
-        deterministic = self.acts_deterministically(deterministic)
-        if self.stacked_inference:
-            self._stacker.prune = self.pruned_inference
-            stacked = self._stacker.predict(
-                observations, lambda a: self.models[self.learner_for(a)].policy, deterministic
-            )
-            if stacked is not None:
-                return stacked
-        actions: dict[str, int] = {}
-        for agent, obs in observations.items():
-            model = self.models[self.learner_for(agent)]
-            if uses_masks(type(model)):
-                action, _ = model.predict(
-                    obs, deterministic=deterministic, action_masks=np.asarray(obs["action_mask"], dtype=bool)
-                )
-            else:
-                action, _ = model.predict(obs, deterministic=deterministic)
-            actions[agent] = int(np.asarray(action).reshape(-1)[0])
-        return actions
+    def policy_for(self, agent: str) -> Any:
+        """The policy of the learner that acts for ``agent`` (:meth:`learner_for`)."""
+        return self.models[self.learner_for(agent)].policy
 
     def on_graph(self, graph: GraphLike) -> Team:
         """This team on ``graph``: itself on its own graph, else its policies rebuilt for ``graph``
@@ -525,8 +485,7 @@ class IndependentPPO(LearnedTeam):
             if verbose is not None:
                 model.verbose = verbose
             team.models[agent] = model
-        team._apply_deploy_temperature(team.deploy_temperature)
-        team._apply_deploy_filter()  # the zips hold it already; this checks it against the team
+        team._restore_acting_rule(manifest)
         return team
 
     @classmethod

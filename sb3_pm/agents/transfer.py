@@ -27,16 +27,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 import torch as th
 
 from sb3_pm.agents.deployment_rule import DeploymentRule
-from sb3_pm.agents.pruned_inference import PrunedInference
 from sb3_pm.agents.saved_teams import check_same_graph
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.policies.dcbf import SITE_BOUND
-from sb3_pm.team_interface import Observation, Team
+from sb3_pm.team_interface import Team
 
 #: Buffers whose first dimension is the node count and whose rows are identical.
 _PER_NODE_BUFFERS = ("inv_high",)
@@ -114,7 +112,7 @@ def retarget_territories(policies: dict[str, Any], graph: GraphSpec) -> None:
             policies[name].dcbf_config = replace(policies[name].dcbf_config, territory=territory)
 
 
-class TransferredTeam(DeploymentRule, Team):
+class TransferredTeam(DeploymentRule):
     """A trained team's policies rebuilt for another graph; acts like the team it came from.
 
     :ivar source: the trained team (its graph, agents and settings).
@@ -122,13 +120,9 @@ class TransferredTeam(DeploymentRule, Team):
     """
 
     omniscient = False
-    #: as :attr:`IndependentPPO.stacked_inference <sb3_pm.agents.team.IndependentPPO.stacked_inference>`
-    stacked_inference: bool = True
-    #: as :attr:`IndependentPPO.pruned_inference <sb3_pm.agents.team.IndependentPPO.pruned_inference>`
-    pruned_inference: bool = True
+    resizable = True
 
     def __init__(self, source: Any, graph: GraphSpec) -> None:
-        self._stacker = PrunedInference()
         from sb3_pm.envs import persistent_monitoring_v0
 
         self.source, self.graph = source, graph
@@ -145,6 +139,8 @@ class TransferredTeam(DeploymentRule, Team):
             agent: rebuild_policy(source.models[agent].policy, space, action) for agent in self.agents
         }
         retarget_territories(self.policies, graph)
+        # the rebuilt policies act as the source's do: its settings are theirs until changed here
+        self.__dict__["_filter_settings"] = source.filter_settings
         #: how the team acts by default, as the source team's (rebuild_policy kept its temperature)
         self._deploy_temperature = getattr(source, "deploy_temperature", None)
         if (getattr(source, "deploy_filter", None) or {}).get("neglect_bound") == SITE_BOUND:
@@ -160,6 +156,10 @@ class TransferredTeam(DeploymentRule, Team):
         """``{agent: its territory}`` on the graph the team was moved to
         (:meth:`DeploymentRule.set_filter`)."""
         return policy_territories(self.policies, self.graph)
+
+    def policy_for(self, agent: str) -> Any:
+        """The rebuilt policy of the learner that acts for ``agent``."""
+        return self.policies[self.learner_for(agent)]
 
     def learner_for(self, agent: str) -> str:
         """The learner acting for ``agent`` (see :meth:`IndependentPPO.learner_for`)."""
@@ -177,28 +177,6 @@ class TransferredTeam(DeploymentRule, Team):
                 raise InputError(f"{error}; {rebuilt}") from error
         if seed is not None:
             th.manual_seed(seed)
-
-    def predict(
-        self, observations: dict[str, Observation], deterministic: bool | None = None
-    ) -> dict[str, int]:
-        """Each agent's action from its learner's rebuilt policy, through one stacked pass where it
-        applies, as in ``IndependentPPO.predict`` (``None``: the team's :attr:`deploy_temperature`
-        decides)."""
-        deterministic = self.acts_deterministically(deterministic)
-        if self.stacked_inference:
-            self._stacker.prune = self.pruned_inference
-            stacked = self._stacker.predict(
-                observations, lambda a: self.policies[self.learner_for(a)], deterministic
-            )
-            if stacked is not None:
-                return stacked
-        actions: dict[str, int] = {}
-        for agent, obs in observations.items():
-            policy = self.policies[self.learner_for(agent)]
-            mask = np.asarray(obs["action_mask"], dtype=bool)
-            action, _ = policy.predict(obs, deterministic=deterministic, action_masks=mask)
-            actions[agent] = int(np.asarray(action).reshape(-1)[0])
-        return actions
 
 
 def on_graph(team: Any, graph: GraphLike) -> Team:

@@ -32,7 +32,12 @@ def register(subparsers: Any) -> None:
         "--episodes", type=int, default=10, help="episodes per policy, graph and seed (default 10)"
     )
     parser.add_argument("--steps", type=int, default=500, help="episode length K (default 500)")
-    parser.add_argument("--agents", type=int, default=4, help="team size (default 4)")
+    parser.add_argument(
+        "--agents",
+        type=int,
+        default=None,
+        help="team size (default: each trained team's own size, 4 for a rule-based policy)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
     parser.add_argument(

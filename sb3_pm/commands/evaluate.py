@@ -179,7 +179,7 @@ def require_filter(team: Any) -> None:
     """``--neglect-bound`` needs a team with the DCBF filter (a trained DCBF team)."""
     from sb3_pm.errors import UsageError
 
-    if not hasattr(team, "set_filter"):
+    if not team.learned:
         raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
 
 
@@ -201,7 +201,7 @@ def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwar
             f"--neglect-bound auto is a territory bound (calibrated on territory_patrol); "
             f"--neglect-scope {args.neglect_scope} cannot go with it"
         )
-    trained = getattr(team, "n_agents", None)
+    trained = team.n_agents
     if trained is not None and trained != args.agents:
         # The bound keeps the trained team's split (agents that share a learner share its
         # territory), so a calibration on another split would measure other territories.
@@ -227,7 +227,7 @@ def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None 
         team.set_filter(neglect_bound=None)
         return
     if scope is None:  # the team's own scope (its deploy_filter's), else known: said, not implied
-        pending = getattr(team, "site_bound_pending", False)  # deploy_filter auto: a territory bound
+        pending = team.site_bound_pending  # deploy_filter auto: a territory bound
         scope = "territory" if pending else (team.acting_filter() or {}).get("neglect_scope", "known")
     team.set_filter(neglect_bound=bound, neglect_scope=scope)
 
@@ -238,11 +238,11 @@ def apply_temperature(team: Any, temperature: float | None, stochastic: bool = F
     config set another ``deploy_temperature``."""
     from sb3_pm.errors import UsageError
 
-    if stochastic and getattr(team, "deploy_temperature", None) is not None:
+    if stochastic and team.deploy_temperature is not None:
         temperature = 1.0
     if temperature is None:
         return
-    if not hasattr(team, "set_sampling_temperature"):
+    if not team.learned:
         raise UsageError(f"--temperature needs a trained team; {team.name!r} is not one")
     team.set_sampling_temperature(temperature)
 
@@ -284,7 +284,6 @@ def print_summary(result: Any, stream: Any = None) -> None:
 def run(args: argparse.Namespace) -> int:
     from sb3_pm.errors import InputError, UsageError
     from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
-    from sb3_pm.evaluation.teams import team_env_kwargs
     from sb3_pm.graphs import resolve_graph
 
     check_counts(args)
@@ -303,21 +302,21 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
     team = resolve_team(args.policy, graph=graph, device=args.device)
     if args.agents is None:  # a trained team deploys as it was trained unless told otherwise
-        args.agents = getattr(team, "n_agents", None) or DEFAULT_AGENTS
+        args.agents = team.n_agents or DEFAULT_AGENTS
     calibration = None
-    if args.neglect_bound is None and getattr(team, "site_bound_pending", False):
+    if args.neglect_bound is None and team.site_bound_pending:
         args.neglect_bound = BOUND_AUTO  # its deploy_filter: the bound this site allows
         print("the team's deploy_filter is auto: calibrating its territory bound here", file=sys.stderr)
     if args.neglect_bound == BOUND_AUTO:  # the site's own bound, from the team's env settings
-        calibration = resolve_auto_bound(args, team, graph, team_env_kwargs(team))
+        calibration = resolve_auto_bound(args, team, graph, team.env_settings())
     else:
         apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
-    acting_filter = team.acting_filter() if hasattr(team, "acting_filter") else None  # after the flags
-    trained_agents = getattr(team, "n_agents", None)
+    acting_filter = team.acting_filter()  # after the flags
+    trained_agents = team.n_agents
     if trained_agents is not None and trained_agents != args.agents:
-        if not hasattr(team, "learner_for"):
+        if not team.resizable:
             raise UsageError(
                 f"the team in {args.policy} has {trained_agents} agents and cannot be deployed with "
                 f"another number; pass --agents {trained_agents}"
@@ -337,16 +336,16 @@ def run(args: argparse.Namespace) -> int:
                 ),
                 file=sys.stderr,
             )
-    env_kwargs = {**team_env_kwargs(team), **failure_kwargs(args)}
+    env_kwargs = failure_kwargs(args)  # over the team's own env settings (evaluate() adds them)
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     deterministic = acting_rule(args)
-    if args.neglect_bound is None and acting_filter is not None and hasattr(team, "set_filter"):
+    if args.neglect_bound is None and acting_filter is not None:
         print(
             f"the team acts under its deploy_filter: neglect bound {acting_filter['neglect_bound']:g}, scope "
             f"{acting_filter['neglect_scope']} (--neglect-bound off to act without it)",
             file=sys.stderr,
         )
-    own_temperature = getattr(team, "deploy_temperature", None)
+    own_temperature = team.deploy_temperature
     if deterministic is None and own_temperature is not None:
         print(
             f"the team samples its actions at its deploy_temperature {own_temperature:g} "
@@ -369,8 +368,7 @@ def run(args: argparse.Namespace) -> int:
     )
     result.config["graph"] = str(args.graph)
     # evaluate() recorded the bound the team acted under (neglect_bound, neglect_scope), if any
-    counts = acting_filter is not None and hasattr(team, "filter_activity")
-    activity = team.filter_activity() if counts else None  # type: ignore[attr-defined]  # checked
+    activity = team.filter_activity() if acting_filter is not None else None
     if activity is not None:
         result.config["filter_activity"] = activity
     if calibration is not None:

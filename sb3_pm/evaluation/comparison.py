@@ -35,7 +35,6 @@ from sb3_pm.evaluation.statistics import (
     summarize,
     summarize_by_graph,
 )
-from sb3_pm.evaluation.teams import team_env_kwargs
 from sb3_pm.team_interface import Team
 
 SEED_STRIDE = 1000
@@ -139,7 +138,7 @@ def compare(
     graphs: Sequence[str],
     seeds: Sequence[int] = (0,),
     episodes: int = 10,
-    n_agents: int = 4,
+    n_agents: int | None = None,
     max_cycles: int = 500,
     env_kwargs: Mapping[str, Any] | None = None,
     progress: bool | None = False,
@@ -150,7 +149,8 @@ def compare(
 
     :param teams: label -> factory of a fresh team for a graph (a fresh team per graph and seed keeps
         runs independent; a trained team is loaded for, and checked against, that graph).
-        A trained team's own env options (:func:`team_env_kwargs`) apply, then ``env_kwargs``.
+        A trained team's own env settings apply, then ``env_kwargs`` (as in
+        :func:`~sb3_pm.evaluation.evaluate`).
     :param graphs: preset names or ``.graphml`` paths.
     :param seeds: grid seeds (see the module docstring for the env seeds they give).
     :param threads: torch CPU threads while evaluating (see :func:`~sb3_pm.evaluation.evaluate`).
@@ -191,7 +191,7 @@ def compare(
                         episodes=episodes,
                         seed=seed * SEED_STRIDE,
                         max_cycles=max_cycles,
-                        env_kwargs={**team_env_kwargs(team), **dict(env_kwargs or {})},
+                        env_kwargs=env_kwargs,
                         progress=progress,
                         policy_name=label,
                         threads=threads,

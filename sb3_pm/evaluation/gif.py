@@ -15,9 +15,9 @@ from sb3_pm.team_interface import Team
 
 def record_gif(
     team: Team,
-    graph: GraphLike,
+    graph: GraphLike | None,
     path: str | Path,
-    n_agents: int = 4,
+    n_agents: int | None = None,
     seed: int = 0,
     max_cycles: int = 500,
     env_kwargs: Mapping[str, Any] | None = None,
@@ -26,26 +26,26 @@ def record_gif(
 ) -> EpisodeRecord:
     """Play one episode (env seed ``seed``, as episode 0 of ``evaluate(seed=seed)``) and save it.
 
+    ``graph``, ``n_agents`` and ``env_kwargs`` mean what they mean for
+    :func:`~sb3_pm.evaluation.evaluate`: a trained team acts on its own graph, with its own size and
+    in its own env settings unless told otherwise.
+
     :param deterministic: passed to ``team.predict``, as in :func:`~sb3_pm.evaluation.evaluate`
         (``None``: the team's ``deploy_temperature`` decides).
     :return: the episode's record, identical to the one :func:`~sb3_pm.evaluation.evaluate` makes.
     """
-    from sb3_pm.envs import persistent_monitoring_v0
-
     path = Path(path)
     if not path.parent.exists():
         raise FileNotFoundError(f"directory for the GIF does not exist: {path.parent}")
-    if getattr(team, "site_bound_pending", False):  # deploy_filter auto: as evaluate() does
+    graph = team.default_graph() if graph is None else graph
+    spec = resolve_graph(graph)
+    n_agents = (team.n_agents or 4) if n_agents is None else int(n_agents)
+    kwargs = {**team.env_settings(), **dict(env_kwargs or {})}
+    if team.site_bound_pending:  # deploy_filter auto: as evaluate() does
         from sb3_pm.evaluation.neglect_calibration import settle_site_bound
 
-        settle_site_bound(team, resolve_graph(graph), n_agents, dict(env_kwargs or {}), max_cycles)
-    env = persistent_monitoring_v0.parallel_env(
-        graph=resolve_graph(graph),
-        n_agents=n_agents,
-        max_cycles=max_cycles,
-        render_mode="rgb_array",
-        **dict(env_kwargs or {}),
-    )
+        settle_site_bound(team, spec, n_agents, kwargs, max_cycles)
+    env = team.make_env(spec, n_agents=n_agents, max_cycles=max_cycles, render_mode="rgb_array", **kwargs)
     frames: list = []
     try:
         record = run_episode(

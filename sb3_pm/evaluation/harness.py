@@ -144,8 +144,8 @@ def _sample_sd(values: np.ndarray) -> float:
 
 def evaluate(
     team: Team,
-    graph: GraphLike,
-    n_agents: int = 4,
+    graph: GraphLike | None = None,
+    n_agents: int | None = None,
     episodes: int = 10,
     seed: int = 0,
     max_cycles: int = 500,
@@ -163,12 +163,15 @@ def evaluate(
         yet (``site_bound_pending``) gets one first, calibrated here with these ``n_agents``,
         ``env_kwargs`` and ``max_cycles`` (:func:`~sb3_pm.evaluation.neglect_calibration.settle_site_bound`;
         recorded in ``config["neglect_calibration"]``), and keeps it.
-    :param graph: a preset name, a ``.graphml`` path or a :class:`~sb3_pm.graphs.GraphSpec`.
-    :param n_agents: team size.
+    :param graph: a preset name, a ``.graphml`` path or a :class:`~sb3_pm.graphs.GraphSpec`;
+        ``None``: the trained team's own graph.
+    :param n_agents: team size; ``None``: the trained team's own size, else 4.
     :param episodes: number of episodes, at least 1.
     :param seed: episode ``e`` uses env seed ``seed + e`` (see the module docstring).
     :param max_cycles: episode length K.
-    :param env_kwargs: further arguments of the environment (``obs_radius``, ``u_max``, ...).
+    :param env_kwargs: further arguments of the environment (``obs_radius``, ``failure_rate``,
+        ...), over the team's own settings (:meth:`~sb3_pm.team_interface.Team.env_settings`: a
+        trained team acts in the env it was trained in, whichever route evaluates it).
     :param progress: report progress on stderr (:func:`sb3_pm.progress.progress_bar`: a tqdm bar on
         a terminal, a plain line every 30 s elsewhere); ``False`` (default) is silent.
     :param policy_name: the label in reports; defaults to ``team.name``.
@@ -188,7 +191,6 @@ def evaluate(
         ``None`` (default) records nothing.
     :raises ValueError: for ``episodes < 1``, ``threads < 1`` or bad environment arguments.
     """
-    from sb3_pm.envs import persistent_monitoring_v0
 
     if episodes < 1:
         raise InputError(f"episodes must be at least 1, got {episodes}")
@@ -198,17 +200,19 @@ def evaluate(
         raise InputError(
             f"settle_since must be in [0, {max_cycles}) for {max_cycles}-step episodes, got {settle_since}"
         )
+    graph = team.default_graph() if graph is None else graph
+    if graph is None:
+        raise InputError(f"evaluate needs a graph for {team.name!r}")
     spec = resolve_graph(graph)
+    n_agents = (team.n_agents or 4) if n_agents is None else int(n_agents)
     deterministic = team.acts_deterministically(deterministic)
-    kwargs = dict(env_kwargs or {})
+    kwargs = {**team.env_settings(), **dict(env_kwargs or {})}
     calibration = None
-    if getattr(team, "site_bound_pending", False):  # deploy_filter auto, no bound for this site yet
+    if team.site_bound_pending:  # deploy_filter auto, no bound for this site yet
         from sb3_pm.evaluation.neglect_calibration import settle_site_bound
 
         calibration = settle_site_bound(team, spec, n_agents, kwargs, max_cycles)
-    env = persistent_monitoring_v0.parallel_env(
-        graph=spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs
-    )
+    env = team.make_env(spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs)
     records: list[EpisodeRecord] = []
     bar = _progress_bar(
         episodes * max_cycles, progress, f"{policy_name or team.name} on {graph_label(graph)}"
@@ -243,13 +247,8 @@ def evaluate(
         "env_kwargs": kwargs,
         "deterministic": deterministic,
     }
-    temperature = getattr(team, "sampling_temperature", None)
-    if not deterministic and temperature is not None:  # what the learned team sampled at
-        config["temperature"] = temperature
-    acting_filter = getattr(team, "acting_filter", None)
-    bound = acting_filter() if callable(acting_filter) else None
-    if bound is not None:  # the neglect bound the learned team acted under (rule 8)
-        config["neglect_bound"], config["neglect_scope"] = bound["neglect_bound"], bound["neglect_scope"]
+    # what a learned team sampled at, and the neglect bound it acted under (rule 8)
+    config.update(team.acting_record(deterministic))
     if calibration is not None:  # how its deploy_filter auto found that bound (or none) here
         config["neglect_calibration"] = calibration.to_dict()
     return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)

@@ -77,7 +77,7 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
         # Another graph: load the team on its own, then rebuild its policies for this one, or
         # refuse with the reason (sb3_pm.agents.transfer).
         team = team_class.load(path, device=device)
-        if not hasattr(team, "on_graph"):
+        if team_class is CentralizedPPO:
             raise InputError(
                 f"the team was trained on graph {team.graph.name!r}; "
                 "a centralized team cannot act on another graph"
@@ -85,18 +85,6 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
         return team.on_graph(graph)  # type: ignore[no-any-return]
     except (FileNotFoundError, ValueError) as error:
         raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
-
-
-def team_env_kwargs(team: Team) -> dict[str, Any]:
-    """The environment options a trained team was trained with (``{}`` for a baseline).
-
-    A learned team is evaluated in the env it was trained in (observation radius, map mode, ...);
-    the episode length and the graph remain the caller's choice.
-    """
-    kwargs = dict(getattr(team, "env_kwargs", None) or {})
-    for key in ("graph", "n_agents", "max_cycles", "render_mode"):
-        kwargs.pop(key, None)
-    return kwargs
 
 
 def policy_label(policy: str | Path, team: Team) -> str:

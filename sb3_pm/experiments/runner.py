@@ -345,6 +345,8 @@ def run_cell(cell: Cell) -> dict[str, Any]:
     """Train (if learned) and evaluate one cell; write ``evaluation.json`` and then ``DONE``."""
     import torch
 
+    from sb3_pm.agents.learned_team import LearnedTeam
+
     torch.set_num_threads(1)  # one job per core: threads inside a job would oversubscribe
     folder = Path(cell.folder)
     if cell.done:
@@ -356,10 +358,10 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         from sb3_pm.evaluation.teams import load_trained_team
 
         team = load_trained_team(Path(cell.team_folder) / "team", graph=cell.graph, device=cell.device)
-        env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}  # type: ignore[attr-defined]
+        env_kwargs: dict[str, Any] = {}  # the team's own settings: evaluate() applies them
     elif variant.learned:
         team = _load_finished_team(folder / "team", cell.device) or _train(cell, variant, folder)
-        env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}
+        env_kwargs = {}
     else:
         from sb3_pm.baselines import make_team
 
@@ -374,7 +376,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         # an earlier run or copied in, whose manifest may hold another.
         config = cell_config(cell, variant)
         team.deploy_temperature = config.deploy_temperature
-        if hasattr(team, "deploy_filter"):  # a trained team; a transferred one keeps its source's
+        if isinstance(team, LearnedTeam):  # a transferred team keeps its source's
             team.deploy_filter = config.deploy_filter
     result = evaluate(
         team,

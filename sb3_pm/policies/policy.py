@@ -241,6 +241,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             str(neglect_scope),
             tuple(int(node) for node in neglect_territory),
         )
+        #: The filter as built from the constructor: a deployed team acts under it with its own
+        #: settings on top (``DeploymentRule.set_filter``), and ``reset_filter`` restores it.
+        self.trained_dcbf_config = self.dcbf_config
         #: Masks the filter computed with rule 8 (the neglect bound) on, and how many it forced: a
         #: diagnostic read by ``DeploymentRule.filter_activity()``, never saved. ``forced`` is summed
         #: as a tensor, so counting costs no device synchronisation per forward pass.

@@ -19,7 +19,6 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.utils import set_random_seed
 
 from sb3_pm.agents.learned_team import LearnedTeam
@@ -30,8 +29,6 @@ from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec
 from sb3_pm.policies.policy import check_advice_source
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
-from sb3_pm.team_interface import Observation
-from sb3_pm.zoo.registry import uses_masks
 
 MANIFEST_FORMAT = "sb3_pm.centralized/1"
 MODEL_FILE = "shared.zip"
@@ -54,6 +51,8 @@ class CentralizedPPO(LearnedTeam):
 
     name = "centralized"
     MANIFEST_FORMAT = MANIFEST_FORMAT
+    shares_one_network = True
+    resizable = False
     accepts_deploy_filter = False  # its learn() trains through whatever filter it acts under
     omniscient = False  # it sees only what its agents observe, pooled
 
@@ -170,24 +169,9 @@ class CentralizedPPO(LearnedTeam):
         if not getattr(getattr(env, "unwrapped", env), "shared_map", True):
             raise InputError("a centralized team needs an env with shared_map=True (its env_kwargs)")
 
-    def predict(
-        self, observations: dict[str, Observation], deterministic: bool | None = None
-    ) -> dict[str, int]:
-        """One batched forward pass of the shared network for every agent (``deterministic=None``:
-        the team's :attr:`deploy_temperature` decides)."""
-        deterministic = self.acts_deterministically(deterministic)
-        agents = list(observations)
-        batch = {
-            key: np.stack([np.asarray(observations[a][key]) for a in agents])
-            for key in observations[agents[0]]
-        }
-        if uses_masks(type(self.model)):
-            actions, _ = self.model.predict(
-                batch, deterministic=deterministic, action_masks=batch["action_mask"].astype(bool)
-            )
-        else:
-            actions, _ = self.model.predict(batch, deterministic=deterministic)
-        return {agent: int(action) for agent, action in zip(agents, np.asarray(actions).reshape(-1))}
+    def policy_for(self, agent: str) -> Any:
+        """The one shared policy: it acts for every agent, in one batch (:attr:`shares_one_network`)."""
+        return self.model.policy
 
     def model_files(self) -> dict[str, Any]:
         """The one shared model."""
@@ -214,7 +198,7 @@ class CentralizedPPO(LearnedTeam):
             _init_model=False,
         )
         team.model = load_model_file(team.algo_class, folder / MODEL_FILE, env=team.venv, device=device)
-        team._apply_deploy_temperature(team.deploy_temperature)
+        team._restore_acting_rule(manifest)
         return team
 
     def close(self) -> None:
