@@ -446,12 +446,12 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
             )
         if not isinstance(overrides, dict):
             raise ConfigError(f"{where}.agents.{agent}: expected a mapping of hyperparameters")
+        check_removed(overrides, f"{where}.agents.{agent}")
         forbidden = sorted(set(overrides) & AGENT_FORBIDDEN)
         if forbidden:
             raise ConfigError(
                 f"{where}.agents.{agent}: {forbidden[0]!r} is set for the whole team, not per agent"
             )
-        check_removed(overrides, f"{where}.agents.{agent}")
         agents[agent] = _hyperparams(overrides, allowed, f"{where}.agents.{agent}", set())
 
     config = TrainConfig(
