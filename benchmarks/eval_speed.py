@@ -2,7 +2,6 @@
 
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
-                                    [--arithmetic default csr allowed fast]
                                     [--inference serial full stacked] [--team DIR]
                                     [--devices cpu cuda]
 
@@ -10,8 +9,7 @@ For each graph, builds a 4-agent team from the config (untrained: its forward pa
 trained team's do) and times ``evaluate`` with each torch thread count, in episodes per second of
 ``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
-``--arithmetic`` runs the policy with other kernels (``csr``, ``allowed``, ``fast``; see
-``benchmarks/train_speed.py``), for before/after ratios in one run. ``--inference`` times the team
+``--inference`` times the team
 acting one forward pass per agent (``serial``, the earlier releases' path), one stacked pass for the
 whole team computing every node's logit (``full``, :mod:`sb3_pm.agents.stacked_inference`), and that
 pass deciding from the allowed nodes' logits where the margin allows (``stacked``, the default,
@@ -40,8 +38,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from train_speed import ARITHMETIC  # the same --arithmetic choices (benchmarks/ is the script's path)
-
 
 def evaluation_speed(
     graph: str,
@@ -50,7 +46,6 @@ def evaluation_speed(
     steps: int,
     threads: int,
     repeats: int,
-    arithmetic: str = "default",
     inference: str = "stacked",
     team_path: str | None = None,
     device: str = "cpu",
@@ -70,8 +65,7 @@ def evaluation_speed(
         team = load_trained_team(team_path, graph=graph, device=device)
         env_kwargs = {k: v for k, v in team.env_kwargs.items() if k != "max_cycles"}  # type: ignore[attr-defined]
     else:
-        overrides = {"policy_kwargs": ARITHMETIC[arithmetic]}
-        entry = load_config(config, graph, overrides=overrides)
+        entry = load_config(config, graph)
         team = IndependentPPO.from_config(entry, graph, seed=0, device=device)
         env_kwargs = {}
     team.stacked_inference = inference != "serial"  # type: ignore[attr-defined]
@@ -126,7 +120,6 @@ def main() -> None:
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gif-frames", type=int, default=500)
-    parser.add_argument("--arithmetic", nargs="+", choices=list(ARITHMETIC), default=["default"])
     parser.add_argument(
         "--inference", nargs="+", choices=["serial", "full", "stacked"], default=["serial", "full", "stacked"]
     )
@@ -142,12 +135,12 @@ def main() -> None:
     team = f"the saved team {args.team}" if args.team else f"an untrained 4-agent team ({args.config})"
     print(f"{team}, {args.episodes} episodes of {args.steps} steps per timed run")
     print(
-        "| graph | device | arithmetic | inference | torch threads | episodes/s | seconds per episode "
+        "| graph | device | inference | torch threads | episodes/s | seconds per episode "
         "| × serial | steps decided pruned |"
     )
-    print("|---|---|---|---|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|---:|")
     for graph in args.graphs:
-        for device, arithmetic, threads in itertools.product(args.devices, args.arithmetic, args.threads):
+        for device, threads in itertools.product(args.devices, args.threads):
             serial = None
             for inference in args.inference:
                 rate, share = evaluation_speed(
@@ -157,7 +150,6 @@ def main() -> None:
                     args.steps,
                     threads,
                     args.repeats,
-                    arithmetic,
                     inference,
                     args.team,
                     device,
@@ -165,7 +157,7 @@ def main() -> None:
                 serial = rate if inference == "serial" else serial
                 ratio = f"{rate / serial:.2f}" if serial else "—"
                 pruned = f"{share:.1%}" if share is not None else "—"
-                row = f"| {graph} | {device} | {arithmetic} | {inference} | {threads} | {rate:.3f}"
+                row = f"| {graph} | {device} | {inference} | {threads} | {rate:.3f}"
                 row += f" | {1 / rate:.2f}"
                 print(f"{row} | {ratio} | {pruned} |", flush=True)
     if args.gif_frames > 0:

@@ -3,7 +3,6 @@
     python benchmarks/train_speed.py [--timesteps 1000] [--graphs paper-50 paper-200] [--algo dcbf_ppo]
                                      [--config ippo] [--repeats 1] [--threads 2] [--profile]
                                      [--updates side-by-side serial] [--rollouts stacked serial]
-                                     [--arithmetic default csr allowed fast fast-sparse sparse]
                                      [--devices cpu cuda] [--attention batch map]
                                      [--agents 4] [--update-slots auto all]
 
@@ -26,15 +25,6 @@ runs (the CPU may be shared; the load average is printed).
 ``IndependentPPO.batched_rollouts``: one stacked pass per joint step for all learners,
 :mod:`sb3_pm.agents.rollout_batching`) and/or ``serial`` (each learner its own pass); both give the
 same parameters, so listing both measures the gain.
-
-``--arithmetic`` picks the policy's kernels, one or more of: ``default``; ``csr``
-(``gat_sparse_kernel: csr``: sparse matrix products for sparse minibatches; graphs of up to 64
-nodes never run the sparse kernel, so there it equals ``default``); ``allowed`` (``actor_nodes:
-allowed``: the actor head on the allowed nodes only); ``fast`` (both); ``fast-sparse`` (both,
-and ``gat_backend: sparse``, so that every minibatch runs the CSR kernel); ``sparse`` (the CSR
-kernel on every minibatch, the actor on every node). All compute the same
-function, but rounding differs and training turns it into different teams, so neither option is
-the default (docs/RESULTS.md, "Faster arithmetic"). Listing several gives the ratios in one run.
 
 ``--devices`` trains the team's learners on each torch device listed, for the ratios in one run:
 ``cpu``, ``cuda``, or ``cpu+cuda`` (rollouts on the CPU, each update phase on the GPU:
@@ -91,17 +81,6 @@ from typing import Any
 import torch as th
 
 _PHASES_LOCK = threading.Lock()
-
-
-#: Policy kwargs of each ``--arithmetic`` choice: the same function computed by other kernels.
-ARITHMETIC: dict[str, dict[str, str]] = {
-    "default": {},
-    "csr": {"gat_sparse_kernel": "csr"},
-    "allowed": {"actor_nodes": "allowed"},
-    "fast": {"gat_sparse_kernel": "csr", "actor_nodes": "allowed"},
-    "fast-sparse": {"gat_sparse_kernel": "csr", "actor_nodes": "allowed", "gat_backend": "sparse"},
-    "sparse": {"gat_sparse_kernel": "csr", "gat_backend": "sparse"},
-}
 
 
 def _timed(phases: dict[str, float], name: str, method: Callable[..., Any]) -> Callable[..., Any]:
@@ -183,7 +162,6 @@ def team_speed(
     profile: bool = False,
     n_epochs: int | None = None,
     concurrent: bool = True,
-    arithmetic: str = "default",
     rollouts: str = "stacked",
     device: str = "cpu",
     attention_rule: str = "batch",
@@ -211,9 +189,6 @@ def team_speed(
         options["hyperparams"] = {**options["hyperparams"], "n_epochs": n_epochs}
     if options["algo"] != "dcbf_ppo":  # policy_kwargs of the DCBF policy mean nothing to others
         options["hyperparams"].pop("policy_kwargs", None)
-    else:
-        kwargs = options["hyperparams"].get("policy_kwargs", {})
-        options["hyperparams"]["policy_kwargs"] = {**kwargs, **ARITHMETIC[arithmetic]}
     rollout_device, _, update_device = device.partition("+")
     team = IndependentPPO(graph, seed=0, concurrent_updates=concurrent, device=rollout_device, **options)
     team.update_device = update_device or None
@@ -297,13 +272,6 @@ def main() -> None:
         help="how the learners' rollout passes run (default stacked; give both to compare)",
     )
     parser.add_argument(
-        "--arithmetic",
-        nargs="+",
-        choices=list(ARITHMETIC),
-        default=["default"],
-        help="the policy's kernels (default: default; give several for before/after ratios)",
-    )
-    parser.add_argument(
         "--devices",
         nargs="+",
         default=["cpu"],
@@ -348,12 +316,11 @@ def main() -> None:
             args.devices,
             args.updates,
             args.rollouts,
-            args.arithmetic,
             args.attention,
             args.update_slots,
             args.n_epochs,
         )
-        for device, mode, rollouts, arithmetic, attention_rule, slots, epochs in combinations:
+        for device, mode, rollouts, attention_rule, slots, epochs in combinations:
             runs = [
                 team_speed(
                     graph,
@@ -365,7 +332,6 @@ def main() -> None:
                     args.profile,
                     n_epochs=epochs,
                     concurrent=mode == "side-by-side",
-                    arithmetic=arithmetic,
                     rollouts=rollouts,
                     device=device,
                     attention_rule=attention_rule,
@@ -384,7 +350,7 @@ def main() -> None:
             rule = "" if args.attention == ["batch"] else f", attention {attention_rule}"
             rule += "" if args.update_slots == ["auto"] else f", update slots {slots}"
             rule += "" if epochs is None else f", n_epochs {epochs}"
-            options = f"{args.algo or 'config'}, {updates}, {rollouts}, {arithmetic}{where}{rule}"
+            options = f"{args.algo or 'config'}, {updates}, {rollouts}{where}{rule}"
             label = f"team {graph} ({options})"
             print(
                 f"{label:<74} {speed:>10.0f} agent-steps/s   {speed / cartpole:.3f}x CartPole   "

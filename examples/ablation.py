@@ -28,7 +28,7 @@ from sb3_pm import IndependentPPO
 from sb3_pm.evaluation import anova_text, evaluate, markdown_table, summarize
 from sb3_pm.evaluation.statistics import anova
 
-FLAGS = ("use_dcbf", "use_estimator", "avoid_collisions", "extra_attention")
+FLAGS = ("use_dcbf", "use_estimator", "avoid_collisions")
 
 
 def main() -> None:

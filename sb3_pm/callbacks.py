@@ -5,17 +5,12 @@ estimator (docs/METHOD.md "Estimator loss", paper eq. 3) on each rollout's own t
 estimator's own optimizer. :class:`~sb3_pm.ppo_dcbf.DCBFPPO` attaches it automatically, so a plain
 ``model.learn()`` needs no glue.
 
-When the fit happens (``update_at``):
-
-* ``"after_train"`` (default): the pairs are taken from the buffer at ``on_rollout_end`` but the
-  estimator is fitted only after PPO's ``train()`` on that same rollout (at the next
-  ``on_rollout_start``, or ``on_training_end`` for the last rollout). ``û`` is an *input* of the
-  actor, so changing the estimator between collection and ``train()`` would change the policy
-  that PPO's ratio compares against the stored log-probabilities; fitting afterwards keeps the
-  first-epoch ratio at exactly 1, as PPO assumes. Every rollout is still used exactly once.
-* ``"rollout_end"``: fit at ``on_rollout_end`` (before ``train()``), the literal reading of the
-  paper. The DCBF masks are unaffected either way (they are stored), but PPO's ratio is then
-  slightly off-policy at the first epoch.
+When the fit happens: the pairs are taken from the buffer at ``on_rollout_end`` but the estimator
+is fitted only after PPO's ``train()`` on that same rollout (at the next ``on_rollout_start``, or
+``on_training_end`` for the last rollout). ``û`` is an *input* of the actor, so changing the
+estimator between collection and ``train()`` would change the policy that PPO's ratio compares
+against the stored log-probabilities; fitting afterwards keeps the first-epoch ratio at exactly 1,
+as PPO assumes. Every rollout is still used exactly once.
 """
 
 from __future__ import annotations
@@ -27,30 +22,22 @@ import torch as th
 from sb3_contrib.common.maskable.buffers import MaskableDictRolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_pm.errors import InputError
 from sb3_pm.policies.estimator import transition_pairs
 
 if TYPE_CHECKING:
     from sb3_pm.policies.policy import DCBFActorCriticPolicy
 
-UPDATE_AT = ("after_train", "rollout_end")
-
-
 class EstimatorCallback(BaseCallback):
     """Fit the policy's state estimator on each rollout's ``(M_{k-1}, M_k)`` pairs; log ``estimator/loss``.
 
-    Hyperparameters (``estimator_epochs``, ``estimator_batch_size``, ``estimator_target``) are read
-    from the policy, so that they travel with its saved kwargs.
+    Hyperparameters (``estimator_epochs``, ``estimator_batch_size``) are read from the policy, so
+    that they travel with its saved kwargs.
 
-    :param update_at: ``"after_train"`` (default) or ``"rollout_end"``, see the module docstring.
     :param verbose: verbosity level.
     """
 
-    def __init__(self, update_at: str = "after_train", verbose: int = 0) -> None:
+    def __init__(self, verbose: int = 0) -> None:
         super().__init__(verbose)
-        if update_at not in UPDATE_AT:
-            raise InputError(f"update_at must be one of {UPDATE_AT}, got {update_at!r}")
-        self.update_at = update_at
         self._pending: tuple[np.ndarray, np.ndarray] | None = None
         #: the generator of the minibatch orders (``None``: torch's global one). A team learner
         #: that updates next to others is given its own, holding its random stream.
@@ -69,10 +56,7 @@ class EstimatorCallback(BaseCallback):
             np.asarray(self.model._last_obs["nodes"]),  # type: ignore[index, call-overload]
             np.asarray(self.model._last_episode_starts),
         )
-        if self.update_at == "rollout_end":
-            self.fit(*pairs)
-        else:
-            self._pending = pairs  # boolean indexing copied them: the next rollout cannot overwrite them
+        self._pending = pairs  # boolean indexing copied them: the next rollout cannot overwrite them
 
     def _on_rollout_start(self) -> None:
         self._fit_pending()
@@ -104,7 +88,7 @@ class EstimatorCallback(BaseCallback):
                 order = th.randperm(len(prev_t), generator=self.generator).to(device)
             for start in range(0, len(order), batch_size):
                 idx = order[start : start + batch_size]
-                loss = estimator.loss(prev_t[idx], curr_t[idx], policy.estimator_target)
+                loss = estimator.loss(prev_t[idx], curr_t[idx])
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()

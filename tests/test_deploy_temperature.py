@@ -236,7 +236,7 @@ def test_a_rule_for_learners_without_the_dcbf_policy_is_refused_and_leaves_the_t
 
 
 def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> None:
-    """Only known_map_family, known_map_eigen, transfer_territory's and transfer_advice's variants
+    """Only known_map_family, transfer_territory's and transfer_advice's variants
     and the regimes' transfer rows (zoo/ippo_transfer.yml's own rule) sample; the other transfer
     files pin the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
@@ -246,7 +246,6 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
     rules = {name: deploy_rules(load_experiment(name)) for name in shipped_names(EXPERIMENT_DIR)}
     assert {name: rule for name, rule in rules.items() if rule} == {
         "transfer_known_map": {"known_map_family": 0.25},
-        "transfer_eigen": {"known_map_eigen": 0.25},
         "transfer_territory": {"known_map_territory": 0.25, "known_map_territory_family": 0.25},
         "transfer_advice": {"advice_prior": 0.25, "advice_prior_family": 0.25, "advice": 0.25},
         "regime_100": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},

@@ -480,7 +480,6 @@ def test_untrained_variant_evaluates_the_initial_policy(
         ("improved_barrier", ("policy_kwargs", "dcbf_barrier", True)),
         ("improved_freeze10", ("policy_kwargs", "freeze_steps", 10)),
         ("improved_collisions_allowed", ("policy_kwargs", "avoid_collisions", False)),
-        ("improved_derived", ("policy_kwargs", "derived_features", True)),
         ("improved", None),
     ],
 )
@@ -688,14 +687,7 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert radius["radius_1"].env_kwargs == {"obs_radius": 1}  # the default's own value
     assert radius["radius_2"].env_kwargs == {"obs_radius": 2}
     assert not radius["radius_2"].hyperparams and not radius["radius_2"].policy_kwargs
-    crowding = _variants("crowding_reward")
     default_reward = REWARD_BEFORE_TERRITORY  # the default's reward when these were measured
-    for key, weight in (("crowding_0002", 0.002), ("crowding_0008", 0.008)):
-        assert crowding[key].env_kwargs == {"reward": {**default_reward, "crowding": weight}}
-        assert not crowding[key].hyperparams and not crowding[key].policy_kwargs
-    urgency = _variants("urgency_reward")["urgency_004"]
-    assert urgency.env_kwargs == {"reward": {**default_reward, "urgency": 0.04}}
-    assert not urgency.hyperparams and not urgency.policy_kwargs
     collision = _variants("collision_reward")["collision_001"]
     assert collision.env_kwargs == {"reward": {**default_reward, "collision": 0.01}}
     assert not collision.hyperparams and not collision.policy_kwargs
@@ -714,25 +706,6 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert transfer_known["known_map"].env_kwargs == {**known["known_map"].env_kwargs, **before_territory}
     assert transfer_known["known_map"].config is None
     assert transfer_known["known_map"].policy_kwargs == {"advice_prior": 0.0}  # pinned: no prior
-    derived = _variants("derived_features")
-    assert not derived["default"].policy_kwargs and not derived["default"].hyperparams
-    assert derived["derived"].policy_kwargs == {"derived_features": True}
-    assert not derived["derived"].hyperparams and derived["derived"].timesteps is None
-
-
-def test_transfer_features_trains_the_transfer_config_with_one_flag(tmp_path: Path) -> None:
-    """The transfer_features team is zoo/ippo_transfer.yml plus derived features, trained once per
-    seed on paper-50 and deployed on its own graph and the held-out suite of zero_shot.yml."""
-    experiment = load_experiment(ZOO / "experiments" / "transfer_features.yml")
-    zero_shot = load_experiment(ZOO / "experiments" / "zero_shot.yml")
-    assert set(zero_shot.graphs) < set(experiment.graphs) and "paper-50" in experiment.graphs
-    derived = {v.key: v for v in experiment.variants}["derived"]
-    assert derived.train_env == "paper-50"
-    assert derived.policy_kwargs == {"derived_features": True, "advice_prior": 0.0}
-    learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline"]
-    assert {c.graph for c in learned} == set(experiment.graphs)
-    for cell in learned:
-        assert cell.team_folder is not None  # one team per seed, deployed zero-shot on every graph
 
 
 #: The experiment files built on zoo/ippo_transfer.yml, with the map knowledge, territory
@@ -743,9 +716,7 @@ AUTO = {"neglect_bound": "auto", "neglect_scope": "territory"}
 TRANSFER_EXPERIMENTS = [
     ("zero_shot", "discovered", False, set(), {}, None),
     ("zero_shot_scaling", "discovered", False, set(), {}, None),
-    ("transfer_features", "discovered", False, set(), {}, None),
     ("transfer_known_map", "known", False, set(), {}, None),
-    ("transfer_eigen", "known", False, set(), {}, None),
     ("transfer_territory", "known", True, set(), {}, None),
     (
         "regime_100",

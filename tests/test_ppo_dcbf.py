@@ -14,7 +14,6 @@ from stable_baselines3.common.utils import obs_as_tensor
 
 from sb3_pm.callbacks import EstimatorCallback
 from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
-from sb3_pm.errors import InputError
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.ppo_dcbf import DCBFPPO
 
@@ -58,8 +57,6 @@ ABLATIONS = [
     {"use_dcbf": False, "use_estimator": False},
     {"avoid_collisions": True},
     {"dcbf_barrier": False, "avoid_collisions": True},
-    {"extra_attention": True},
-    {"estimator_target": "observed", "laplacian": "eigen"},
     {"laplacian": "none", "gamma_threshold": 5.0, "gat_backend": "sparse"},
 ]
 
@@ -200,12 +197,12 @@ def test_same_seed_same_parameters() -> None:
 
 
 def test_save_load_round_trip(tmp_path: Path) -> None:
-    model = make_model(avoid_collisions=True, extra_attention=True, dcbf_barrier=False)
+    model = make_model(avoid_collisions=True, dcbf_barrier=False)
     model.learn(32)
     path = tmp_path / "dcbf.zip"
     model.save(path)
     loaded = DCBFPPO.load(path, env=make_env())
-    assert loaded.policy.avoid_collisions and loaded.policy.extra_attention
+    assert loaded.policy.avoid_collisions
     assert not loaded.policy.dcbf_config.barrier
     env = make_env()
     obs, _ = env.reset(seed=5)
@@ -225,40 +222,4 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
 def test_rejects_a_policy_without_dcbf() -> None:
     with pytest.raises(ValueError, match="MlpPolicy"):
         DCBFPPO("MlpPolicy", make_env())
-    with pytest.raises(ValueError, match="estimator_update_at"):
-        DCBFPPO("DCBFPolicy", make_env(), estimator_update_at="never")
 
-
-def test_the_entropy_coefficient_decays_to_ent_coef_final_and_stays_put_without_it() -> None:
-    seen: list[float] = []
-
-    class Record(BaseCallback):
-        def _on_rollout_end(self) -> None:  # before each train(): the coefficient of the last one
-            seen.append(float(self.model.ent_coef))
-
-        def _on_step(self) -> bool:
-            return True
-
-    def one_epoch_model(**kwargs: Any) -> DCBFPPO:
-        return DCBFPPO(
-            "DCBFPolicy",
-            make_env(),
-            n_steps=16,
-            batch_size=16,
-            n_epochs=1,
-            seed=0,
-            policy_kwargs=SMALL,
-            **kwargs,
-        )
-
-    model = one_epoch_model(ent_coef=0.02, ent_coef_final=0.0)
-    model.learn(16 * 5, callback=Record())
-    used = [*seen[1:], float(model.ent_coef)]  # the coefficient each of the 5 updates used
-    # progress remaining after rollout k of 5 is 1 - k/5: 0.016, 0.012, ..., 0.0
-    assert used == pytest.approx([0.02 * (1 - k / 5) for k in range(1, 6)])
-    plain = one_epoch_model(ent_coef=0.02)
-    plain.learn(16 * 2)
-    assert plain.ent_coef == 0.02
-    for bad in (-0.1, float("nan"), True, "0"):
-        with pytest.raises(InputError, match="ent_coef_final must be"):
-            DCBFPPO("DCBFPolicy", make_env(), policy_kwargs=SMALL, ent_coef_final=bad)

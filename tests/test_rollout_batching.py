@@ -95,7 +95,7 @@ FAMILY = ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="sm
     "options",
     [
         {},
-        {"laplacian": "eigen", "gat_heads": 2},
+        {"gat_heads": 2},
         {"use_estimator": False},
         {"hidden_dim": 32, "gat_layers": 3},
         {"dcbf_barrier": True, "freeze_steps": 10},
@@ -108,7 +108,7 @@ FAMILY = ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="sm
     ],
     ids=[
         "small",
-        "eigen-2-heads",
+        "2-heads",
         "no-estimator",
         "wide-3-layers",
         "barrier",

@@ -56,12 +56,6 @@ def test_a_transferable_team_acts_legally_on_graphs_of_other_sizes(saved_transfe
     assert result.mean["steps"] == 30
 
 
-def test_eigen_encoding_transfers_too() -> None:
-    team = small_team("eigen").on_graph("paper-50")
-    assert isinstance(team, TransferredTeam)
-    evaluate(team, "paper-50", n_agents=2, episodes=1, max_cycles=10)
-
-
 def test_on_its_own_graph_the_team_is_itself(saved_transferable: Path) -> None:
     team = IndependentPPO.load(saved_transferable)
     assert team.on_graph(TRAIN_GRAPH) is team

@@ -6,6 +6,7 @@ import textwrap
 
 import pytest
 import torch as th
+import yaml
 from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_pm.agents.team import IndependentPPO
@@ -254,3 +255,84 @@ def test_the_default_config_staggers_its_learners() -> None:
         0.000891,
         0.000707,
     ]
+
+
+#: One setting per removed research switch, as a config writes it: (where, key, value).
+REMOVED = [
+    ("policy_kwargs", "extra_attention", True),
+    ("policy_kwargs", "derived_features", True),
+    ("policy_kwargs", "estimator_target", "observed"),
+    ("policy_kwargs", "actor_nodes", "allowed"),
+    ("policy_kwargs", "gat_sparse_kernel", "csr"),
+    ("policy_kwargs", "laplacian", "eigen"),
+    (None, "ent_coef_final", 0.0),
+    (None, "estimator_update_at", "rollout_end"),
+    ("reward", "crowding", 0.002),
+    ("reward", "urgency", 0.04),
+    ("reward", "neglect", 0.02),
+]
+
+
+def _setting(where: str | None, key: str, value: object) -> dict:
+    if where is None:
+        return {key: value}
+    if where == "reward":
+        return {"env_kwargs": {"reward": {"clearing": 0.04, key: value}}}
+    return {where: {key: value}}
+
+
+def _removed_name(where: str | None, key: str, value: object) -> str:
+    if where == "reward":
+        return f"reward: {key}"
+    return f"laplacian: {value}" if key == "laplacian" else key
+
+
+@pytest.mark.parametrize(("where", "key", "value"), REMOVED, ids=[key for _, key, _ in REMOVED])
+def test_a_removed_research_switch_is_one_line_naming_the_tag(tmp_path, where, key, value) -> None:
+    """Every path that reads a config (a YAML entry, an agent's overrides, a command-line override,
+    a team's Python kwargs, an experiment's variant) refuses the switch in one line that names it
+    and the research snapshot tag that still has it."""
+    from sb3_pm.errors import InputError
+    from sb3_pm.experiments.spec import load_experiment
+    from sb3_pm.zoo.config import REMOVED_KEYS
+
+    name = _removed_name(where, key, value)
+    assert name in REMOVED_KEYS
+    setting = _setting(where, key, value)
+    entry = {"algo": "dcbf_ppo", "n_agents": 2, "n_steps": 16, **setting}
+    path = tmp_path / "removed.yml"
+    path.write_text(yaml.safe_dump({"default": entry}))
+    per_agent = tmp_path / "per_agent.yml"
+    per_agent.write_text(
+        yaml.safe_dump({"default": {"algo": "dcbf_ppo", "n_agents": 2, "agents": {"agent_1": setting}}})
+    )
+    experiment = tmp_path / "experiment.yml"
+    experiment.write_text(
+        yaml.safe_dump(
+            {
+                "name": "removed",
+                "graphs": ["paper-50"],
+                "seeds": [0],
+                "config": str(path.parent / "ok.yml"),
+                "variants": {"v": setting if where is not None else {"hyperparams": setting}},
+            }
+        )
+    )
+    (tmp_path / "ok.yml").write_text(yaml.safe_dump({"default": {"algo": "dcbf_ppo"}}))
+    hyperparams = {k: v for k, v in setting.items() if k != "env_kwargs"}
+    env_kwargs = setting.get("env_kwargs")
+    calls = [
+        lambda: load_config(path, "paper-50"),
+        lambda: load_config(per_agent, "paper-50"),
+        lambda: load_config(tmp_path / "ok.yml", "paper-50", overrides=setting),
+        lambda: load_experiment(experiment),
+        lambda: IndependentPPO(
+            erdos_renyi(8, 0.4, n_targets=2, seed=0), n_agents=2, hyperparams=hyperparams, env_kwargs=env_kwargs
+        ),
+    ]
+    for call in calls:
+        with pytest.raises(InputError) as info:
+            call()
+        message = str(info.value)
+        assert "\n" not in message
+        assert repr(name) in message and "was removed" in message and "v0.1.0-research" in message

@@ -45,14 +45,15 @@ def learner_callbacks(model: BaseAlgorithm, callback: BaseCallback | None) -> Ca
     learner with its ``train()`` and estimator fit done."""
     callbacks = list(with_episode_metrics(callback).callbacks)
     estimator = None
-    if getattr(model, "estimator_update_at", None) and getattr(model.policy, "estimator", None) is not None:
+    if getattr(model.policy, "estimator", None) is not None:
         from sb3_pm.callbacks import EstimatorCallback
-        from sb3_pm.ppo_dcbf.ppo_dcbf import find_estimator_callback
+        from sb3_pm.ppo_dcbf.ppo_dcbf import DCBFPPO, find_estimator_callback
 
-        estimator = find_estimator_callback(callbacks)
-        if estimator is None:
-            estimator = EstimatorCallback(update_at=model.estimator_update_at)  # type: ignore[attr-defined]
-            callbacks.append(estimator)
+        if isinstance(model, DCBFPPO):
+            estimator = find_estimator_callback(callbacks)
+            if estimator is None:
+                estimator = EstimatorCallback()
+                callbacks.append(estimator)
     callbacks.append(RolloutBarrier(estimator))
     return CallbackList(callbacks)
 

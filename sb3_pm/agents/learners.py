@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from sb3_pm.errors import InputError
+from sb3_pm.zoo.config import check_removed
 from sb3_pm.zoo.registry import (
     DEFAULT_POLICIES,
     algo_name,
@@ -71,6 +72,7 @@ def resolve_learner(
     name = algo if isinstance(algo, str) else algo_name(algo)
     policy = policy if policy is not None else DEFAULT_POLICIES.get(name, "MultiInputPolicy")
     kwargs = dict(env_kwargs or {})
+    check_removed({"env_kwargs": kwargs}, "env_kwargs")
     if not uses_masks(algo_class):
         kwargs.setdefault("illegal_action", "stay")
     return algo_class, name, policy, kwargs
@@ -94,9 +96,11 @@ def learner_kwargs(
     """The algorithm's keyword arguments for one learner: the team's shared hyperparameters, then
     the agent's overrides, with ``lin_`` schedules and ``policy_kwargs`` class names resolved.
 
-    :raises InputError: for a key the team sets itself, or an ``n_envs`` other than the team's.
+    :raises InputError: for a key the team sets itself, a removed research switch, or an
+        ``n_envs`` other than the team's.
     """
     merged = {**hyperparams, **overrides}
+    check_removed(merged, f"hyperparameters of {agent}")
     for key in RESERVED_KEYS:
         if key in merged and key != "policy":
             raise InputError(

@@ -41,9 +41,8 @@ the fixed ``advice_prior`` on the advised node's logit.
 A step runs serially instead (:meth:`StackedInference.actions` and
 :meth:`StackedInference.sampled_actions` return ``None``, and
 :func:`stack_problem` says why) for other policies, policies that differ in anything but their
-parameters, policies off the CPU (not verified there), ``extra_attention``, ``derived_features``,
-``actor_nodes: allowed``, graphs large enough for the chunked attention kernel or the estimator's
-row gathering, a map the dense kernel would not run, an observation of another shape (the serial
+parameters, policies off the CPU (not verified there), graphs large enough for the chunked
+attention kernel or the estimator's row gathering, a map the dense kernel would not run, an observation of another shape (the serial
 path then raises SB3's error), or a failed check of the rounding.
 """
 
@@ -95,15 +94,9 @@ def stack_problem(policies: Sequence[Any]) -> str | None:
         return "not every policy is a DCBFActorCriticPolicy"
     if any(p.device.type != "cpu" for p in policies):
         return "the stacked pass is verified on the CPU only"
-    if first.actor_nodes != "all":
-        return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
     extractor = first.features_extractor
     if extractor.backend == "sparse":
         return "gat_backend: sparse runs the sparse kernel on every map"
-    if extractor.derived_features:
-        return "derived_features search hop distances per map (data-dependent)"
-    if extractor.extra_gat is not None:
-        return "extra_attention is not stacked"
     if len(first.actor_body) == 0 or not isinstance(first.actor_body[0], nn.Linear):
         return "an actor without a hidden layer is not stacked"
     layers = [*first.actor_body, *(first.estimator.net if first.estimator is not None else [])]
@@ -531,7 +524,7 @@ class StackedInference:
 
     @staticmethod
     def _actor(stack: _Stack, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
-        """``DCBFActorCriticPolicy._actor_logits`` (``actor_nodes: all``) per policy: ``(K * B, N)``."""
+        """``DCBFActorCriticPolicy._actor_logits`` per policy: ``(K * B, N)``."""
         return _per_map(stack, "action_net", StackedInference._actor_hidden(stack, embeddings, own)).squeeze(
             -1
         )

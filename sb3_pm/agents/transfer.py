@@ -5,7 +5,7 @@ weights, the estimator and the actor are MLPs shared across nodes (one logit per
 critic mean-pools. Two things tie it to ``N``:
 
 * the paper's Laplacian-rows encoding (``laplacian: rows``), ``N`` numbers per node, which fixes
-  the first GAT layer's input width; ``laplacian: none`` or ``eigen`` (``k`` eigenvectors) do not;
+  the first GAT layer's input width; ``laplacian: none`` does not;
 * the observation space (``N`` nodes) SB3 checks observations against.
 
 Choice (measured in docs/RESULTS.md, "Transfer"): the observation spaces are **rebuilt** for the new
@@ -54,7 +54,7 @@ def transfer_problem(team: Any) -> str | None:
             return (
                 f"{agent}'s encoder uses the Laplacian-rows encoding (laplacian: rows), N numbers per "
                 f"node, which ties its first GAT layer to N = {policy.n_nodes}; train it with "
-                "policy_kwargs laplacian: none (or eigen) to deploy on other graphs"
+                "policy_kwargs laplacian: none to deploy on other graphs"
             )
     return None
 

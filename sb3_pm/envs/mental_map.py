@@ -129,12 +129,6 @@ class MentalMaps:
         """``(n_agents, N, F)`` float32 node features, a fresh array (columns in :data:`FEATURES` order)."""
         return self.channels.transpose(1, 2, 0).copy()
 
-    def worst_known_projection(self, u_max: float) -> np.ndarray:
-        """``(n_agents,)`` per map, the largest ``min(u_max, u + age)`` over the targets it knows
-        (0 for a map that knows none): a bound on the worst true uncertainty among them."""
-        projected = np.minimum(self.channels[U] + self.channels[AGE], u_max)
-        return np.where(self.channels[TARGET] > 0.5, projected, 0.0).max(axis=1)
-
     def reset_features(self) -> None:
         """Start a new episode: clear node features (edges are kept; known targets stay flagged)."""
         self.channels[:] = 0.0

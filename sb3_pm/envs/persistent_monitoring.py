@@ -40,8 +40,8 @@ initial_uncertainty (``"zero"``)
     ``"zero"`` or ``"random"`` (uniform integers in ``[0, u_max]`` on targets, from the seed).
 reward (``"paper"``)
     A preset (``"paper"``: eq. 5-8; ``"reduction"``) or a ``{term: weight}`` mapping over the
-    terms ``collision``, ``momentum``, ``change``, ``reduction``, ``clearing``, ``neglect``,
-    ``crowding``, ``urgency``, ``territory`` (see :mod:`sb3_pm.envs.rewards`).
+    terms ``collision``, ``momentum``, ``change``, ``reduction``, ``clearing``, ``territory`` (see
+    :mod:`sb3_pm.envs.rewards`).
 observation (``"map"``)
     ``"map"``: each agent's mental map (what learners and decentralized baselines use);
     ``"local"``: only this step's raw local observation.
@@ -500,8 +500,6 @@ class PersistentMonitoringEnv(ParallelEnv):
             alone_on_target,
             last,
             self.maps.episode_uncertainty_sum,
-            self.maps.worst_known_projection(self.u_max) if "neglect" in self.reward_weights else None,
-            self._teammates_seen() if "crowding" in self.reward_weights else None,
             self._territory[self._rows, positions] if self._territory is not None else None,
         )
 
@@ -532,13 +530,6 @@ class PersistentMonitoringEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
-
-    def _teammates_seen(self) -> np.ndarray:
-        """``(n_agents,)`` how many live teammates each agent observes now (a failed agent observes
-        nothing and is on no node)."""
-        seen = self._observed[:, self.core.positions] & self._active[None, :]  # (observer, teammate)
-        np.fill_diagonal(seen, False)
-        return np.count_nonzero(seen, axis=1)
 
     def _draw_failures(self, last: bool) -> list[str]:
         """The agents that fail after this step (scheduled, then drawn at ``failure_rate``)."""
@@ -642,8 +633,7 @@ class PersistentMonitoringEnv(ParallelEnv):
         A padding node has zero features, no edge and is never reachable: to the agent it looks
         like a node it has not discovered, and since it has no edge the GAT passes nothing from it
         to a real node. With ``laplacian: none`` the actor's logits on real nodes therefore do not
-        depend on the padding; with ``eigen`` the padded Laplacian's extra zero eigenvalues shift
-        the encoding slightly (measured up to 2.4e-4 in the logits of an untrained policy).
+        depend on the padding.
 
         Shapes: nodes ``(n_agents, N, F)`` -> ``(n_agents, M, F)`` (F = 5, plus one column
         each for ``territory_input`` and ``advice_input``); the maps' known adjacency

@@ -18,19 +18,6 @@ local: no agent's reward depends on another agent's observations or map. Terms:
                u > 0 where it is alone, else 0. Unlike ``reduction`` it pays nothing for guarding a
                target that is already at 0, which ``reduction`` pays at half the clearing rate
                with no travel cost, so it removes the incentive to idle on cleared targets.
-``neglect``    minus the worst projected uncertainty among the targets the agent's own map knows,
-               ``max_m min(u_max, u_m + age_m) / u_max`` (0 while it knows none): a dense penalty on
-               leaving a known target unvisited, whatever the teammates do (not in the paper).
-``crowding``   minus the number of teammates the agent itself observes (in its observation ball,
-               its own node included; a failed teammate is on no node and counts for nothing): a
-               dense push to spread out, from the agent's own sensing only. Aimed at teams whose
-               agents settle near the same targets and leave others unvisited (not in the paper).
-``urgency``    ``u / u_max`` of the target the agent clears this step, where ``clearing`` pays
-               (alone on a target with u > 0; ``u`` before the step), else 0. ``clearing`` pays
-               the same 1 per step for holding two adjacent targets near 0 as for clearing a
-               target left at the cap, so nothing in it draws an agent to a neglected target;
-               this term pays in proportion to how long the target was really left, as the agent
-               itself finds it on arrival (not in the paper).
 ``territory``  what ``clearing`` pays, but only on the targets of the agent's own territory: a
                fixed, balanced split of the site's targets among the agents, which every agent
                derives from the road network, the target list and its own index
@@ -58,9 +45,6 @@ TERMS = (
     "change",
     "reduction",
     "clearing",
-    "neglect",
-    "crowding",
-    "urgency",
     "territory",
 )
 REWARD_PRESETS: dict[str, dict[str, float]] = {
@@ -116,8 +100,6 @@ class RewardComputer:
         alone_on_target: np.ndarray,
         last_step: bool,
         map_sums: np.ndarray,
-        worst_known: np.ndarray | None = None,
-        teammates_seen: np.ndarray | None = None,
         on_own_territory: np.ndarray | None = None,
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Rewards for one step.
@@ -127,10 +109,6 @@ class RewardComputer:
             agent is on it (the only case in which ``reduction`` and ``clearing`` pay).
         :param last_step: the episode ends with this step (``change`` is paid).
         :param map_sums: ``(n_agents,)`` this episode's U_i so far, including this step.
-        :param worst_known: ``(n_agents,)`` the worst projected uncertainty among the targets each
-            agent's map knows (needed by ``neglect`` only).
-        :param teammates_seen: ``(n_agents,)`` how many teammates each agent observes now (needed
-            by ``crowding`` only).
         :param on_own_territory: ``(n_agents,)`` bool, the agent's node is a target of its own
             territory (needed by ``territory`` only).
         :return: ``(n_agents,)`` float rewards and each weighted term's ``(n_agents,)`` values.
@@ -146,7 +124,7 @@ class RewardComputer:
             counterfactual = np.minimum(outcome.u_before + 1, self.u_max)
             removed = counterfactual - outcome.u_after
             terms["reduction"] = w["reduction"] * np.where(alone_on_target, removed, 0.0)
-        if "clearing" in w or "urgency" in w or "territory" in w:
+        if "clearing" in w or "territory" in w:
             lowered = np.maximum(outcome.u_before - outcome.u_after, 0)
             clears = alone_on_target & (lowered > 0)
             if "clearing" in w:
@@ -155,16 +133,6 @@ class RewardComputer:
                 if on_own_territory is None:
                     raise InputError("the territory reward term needs each agent's territory")
                 terms["territory"] = w["territory"] * np.where(clears & on_own_territory, lowered, 0.0)
-            if "urgency" in w:
-                terms["urgency"] = w["urgency"] * np.where(clears, outcome.u_before / self.u_max, 0.0)
-        if "neglect" in w:
-            if worst_known is None:
-                raise InputError("the neglect reward term needs each agent's worst known projection")
-            terms["neglect"] = -w["neglect"] * np.asarray(worst_known, dtype=np.float64) / self.u_max
-        if "crowding" in w:
-            if teammates_seen is None:
-                raise InputError("the crowding reward term needs each agent's count of teammates in view")
-            terms["crowding"] = -w["crowding"] * np.asarray(teammates_seen, dtype=np.float64)
         if "change" in w:
             change = np.zeros(self.n_agents)
             if last_step:

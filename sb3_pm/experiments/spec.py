@@ -208,6 +208,21 @@ def _check_team_pins(hyperparams: dict[str, Any], source: Path, where: str = "")
         raise _fail(source, f"{where}hyperparams.deploy_temperature: {error}") from None
 
 
+def _check_removed(settings: dict[str, Any], source: Path, where: str) -> None:
+    """Refuse a removed research switch in a variant's settings, its hyperparams and its per-agent
+    overrides (:func:`sb3_pm.zoo.config.check_removed`)."""
+    from sb3_pm.zoo.config import check_removed
+
+    agents = settings.get("agents")
+    parts = [settings, settings.get("hyperparams"), *(agents.values() if isinstance(agents, dict) else ())]
+    try:
+        for part in parts:
+            if isinstance(part, dict):
+                check_removed(part, where)
+    except InputError as error:
+        raise _fail(source, str(error)) from None
+
+
 def load_experiment(path: str | Path) -> Experiment:
     """Parse and validate an experiment file.
 
@@ -227,6 +242,7 @@ def load_experiment(path: str | Path) -> Experiment:
     unknown = sorted(set(raw) - _TOP_KEYS)
     if unknown:
         raise _fail(path, f"unknown keys {unknown}; allowed: {sorted(_TOP_KEYS)}")
+    _check_removed(raw, path, "experiment")
     for key in ("graphs", "seeds", "variants"):
         if not raw.get(key):
             raise _fail(path, f"{key!r} is required and must not be empty")
@@ -248,6 +264,7 @@ def load_experiment(path: str | Path) -> Experiment:
         for mapping in ("policy_kwargs", "hyperparams", "env_kwargs", "agents"):
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
+        _check_removed(settings, path, f"variant {key!r}")
         _check_team_pins(settings.get("hyperparams", {}), path, f"variant {key!r}: ")
         clash = sorted(_EXPERIMENT_ENV_KEYS & set(settings.get("env_kwargs", {})))
         if kind == "baseline" and clash:

@@ -3,7 +3,7 @@
 from sb3_pm.policies.dcbf import DCBFConfig, dcbf_mask, dcbf_mask_from_map
 from sb3_pm.policies.estimator import StateEstimator, transition_pairs
 from sb3_pm.policies.extractor import GATFeaturesExtractor
-from sb3_pm.policies.layers import GraphAttention, GraphTransformer
+from sb3_pm.policies.layers import GraphAttention
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
 
 __all__ = [
@@ -11,7 +11,6 @@ __all__ = [
     "DCBFConfig",
     "GATFeaturesExtractor",
     "GraphAttention",
-    "GraphTransformer",
     "StateEstimator",
     "dcbf_mask",
     "dcbf_mask_from_map",

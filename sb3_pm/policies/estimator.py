@@ -13,9 +13,7 @@ next step, ``û`` (the u channel of ``M_k``). Design decisions (docs/METHOD.md l
 * **Scale.** The network works in units of ``u / u_max``; :meth:`StateEstimator.forward` returns
   ``û`` in units of ``u`` (clamped to ``[0, u_max]``), and the loss is the MSE in ``u / u_max``
   units so that its scale does not depend on ``u_max``.
-* **Targets of the loss** (option ``estimator_target``): ``"map"`` (the paper's: every node of
-  ``M_k``) or ``"observed"`` (only the nodes with ``age == 0`` in ``M_k``, the agent's actual
-  measurements; on the other nodes the map is stale and ``"map"`` teaches the identity).
+* **Targets of the loss**: every node of ``M_k``, as in the paper.
 """
 
 from __future__ import annotations
@@ -26,10 +24,8 @@ import numpy as np
 import torch as th
 from torch import nn
 
-from sb3_pm.envs.mental_map import AGE, TARGET, U
-from sb3_pm.errors import InputError
+from sb3_pm.envs.mental_map import TARGET, U
 
-ESTIMATOR_TARGETS = ("map", "observed")
 #: Batches with at least this many node rows run the MLP on known targets' rows only.
 GATHER_MIN_ROWS = 1024
 
@@ -82,20 +78,13 @@ class StateEstimator(nn.Module):
     def forward(self, nodes: th.Tensor) -> th.Tensor:
         return self.forward_normalized(nodes).clamp(0.0, 1.0) * self.u_max
 
-    def loss(self, previous: th.Tensor, current: th.Tensor, target: str = "map") -> th.Tensor:
+    def loss(self, previous: th.Tensor, current: th.Tensor) -> th.Tensor:
         """MSE (in ``u / u_max`` units) between ``û(M_{k-1})`` and the u channel of ``M_k``.
 
         :param previous: maps ``M_{k-1}``, ``(B, N, F)``.
         :param current: maps ``M_k``, ``(B, N, F)``.
-        :param target: ``"map"`` (all nodes) or ``"observed"`` (nodes with ``age == 0`` in ``M_k``).
         """
-        if target not in ESTIMATOR_TARGETS:
-            raise InputError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {target!r}")
-        error = (self.forward_normalized(previous) - current[..., U] / self.u_max) ** 2
-        if target == "map":
-            return error.mean()
-        weight = (current[..., AGE] == 0).to(error.dtype)
-        return (error * weight).sum() / weight.sum().clamp(min=1.0)
+        return ((self.forward_normalized(previous) - current[..., U] / self.u_max) ** 2).mean()
 
 
 def transition_pairs(

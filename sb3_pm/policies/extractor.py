@@ -7,12 +7,8 @@ into embeddings ``(B, N, hidden_dim)``, flattened for SB3 (docs/METHOD.md "Netwo
    every column lies in ``[0, 1]`` whatever ``u_max`` and ``max_cycles`` are;
 2. a positional encoding of the *known* adjacency (option ``laplacian``,
    :mod:`sb3_pm.policies.encodings`);
-3. with ``derived_features=True``, two derived features per node (projected uncertainty and hop
-   closeness, :mod:`sb3_pm.policies.features`);
-4. ``gat_layers`` GAT layers over the known adjacency with self loops (ELU between layers, heads
-   averaged), then with ``extra_attention=True`` one more single-head GAT layer and one
-   graph-transformer layer (the paper's "extra attention" ablation); the layers are in
-   :mod:`sb3_pm.policies.layers`.
+3. ``gat_layers`` GAT layers over the known adjacency with self loops (ELU between layers, heads
+   averaged); the layer is in :mod:`sb3_pm.policies.layers`.
 
 One kernel choice (dense or sparse, :func:`~sb3_pm.policies.attention.use_dense`) is made per batch
 for all layers, and what depends only on the adjacency (encoding, attention mask) is computed once
@@ -26,13 +22,10 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from sb3_pm.envs.mental_map import U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import BACKENDS, UNIQUE_MIN_BATCH, attention_bias, unique_graphs, use_dense
-from sb3_pm.policies.csr_attention import csr_graph
 from sb3_pm.policies.encodings import LAPLACIAN_MODES, encoding_dim, positional_encoding
-from sb3_pm.policies.features import DERIVED_FEATURES, derived_node_features
-from sb3_pm.policies.layers import GraphAttention, GraphTransformer
+from sb3_pm.policies.layers import GraphAttention
 
 
 class GATFeaturesExtractor(BaseFeaturesExtractor):
@@ -43,18 +36,12 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
     :param hidden_dim: embedding size ``h`` per node.
     :param gat_heads: heads of each multi-head GAT layer (averaged, so the width stays ``h``).
     :param gat_layers: number of multi-head GAT layers (at least 1).
-    :param laplacian: ``"rows"`` (paper), ``"eigen"`` or ``"none"`` positional encoding.
-    :param laplacian_k: eigenvectors kept by ``laplacian="eigen"``.
-    :param extra_attention: add one single-head GAT layer and one graph-transformer layer.
+    :param laplacian: ``"rows"`` (paper) or ``"none"`` positional encoding.
     :param backend: ``"auto"`` (per batch, by size and density), ``"dense"`` or ``"sparse"``.
-    :param derived_features: append the projected uncertainty and hop closeness of every node
-        (:mod:`sb3_pm.policies.features`) to its input features.
     :param custom_kernel: run large graphs' dense attention through the chunked custom autograd
         kernel (default) or plain autograd (same results, more memory); see
         :func:`~sb3_pm.policies.attention.chunked_attention`. The DCBF policy passes it through
         ``features_extractor_kwargs``.
-    :param sparse_kernel: the GAT layers' sparse kernel, ``"pyg"`` (default) or ``"csr"``
-        (:class:`~sb3_pm.policies.layers.GraphAttention`); the DCBF policy's ``gat_sparse_kernel``.
 
     Shapes:
         - input: the preprocessed dict, ``nodes`` ``(B, N, F)`` (F = 5, plus one column
@@ -70,12 +57,8 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         gat_heads: int = 4,
         gat_layers: int = 2,
         laplacian: str = "rows",
-        laplacian_k: int = 8,
-        extra_attention: bool = False,
         backend: str = "auto",
-        derived_features: bool = False,
         custom_kernel: bool = True,
-        sparse_kernel: str = "pyg",
     ) -> None:
         if laplacian not in LAPLACIAN_MODES:
             raise InputError(f"laplacian must be one of {LAPLACIAN_MODES}, got {laplacian!r}")
@@ -88,25 +71,13 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             raise InputError("GATFeaturesExtractor needs a mental-map observation with a (N, F) 'nodes' Box")
         n_nodes, n_features = nodes_space.shape
         super().__init__(observation_space, features_dim=n_nodes * hidden_dim)
-        self.n_nodes, self.hidden_dim, self.laplacian, self.laplacian_k = (
-            n_nodes,
-            hidden_dim,
-            laplacian,
-            laplacian_k,
-        )
-        self.extra_attention, self.backend = extra_attention, backend
-        self.sparse_kernel = sparse_kernel  # validated by the GAT layers, which run it
-        self.derived_features = bool(derived_features)
-        self.u_max = float(nodes_space.high[:, U].max())
+        self.n_nodes, self.hidden_dim, self.laplacian = n_nodes, hidden_dim, laplacian
+        self.backend = backend
         self.inv_high: th.Tensor
         # 1 / high per (node, feature): every node column scaled to [0, 1] (highs of 0 left as is).
         high = th.as_tensor(nodes_space.high, dtype=th.float32)
         self.register_buffer("inv_high", th.where(high > 0, 1.0 / high.clamp(min=1e-12), th.ones_like(high)))
-        in_dim = (
-            n_features
-            + encoding_dim(laplacian, n_nodes, laplacian_k)
-            + (len(DERIVED_FEATURES) if self.derived_features else 0)
-        )
+        in_dim = n_features + encoding_dim(laplacian, n_nodes)
         self.gat = nn.ModuleList(
             GraphAttention(
                 in_dim if i == 0 else hidden_dim,
@@ -114,42 +85,23 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
                 heads=gat_heads,
                 backend=backend,
                 custom_kernel=custom_kernel,
-                sparse_kernel=sparse_kernel,
             )
             for i in range(gat_layers)
         )
-        if extra_attention:
-            self.extra_gat: GraphAttention | None = GraphAttention(
-                hidden_dim,
-                hidden_dim,
-                heads=1,
-                backend=backend,
-                custom_kernel=custom_kernel,
-                sparse_kernel=sparse_kernel,
-            )
-            self.transformer: GraphTransformer | None = GraphTransformer(hidden_dim, backend=backend)
-        else:
-            self.extra_gat = self.transformer = None
         self.activation = nn.ELU()
         #: (adjacencies, dense, encoding, bias) of the last gradient-free small batch, see _graph_inputs.
         self._graph_cache: tuple[th.Tensor, bool, th.Tensor | None, th.Tensor | None] | None = None
 
     def encoding(self, adjacency: th.Tensor) -> th.Tensor | None:
         """The positional encoding of each adjacency, ``(B, N, encoding)`` (``None`` for ``"none"``)."""
-        return positional_encoding(adjacency, self.laplacian, self.laplacian_k)
+        return positional_encoding(adjacency, self.laplacian)
 
     def node_features(self, observations: dict[str, th.Tensor]) -> th.Tensor:
-        """Normalized node features, then the derived ones if enabled, ``(B, N, 5 [+ 2])``."""
-        x = observations["nodes"] * self.inv_high
-        if not self.derived_features:
-            return x
-        derived = derived_node_features(
-            observations["nodes"], observations["adjacency"], observations["position"], self.u_max
-        )
-        return th.cat((x, derived), dim=-1)
+        """Node features scaled by the observation space's highs, ``(B, N, F)``."""
+        return observations["nodes"] * self.inv_high
 
     def node_inputs(self, observations: dict[str, th.Tensor]) -> th.Tensor:
-        """Node features with the positional encoding, ``(B, N, 5 [+ 2] + encoding)``."""
+        """Node features with the positional encoding, ``(B, N, F + encoding)``."""
         x = self.node_features(observations)
         encoding = self.encoding(observations["adjacency"])
         return x if encoding is None else th.cat((x, encoding), dim=-1)
@@ -187,17 +139,10 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         encoding_u, bias_u = self._graph_inputs(graphs, dense)
         encoding = None if encoding_u is None else (encoding_u, index)
         bias = None if bias_u is None else (bias_u, index)  # shared by every GAT layer
-        # The sparse CSR kernel's pattern, likewise built once and shared by every GAT layer.
-        graph = csr_graph(adjacency, (graphs, index)) if not dense and self.sparse_kernel == "csr" else None
         for i, layer in enumerate(self.gat):
             x = self.activation(
-                layer(
-                    x, adjacency, dense=dense, bias=bias, encoding=encoding if i == 0 else None, graph=graph
-                )
+                layer(x, adjacency, dense=dense, bias=bias, encoding=encoding if i == 0 else None)
             )
-        if self.extra_gat is not None and self.transformer is not None:
-            x = self.activation(self.extra_gat(x, adjacency, dense=dense, bias=bias, graph=graph))
-            x = self.activation(self.transformer(x, adjacency, dense=dense))
         return x
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:  # type: ignore[override]

@@ -1,19 +1,19 @@
-"""The two graph layers of the extractor: a GAT layer and a graph-transformer layer.
+"""The graph layer of the extractor: a GAT layer.
 
-Each layer owns the parameters of one PyTorch Geometric convolution (:class:`~torch_geometric.nn.GATConv`,
-:class:`~torch_geometric.nn.TransformerConv`), which is also its sparse kernel, and computes the
-same function on those parameters as batched dense matrices when :func:`~sb3_pm.policies.attention.use_dense`
-says the batch is better served that way (:mod:`sb3_pm.policies.attention`). Because the parameters
-are PyG's, a layer's ``state_dict`` does not depend on the kernel that runs.
+The layer owns the parameters of a PyTorch Geometric :class:`~torch_geometric.nn.GATConv`, which is
+also its sparse kernel, and computes the same function on those parameters as batched dense matrices
+when :func:`~sb3_pm.policies.attention.use_dense` says the batch is better served that way
+(:mod:`sb3_pm.policies.attention`). Because the parameters are PyG's, the layer's ``state_dict``
+does not depend on the kernel that runs.
 
-Both layers take a batch of maps, node features ``(B, N, F)`` and adjacencies ``(B, N, N)``.
+It takes a batch of maps, node features ``(B, N, F)`` and adjacencies ``(B, N, N)``.
 """
 
 from __future__ import annotations
 
 import torch as th
 from torch import nn
-from torch_geometric.nn import GATConv, TransformerConv
+from torch_geometric.nn import GATConv
 
 from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import (
@@ -27,7 +27,6 @@ from sb3_pm.policies.attention import (
     use_chunked,
     use_dense,
 )
-from sb3_pm.policies.csr_attention import SPARSE_KERNELS, CSRGraph, csr_gat_attention, csr_graph
 
 
 class GraphAttention(nn.Module):
@@ -44,11 +43,6 @@ class GraphAttention(nn.Module):
     :param custom_kernel: on large graphs, run the dense kernel's attention through the chunked
         custom autograd function (``True``) or through plain autograd (``False``); see
         :func:`~sb3_pm.policies.attention.chunked_attention`. Results are the same either way.
-    :param sparse_kernel: the sparse kernel: ``"pyg"`` (default, GATConv's message passing) or
-        ``"csr"`` (sparse matrix products, :mod:`sb3_pm.policies.csr_attention`; 2 to 4 times faster
-        on sparse minibatches of large graphs). Same function; only rounding differs, and training
-        turns rounding into a different team, so the default keeps the kernel earlier results
-        were made with.
 
     Shapes:
         - x: ``(B, N, in_channels)``; adjacency: ``(B, N, N)`` (0/1, no self loops needed)
@@ -62,14 +56,10 @@ class GraphAttention(nn.Module):
         heads: int = 1,
         backend: str = "auto",
         custom_kernel: bool = True,
-        sparse_kernel: str = "pyg",
     ) -> None:
         super().__init__()
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        if sparse_kernel not in SPARSE_KERNELS:
-            raise InputError(f"sparse_kernel must be one of {SPARSE_KERNELS}, got {sparse_kernel!r}")
-        self.sparse_kernel = sparse_kernel
         self.in_channels, self.out_channels, self.heads, self.backend = (
             in_channels,
             out_channels,
@@ -89,7 +79,6 @@ class GraphAttention(nn.Module):
         dense: bool | None = None,
         bias: th.Tensor | tuple[th.Tensor, th.Tensor] | None = None,
         encoding: tuple[th.Tensor, th.Tensor] | None = None,
-        graph: CSRGraph | None = None,
     ) -> th.Tensor:
         """Attend over ``adjacency`` (plus self loops).
 
@@ -99,8 +88,6 @@ class GraphAttention(nn.Module):
         :param encoding: extra input columns given per distinct adjacency, ``((U, N, E), (B,))``:
             the layer's input is then ``[x, encoding[0][encoding[1]]]`` (``in_channels = F + E``),
             and its linear map of the encoding is computed once per distinct adjacency.
-        :param graph: sparse CSR kernel: the batch's :func:`~sb3_pm.policies.csr_attention.csr_graph`,
-            when the caller shares one between layers.
         """
         if dense is None:
             dense = use_dense(adjacency, self.backend)
@@ -111,30 +98,11 @@ class GraphAttention(nn.Module):
             elif isinstance(bias, th.Tensor):
                 bias = (bias, th.arange(bias.shape[0], device=bias.device))
             return self._dense(x, *bias, encoding=encoding)
-        if self.sparse_kernel == "csr":
-            return self._csr(x, csr_graph(adjacency) if graph is None else graph, encoding)
         if encoding is not None:
             x = th.cat((x, encoding[0][encoding[1]]), dim=-1)
         batch, n, _ = x.shape
         out = self.conv(x.reshape(batch * n, -1), batched_edge_index(adjacency))
         return out.view(batch, n, -1)
-
-    def _csr(self, x: th.Tensor, graph: CSRGraph, encoding: tuple[th.Tensor, th.Tensor] | None) -> th.Tensor:
-        """GATConv's function through the CSR kernel (:mod:`sb3_pm.policies.csr_attention`).
-
-        Shapes:
-            - x: ``(B, N, F)``; graph: the batch's CSR pattern
-            - output: ``(B, N, out_channels)``
-        """
-        conv = self.conv
-        batch, n, _ = x.shape
-        h = self._project(x, encoding).reshape(batch * n, self.heads, self.out_channels)
-        a_src = (h * conv.att_src).sum(-1)  # att_src: (1, heads, C) -> (B*N, heads)
-        a_dst = (h * conv.att_dst).sum(-1)
-        out = csr_gat_attention(h, a_src, a_dst, graph, conv.negative_slope, conv.dropout, self.training)
-        out = out.mean(1)  # heads averaged (concat=False)
-        out = out + conv.bias if conv.bias is not None else out
-        return out.view(batch, n, self.out_channels)
 
     def _project(self, x: th.Tensor, encoding: tuple[th.Tensor, th.Tensor] | None) -> th.Tensor:
         """The layer's linear map ``W [x, encoding]``, ``(B, N, heads * C)``."""
@@ -183,50 +151,8 @@ class GraphAttention(nn.Module):
     def __repr__(self) -> str:
         name = type(self).__name__
         kernel = "" if self.custom_kernel else ", custom_kernel=False"
-        kernel += "" if self.sparse_kernel == "pyg" else f", sparse_kernel={self.sparse_kernel!r}"
         return (
             f"{name}({self.in_channels}, {self.out_channels}, heads={self.heads}, "
             f"backend={self.backend!r}{kernel})"
         )
 
-
-class GraphTransformer(nn.Module):
-    """A single-head graph-transformer layer (:class:`torch_geometric.nn.TransformerConv`) with a dense twin.
-
-    ``out_i = W_skip x_i + sum_j softmax_j(q_i . k_j / sqrt(C)) v_j`` over the neighbours ``j`` of
-    ``i`` in the given adjacency (no self loops: the skip term carries the node itself). A node with
-    no neighbour receives only its skip term in both kernels.
-
-    Shapes:
-        - x: ``(B, N, channels)``; adjacency: ``(B, N, N)``
-        - output: ``(B, N, channels)``
-    """
-
-    def __init__(self, channels: int, backend: str = "auto") -> None:
-        super().__init__()
-        if backend not in BACKENDS:
-            raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        self.channels, self.backend = channels, backend
-        self.conv = TransformerConv(channels, channels, heads=1, concat=True, root_weight=True)
-
-    def reset_parameters(self) -> None:
-        self.conv.reset_parameters()
-
-    def forward(self, x: th.Tensor, adjacency: th.Tensor, dense: bool | None = None) -> th.Tensor:
-        if dense is None:
-            dense = use_dense(adjacency, self.backend)
-        batch, n, _ = x.shape
-        eye = th.eye(n, dtype=th.bool, device=adjacency.device)
-        edges = (adjacency != 0) & ~eye  # TransformerConv adds no self loops; keep both kernels equal
-        if not dense:
-            return self.conv(x.reshape(batch * n, -1), batched_edge_index(edges)).view(batch, n, -1)
-        conv = self.conv
-        query, key, value = conv.lin_query(x), conv.lin_key(x), conv.lin_value(x)
-        scores = th.matmul(query, key.transpose(1, 2)) / self.channels**0.5  # (B, N, N), [i, j]
-        scores = scores.masked_fill(~edges, float("-inf"))
-        # A row with no neighbour is all -inf; its softmax is NaN, and its aggregate must be 0.
-        alpha = th.nan_to_num(th.softmax(scores, dim=-1), nan=0.0)
-        return th.matmul(alpha, value) + conv.lin_skip(x)
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({self.channels}, backend={self.backend!r})"

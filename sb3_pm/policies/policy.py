@@ -39,13 +39,11 @@ from torch import nn
 from sb3_pm.envs.mental_map import FEATURES, U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap, dcbf_filter_from_map
-from sb3_pm.policies.estimator import ESTIMATOR_TARGETS, StateEstimator
+from sb3_pm.policies.estimator import StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.sampling import check_temperature, tempered_logits
 
 MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
-#: Where the actor head runs: on every node (the default), or only on the nodes the mask allows.
-ACTOR_NODES = ("all", "allowed")
 #: Logit given to masked-out actions, sb3-contrib's ``MaskableCategorical`` value.
 _HUGE_NEG = th.tensor(-1e8)
 
@@ -123,8 +121,6 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param use_estimator: build the state estimator (off: no ``û`` input to the heads, and the
         filter uses the map's last observed ``u``).
     :param avoid_collisions: DCBF rule 6.
-    :param extra_attention: one more single-head GAT layer and a graph-transformer layer.
-    :param estimator_target: ``"map"`` or ``"observed"`` (see :mod:`sb3_pm.policies.estimator`).
     :param freeze_steps: DCBF rule 5 (0 disables the freeze).
     :param eta: DCBF margin ``η``.
     :param gamma_threshold: DCBF activation threshold ``γ``.
@@ -136,29 +132,15 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param neglect_scope: which targets the bound covers, ``"known"``, ``"unserved"`` or
         ``"territory"`` (:class:`~sb3_pm.policies.dcbf.DCBFConfig`).
     :param neglect_territory: the agent's own targets, for ``neglect_scope="territory"``.
-    :param laplacian: ``"rows"``, ``"eigen"`` or ``"none"``.
-    :param derived_features: feed the encoder each node's projected uncertainty and hop closeness
-        (:mod:`sb3_pm.policies.features`; not in the paper).
+    :param laplacian: ``"rows"`` or ``"none"``.
     :param gat_heads: heads per GAT layer.
     :param hidden_dim: node embedding size ``h``.
     :param gat_layers: number of multi-head GAT layers.
     :param gat_backend: ``"auto"``, ``"dense"`` or ``"sparse"``.
-    :param gat_sparse_kernel: the sparse kernel, ``"pyg"`` (default, PyG's message passing) or
-        ``"csr"`` (sparse matrix products, faster on large sparse graphs, not bit for bit the same
-        teams); see :class:`~sb3_pm.policies.layers.GraphAttention`.
     :param estimator_hidden: hidden sizes of the estimator MLP.
     :param estimator_lr: Adam learning rate of the estimator.
     :param estimator_epochs: passes over each rollout's pairs when fitting the estimator.
     :param estimator_batch_size: minibatch size (pairs) when fitting the estimator.
-    :param actor_nodes: ``"all"`` (default) runs the actor head on every node; ``"allowed"`` runs
-        it only on the nodes the action mask allows and gives every other node the masking constant
-        -1e8 as its logit, which cuts the head's work by about ``N / (degree + 1)`` (a quarter of
-        ``train()`` on the 50-node graph). The masked distribution is the same function either way
-        (a masked node's logit never reaches a probability or a gradient; a trained team deploys to
-        the same actions with either), but rounding differs in the last bits, and training
-        amplifies that into a different team. Over 5 training seeds ``"allowed"`` trained worse
-        teams (docs/RESULTS.md, "Faster arithmetic"), a difference we could not tell from chance
-        but could not rule out either, so it is not the default.
     :param advice_prior: a fixed number added to the logit of the node the map's last column
         flags, which is the env's ``advice_input`` (the territory rule's next move; the team
         refuses the option without it). ``0`` (default): no prior. With ``b > 0`` an untrained
@@ -185,8 +167,6 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         use_dcbf: bool = True,
         use_estimator: bool = True,
         avoid_collisions: bool = False,
-        extra_attention: bool = False,
-        estimator_target: str = "map",
         freeze_steps: int = 10,
         eta: float = 0.1,
         gamma_threshold: float = 0.0,
@@ -195,21 +175,16 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         neglect_scope: str = "known",
         neglect_territory: Sequence[int] = (),
         laplacian: str = "rows",
-        derived_features: bool = False,
         gat_heads: int = 4,
         hidden_dim: int = 32,
         gat_layers: int = 2,
         gat_backend: str = "auto",
-        gat_sparse_kernel: str = "pyg",
         estimator_hidden: list[int] | tuple[int, ...] = (64, 64),
         estimator_lr: float = 1e-3,
         estimator_epochs: int = 5,
         estimator_batch_size: int = 256,
-        actor_nodes: str = "all",
         advice_prior: float = 0.0,
     ) -> None:
-        if actor_nodes not in ACTOR_NODES:
-            raise InputError(f"actor_nodes must be one of {ACTOR_NODES}, got {actor_nodes!r}")
         if not isinstance(observation_space, spaces.Dict) or any(
             k not in observation_space.spaces for k in MAP_KEYS
         ):
@@ -220,14 +195,10 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             raise InputError(f"DCBFActorCriticPolicy needs a Discrete action space, got {action_space}")
         if not share_features_extractor:
             raise InputError("DCBFActorCriticPolicy shares its graph encoder between actor and critic")
-        if estimator_target not in ESTIMATOR_TARGETS:
-            raise InputError(f"estimator_target must be one of {ESTIMATOR_TARGETS}, got {estimator_target!r}")
         # Plain attributes are set before nn.Module.__init__ (allowed for non-tensors) because the
         # parent constructor calls our _build, which reads them.
         self.use_dcbf, self.use_estimator = bool(use_dcbf), bool(use_estimator)
-        self.avoid_collisions, self.extra_attention = bool(avoid_collisions), bool(extra_attention)
-        self.estimator_target = estimator_target
-        self.actor_nodes = actor_nodes
+        self.avoid_collisions = bool(avoid_collisions)
         self.advice_prior = check_advice_prior(advice_prior, observation_space)
         if neglect_bound is not None and not use_dcbf:
             raise InputError("neglect_bound is rule 8 of the DCBF filter: it needs use_dcbf=True")
@@ -254,18 +225,15 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         self.estimator_batch_size = int(estimator_batch_size)
         self._encoder_kwargs = dict(
             laplacian=laplacian,
-            derived_features=bool(derived_features),
             gat_heads=gat_heads,
             hidden_dim=hidden_dim,
             gat_layers=gat_layers,
-            extra_attention=extra_attention,
             backend=gat_backend,
-            sparse_kernel=gat_sparse_kernel,
         )
         # The encoder's settings are this policy's own arguments. The same key in
         # features_extractor_kwargs with another value used to be overwritten without a word
         # (hidden_dim: 64 there gave 32); now it is an error that names the argument to use.
-        argument_for = {"backend": "gat_backend", "sparse_kernel": "gat_sparse_kernel"}
+        argument_for = {"backend": "gat_backend"}
         clash = sorted(
             key
             for key, value in (features_extractor_kwargs or {}).items()
@@ -347,8 +315,6 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             use_dcbf=self.use_dcbf,
             use_estimator=self.use_estimator,
             avoid_collisions=self.avoid_collisions,
-            extra_attention=self.extra_attention,
-            estimator_target=self.estimator_target,
             freeze_steps=self.dcbf_config.freeze_steps,
             eta=self.dcbf_config.eta,
             gamma_threshold=self.dcbf_config.gamma_threshold,
@@ -357,17 +323,14 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             neglect_scope=self.dcbf_config.neglect_scope,
             neglect_territory=list(self.dcbf_config.territory),
             laplacian=self._encoder_kwargs["laplacian"],
-            derived_features=self._encoder_kwargs["derived_features"],
             gat_heads=self._encoder_kwargs["gat_heads"],
             hidden_dim=self._encoder_kwargs["hidden_dim"],
             gat_layers=self._encoder_kwargs["gat_layers"],
             gat_backend=self._encoder_kwargs["backend"],
-            gat_sparse_kernel=self._encoder_kwargs["sparse_kernel"],
             estimator_hidden=self.estimator_hidden,
             estimator_lr=self.estimator_lr,
             estimator_epochs=self.estimator_epochs,
             estimator_batch_size=self.estimator_batch_size,
-            actor_nodes=self.actor_nodes,
             advice_prior=self.advice_prior,
         )
         return data
@@ -463,7 +426,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     ) -> tuple[th.Tensor, th.Tensor]:
         """Per-node logits ``(B, N)`` (see :meth:`_actor_logits`) and values ``(B, 1)``."""
         embeddings, own = self._node_inputs(pre, u_hat)
-        logits = self._with_advice(self._actor_logits(embeddings, own, masks), pre)
+        logits = self._with_advice(self._actor_logits(embeddings, own), pre)
         return logits, self._value(embeddings, own)
 
     def _value(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
@@ -473,7 +436,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     def _logits(self, pre: dict[str, th.Tensor], u_hat: th.Tensor, masks: th.Tensor) -> th.Tensor:
         """Per-node logits ``(B, N)`` alone: acting needs no critic."""
         embeddings, own = self._node_inputs(pre, u_hat)
-        return self._with_advice(self._actor_logits(embeddings, own, masks), pre)
+        return self._with_advice(self._actor_logits(embeddings, own), pre)
 
     def _with_advice(self, logits: th.Tensor, pre: dict[str, th.Tensor]) -> th.Tensor:
         """The logits ``(B, N)`` plus ``advice_prior`` on the node the env's ``advice_input``
@@ -483,27 +446,11 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             return logits
         return logits + self.advice_prior * pre["nodes"][..., -1]
 
-    def _actor_logits(self, embeddings: th.Tensor, own: th.Tensor, masks: th.Tensor) -> th.Tensor:
-        """One logit per node; with ``actor_nodes="allowed"`` only the allowed nodes' are computed.
+    def _actor_logits(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
+        """One logit per node: ``(B, N, d)``, ``(B, h)`` -> ``(B, N)``."""
+        return self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
 
-        Every consumer masks the logits with -1e8 before normalizing (sb3-contrib's
-        ``MaskableCategorical`` and :meth:`forward_with_masks`), so a masked node's logit reaches
-        neither a probability nor a gradient; it is set to that constant instead of computed.
-
-        Shapes:
-            - embeddings: ``(B, N, d)``; own: ``(B, h)``; masks: ``(B, N)`` bool, no row all False
-            - output: ``(B, N)``
-        """
-        if self.actor_nodes == "all":
-            return self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
-        rows, cols = masks.nonzero(as_tuple=True)  # (M,) each: the allowed (map, node) pairs
-        allowed = self.action_net(self._actor_hidden(embeddings[rows, cols], own, rows)).squeeze(-1)
-        logits = th.full(masks.shape, -1e8, dtype=allowed.dtype, device=allowed.device)
-        return logits.index_put((rows, cols), allowed)
-
-    def _actor_hidden(
-        self, embeddings: th.Tensor, own: th.Tensor, rows: th.Tensor | None = None
-    ) -> th.Tensor:
+    def _actor_hidden(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
         """The actor body on ``[embeddings_m, own]`` for every node ``m`` given.
 
         The first layer's product with ``own`` is the same for every node of a map, so it is computed
@@ -511,21 +458,17 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         as ``actor_body(cat(embeddings, own expanded))``; a third of the actor's first-layer work).
 
         Shapes:
-            - embeddings: ``(B, N, d)`` (every node of each map), or ``(M, d)`` with ``rows``
-              ``(M,)`` naming each node's map; own: ``(B, h)``
-            - output: ``(B, N, pi_out)`` or ``(M, pi_out)``
+            - embeddings: ``(B, N, d)``; own: ``(B, h)``
+            - output: ``(B, N, pi_out)``
         """
         first = self.actor_body[0] if len(self.actor_body) else None
         if not isinstance(first, nn.Linear):  # no hidden layer: plain concatenation
-            own_per_node = (
-                own[rows] if rows is not None else own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
-            )
+            own_per_node = own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
             return self.actor_body(th.cat((embeddings, own_per_node), dim=-1))
         width = embeddings.shape[-1]
         per_node = nn.functional.linear(embeddings, first.weight[:, :width], first.bias)  # (..., w)
         per_map = nn.functional.linear(own, first.weight[:, width:])  # (B, w)
-        per_map = per_map[rows] if rows is not None else per_map.unsqueeze(1)
-        hidden = per_node + per_map
+        hidden = per_node + per_map.unsqueeze(1)
         # The remaining layers one by one: slicing the Sequential (actor_body[1:]) would build a new
         # module on every call, a tenth of a millisecond per rollout step.
         for layer in islice(self.actor_body, 1, None):

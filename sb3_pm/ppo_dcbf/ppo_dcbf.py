@@ -29,7 +29,6 @@ Usage::
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any, ClassVar, TypeVar
 
@@ -45,7 +44,7 @@ from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_pm.callbacks import UPDATE_AT, EstimatorCallback
+from sb3_pm.callbacks import EstimatorCallback
 from sb3_pm.errors import InputError
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
 from sb3_pm.ppo_dcbf.buffers import OrderedRolloutBuffer
@@ -71,11 +70,6 @@ class DCBFPPO(MaskablePPO):
 
     Takes every :class:`~sb3_contrib.MaskablePPO` argument, plus:
 
-    :param estimator_update_at: when :class:`~sb3_pm.callbacks.EstimatorCallback` fits the
-        estimator, ``"after_train"`` (default) or ``"rollout_end"``.
-    :param ent_coef_final: with a number, the entropy coefficient decays linearly over training
-        from ``ent_coef`` (at the first update) to this value (at the end of ``learn()``), as
-        ``learning_rate: lin_...`` does for the step size; ``None`` (default) keeps ``ent_coef``.
     :param update_device: torch device of the update phase (``train()``) alone, e.g. ``"cuda"``
         for a learner whose ``device`` is the CPU; ``None`` (default) updates on ``device``. Not
         saved with the model (like ``device``): set it again after loading.
@@ -90,23 +84,10 @@ class DCBFPPO(MaskablePPO):
     def __init__(
         self,
         *args: Any,
-        estimator_update_at: str = "after_train",
-        ent_coef_final: float | None = None,
         update_device: str | th.device | None = None,
         **kwargs: Any,
     ) -> None:
-        if estimator_update_at not in UPDATE_AT:
-            raise InputError(f"estimator_update_at must be one of {UPDATE_AT}, got {estimator_update_at!r}")
-        if ent_coef_final is not None and (
-            isinstance(ent_coef_final, bool)
-            or not isinstance(ent_coef_final, (int, float))
-            or not math.isfinite(ent_coef_final)
-            or ent_coef_final < 0
-        ):
-            raise InputError(f"ent_coef_final must be a non-negative number or None, got {ent_coef_final!r}")
-        self.estimator_update_at = estimator_update_at
         self.update_device = check_update_device(update_device)
-        self.ent_coef_final = None if ent_coef_final is None else float(ent_coef_final)
         #: where a rollout step's logits, values and masks come from instead of this learner's own
         #: forward pass (:meth:`collect_rollouts`): a callable given the learner's last observation
         #: that returns ``(logits, values, masks)`` equal to ``policy.rollout_heads`` on it (and
@@ -116,14 +97,9 @@ class DCBFPPO(MaskablePPO):
             None
         )
         super().__init__(*args, **kwargs)
-        self.ent_coef_start = float(self.ent_coef)
 
     def train(self) -> None:
-        """PPO's update, with the entropy coefficient of :attr:`ent_coef_final`'s schedule first."""
-        if self.ent_coef_final is not None:
-            # _current_progress_remaining: 1 at the start of learn(), 0 at its end (SB3's schedules).
-            remaining = float(self._current_progress_remaining)
-            self.ent_coef = self.ent_coef_final + (self.ent_coef_start - self.ent_coef_final) * remaining
+        """PPO's update, on :attr:`update_device` when one is set."""
         with on_update_device(self, self.update_device):
             super().train()
 
@@ -227,7 +203,7 @@ class DCBFPPO(MaskablePPO):
     ) -> SelfDCBFPPO:
         """MaskablePPO's ``learn``, with the estimator callback attached when the policy has an estimator."""
         if self.policy.estimator is not None and find_estimator_callback(callback) is None:
-            estimator_callback = EstimatorCallback(update_at=self.estimator_update_at)
+            estimator_callback = EstimatorCallback()
             if callback is None:
                 callback = estimator_callback
             elif isinstance(callback, list):

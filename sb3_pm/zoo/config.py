@@ -47,6 +47,24 @@ from sb3_pm.zoo.schedules import SCHEDULE_KEYS, check_spread, parse_schedule, st
 from sb3_pm.zoo.shipped import resolve_config_path
 
 DEFAULT_ENTRY = "default"
+#: The tag of the last release with the research switches below (docs/RESEARCH_SNAPSHOT.md).
+RESEARCH_TAG = "v0.1.0-research"
+#: Research switches that measurement rejected and the package no longer has, as a config writes
+#: them (an algorithm or ``policy_kwargs`` key, ``reward: <term>`` in ``env_kwargs``, or
+#: ``laplacian: <value>``), with where they were set. :func:`check_removed` refuses them.
+REMOVED_KEYS: dict[str, str] = {
+    "extra_attention": "policy_kwargs",
+    "derived_features": "policy_kwargs",
+    "estimator_target": "policy_kwargs",
+    "actor_nodes": "policy_kwargs",
+    "gat_sparse_kernel": "policy_kwargs",
+    "laplacian: eigen": "policy_kwargs",
+    "ent_coef_final": "dcbf_ppo",
+    "estimator_update_at": "dcbf_ppo",
+    "reward: crowding": "env_kwargs",
+    "reward: urgency": "env_kwargs",
+    "reward: neglect": "env_kwargs",
+}
 #: Keys that belong to the team, not to one learner's algorithm.
 TEAM_KEYS = (
     "n_timesteps",
@@ -214,7 +232,7 @@ def entry_for(data: Mapping[str, Any], env: str, source: str = "config") -> str:
 def _algo_args(cls: type) -> dict[str, inspect.Parameter]:
     """Constructor arguments of ``cls`` a config may set (the team manages the rest).
 
-    Walks the MRO while constructors forward ``**kwargs`` (``DCBFPPO(*args, estimator_update_at,
+    Walks the MRO while constructors forward ``**kwargs`` (``DCBFPPO(*args, update_device,
     **kwargs)`` passes everything else on to ``MaskablePPO``).
     """
     found: dict[str, inspect.Parameter] = {}
@@ -303,6 +321,30 @@ def _check_hyperparam(key: str, value: Any, parameter: inspect.Parameter, where:
     return value
 
 
+def check_removed(settings: Mapping[str, Any], where: str) -> None:
+    """Refuse a removed research switch (:data:`REMOVED_KEYS`) among ``settings``' keys, its
+    ``policy_kwargs`` and its ``env_kwargs`` reward terms, naming it and the tag that has it.
+
+    :param settings: a config entry or a learner's hyperparameters (``env_kwargs`` may be among them).
+    :raises ConfigError: for the first removed switch found.
+    """
+    written = [str(key) for key in settings]
+    policy_kwargs = settings.get("policy_kwargs")
+    if isinstance(policy_kwargs, Mapping):
+        written += [str(key) for key in policy_kwargs]
+        written.append(f"laplacian: {policy_kwargs.get('laplacian')}")
+    env_kwargs = settings.get("env_kwargs")
+    reward = env_kwargs.get("reward") if isinstance(env_kwargs, Mapping) else None
+    if isinstance(reward, Mapping):
+        written += [f"reward: {term}" for term in reward]
+    for name in written:
+        if name in REMOVED_KEYS:
+            raise ConfigError(
+                f"{where}: {REMOVED_KEYS[name]} {name!r} was removed from sb3_pm; "
+                f"the research snapshot tag {RESEARCH_TAG} has it"
+            )
+
+
 def _hyperparams(
     raw: Mapping[str, Any], allowed: Mapping[str, inspect.Parameter], where: str, extra: set[str]
 ) -> dict[str, Any]:
@@ -350,6 +392,7 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
     entry = entry_for(data, env, source)
     raw = apply_overrides(data[entry], overrides or {})
     where = f"{source}: {entry}" + (" (with command-line overrides)" if overrides else "")
+    check_removed(raw, where)
 
     algo = raw.get("algo") or default_algo()
     if not isinstance(algo, str):
@@ -403,6 +446,7 @@ def load_config(path: str | Path, env: str, overrides: Mapping[str, Any] | None 
             )
         if not isinstance(overrides, dict):
             raise ConfigError(f"{where}.agents.{agent}: expected a mapping of hyperparameters")
+        check_removed(overrides, f"{where}.agents.{agent}")
         forbidden = sorted(set(overrides) & AGENT_FORBIDDEN)
         if forbidden:
             raise ConfigError(
@@ -461,10 +505,12 @@ def default_env(path: str | Path) -> str | None:
 
 __all__ = [
     "DEFAULT_ENTRY",
+    "REMOVED_KEYS",
     "ConfigError",
     "TrainConfig",
     "apply_overrides",
     "check_learning_rate_spread",
+    "check_removed",
     "default_env",
     "entry_for",
     "load_config",
