@@ -327,7 +327,10 @@ def test_a_removed_research_switch_is_one_line_naming_the_tag(tmp_path, where, k
         lambda: load_config(tmp_path / "ok.yml", "paper-50", overrides=setting),
         lambda: load_experiment(experiment),
         lambda: IndependentPPO(
-            erdos_renyi(8, 0.4, n_targets=2, seed=0), n_agents=2, hyperparams=hyperparams, env_kwargs=env_kwargs
+            erdos_renyi(8, 0.4, n_targets=2, seed=0),
+            n_agents=2,
+            hyperparams=hyperparams,
+            env_kwargs=env_kwargs,
         ),
     ]
     for call in calls:
