@@ -1,127 +1,9 @@
-"""Persistent monitoring on a graph: the PettingZoo environment, its arguments and its spaces.
+""":class:`PersistentMonitoringEnv`, the PettingZoo adapter around the simulation core.
 
-``n_agents`` agents move along the edges of an undirected, connected graph. Some nodes are
-targets; a target's uncertainty ``u`` grows by one each step nobody is on it and falls by one
-each step somebody is (docs/METHOD.md "Dynamics", the paper's eq. 1), capped at ``u_max``. Agents see
-only their own neighbourhood and never communicate.
-
-Usage::
-
-    from sb3_pm.envs import persistent_monitoring_v0
-    env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=4)
-    observations, infos = env.reset(seed=0)
-
-Arguments
----------
-graph (``"paper-50"``)
-    A preset name (``paper-50``, ``paper-100``, ``paper-200``: the paper's published graphs;
-    ``er-50``, ``er-100``, ``er-200``: seeded Erdős–Rényi draws), a ``.graphml`` path, or a
-    :class:`~sb3_pm.graphs.GraphSpec`. Or a graph *family* (``"family:er"``, ``"family:FOLDER"``
-    or a :class:`~sb3_pm.graphs.distributions.GraphFamily`): every reset then draws the episode's
-    graph from the reset seed's generator, every mental map starts empty on it, and observations
-    are padded to the family's ``max_nodes`` (padding nodes: zero features, no edges, never in the
-    action mask). Needs ``observation="map"``.
-n_agents (``4``)
-    Team size, at most the number of nodes. Agents are named ``agent_0 ... agent_{n-1}``.
-max_cycles (``500``)
-    Episode length K. Episodes end by truncation after K steps, never by termination.
-u_max (``100``)
-    Cap on every target's uncertainty.
-obs_radius (``1``)
-    An agent observes the nodes within this many hops of its node (their ``u``, target flag and
-    whether another agent is there) and the edges incident to nodes strictly inside that ball
-    (radius 1: the edges at its own node).
-initial_positions (``None``)
-    A list of ``n_agents`` nodes; ``None`` draws distinct nodes uniformly from the reset seed.
-    ``reset(options={"initial_positions": [...]})`` overrides it for one episode.
-    ``reset(options={"new_lifetime": True})`` also forgets every map's discovered edges and the
-    ``change`` reward's past episodes, as if the agents were new.
-initial_uncertainty (``"zero"``)
-    ``"zero"`` or ``"random"`` (uniform integers in ``[0, u_max]`` on targets, from the seed).
-reward (``"paper"``)
-    A preset (``"paper"``: eq. 5-8; ``"reduction"``) or a ``{term: weight}`` mapping over the
-    terms ``collision``, ``momentum``, ``change``, ``reduction``, ``clearing``, ``territory`` (see
-    :mod:`sb3_pm.envs.rewards`).
-observation (``"map"``)
-    ``"map"``: each agent's mental map (what learners and decentralized baselines use);
-    ``"local"``: only this step's raw local observation.
-graph_knowledge (``"discovered"``)
-    ``"discovered"``: a map's adjacency gains edges as its agent observes them and keeps them for
-    the environment's lifetime; ``"known"``: the whole topology is known from the start.
-target_knowledge (``"discovered"``)
-    ``"discovered"``: a map flags a node as a target once its agent observes it, every episode;
-    ``"known"``: every map starts each episode with the true target flags (a mission that knows its
-    sites). Uncertainties and ages stay what the agent itself has observed.
-territory_input (``False``)
-    ``True`` adds a sixth node feature to map observations: 1 on the targets of the agent's own
-    territory (the split of :mod:`sb3_pm.graphs.territories`, which every agent computes alike
-    from the site plan and its own index, as the ``territory`` reward and the ``territory_patrol``
-    baseline do), 0 elsewhere. Since the split is computed from the graph and its targets, it
-    needs ``graph_knowledge`` and ``target_knowledge`` ``"known"`` and ``observation="map"``. A
-    team deployed on another graph or with another team size sees that problem's split; on a graph
-    family, each episode's graph gives its own (and the ``territory`` reward is then allowed).
-advice_input (``False``)
-    ``True`` adds one more node feature to map observations (after ``territory_input``'s, if
-    any): 1 on the node the territory rule would move to next, 0 elsewhere
-    (:mod:`sb3_pm.envs.territory_rule`, the rule the ``territory_patrol`` baseline acts by). The
-    rule reads only the agent's own map, the site plan and its own territory, so the advice is as
-    decentralized as the map; the rule keeps its own goal from step to step whatever the agent
-    did. An agent with no territory (fewer targets than agents) or a failed one gets an all-zero
-    column. Same requirements as ``territory_input``.
-illegal_action (``"raise"``)
-    ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
-    and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``
-    records the request.
-shared_map (``False``)
-    ``True`` feeds every agent's mental map with the union of all agents' observations: the
-    *centralized* setting (docs/METHOD.md "Baselines": centralized). Never used by decentralized teams.
-failures (``None``)
-    Agent failures at given steps: ``{agent name: step}``, e.g. ``{"agent_1": 250}``: the agent
-    acts in steps ``1..step`` and fails after that step's move. It is then *terminated* the
-    PettingZoo way (``terminations[agent] = True`` and a final observation, then it leaves
-    ``env.agents``); it occupies no node, clears nothing and is seen by nobody. The survivors go on
-    with what their own maps hold. ``step`` lies in ``1..max_cycles - 1``.
-failure_rate (``0.0``)
-    After every step, each live agent fails with this probability, drawn from the reset seed's
-    generator; the last live agent never fails, so every episode runs its ``max_cycles`` steps.
-    With either option the episode metrics add ``failed_agents``, ``first_failure_step`` and the
-    average uncertainty before and after the first failure (:mod:`sb3_pm.envs.metrics`).
-render_mode (``None``)
-    ``"rgb_array"`` (a matplotlib frame), ``"human"`` (a window) or ``"ansi"`` (text).
-
-Spaces
-------
-Action: ``Discrete(N)``, the destination node; legal destinations are the agent's node and its
-neighbours, given by ``obs["action_mask"]``.
-
-Observation with ``observation="map"`` (a ``Dict``):
-
-``nodes``        ``Box(N, 5) float32``: per node ``[u, age, target, occupied, self]`` from the mental
-                 map (:mod:`sb3_pm.envs.mental_map`); ``Box(N, 6)`` with ``territory_input``, whose
-                 sixth column flags the agent's own territory; one more column with
-                 ``advice_input`` flags the territory rule's next move.
-``adjacency``    ``Box(N, N) int8``: the known adjacency.
-``position``     ``Discrete(N)``: the agent's node.
-``dwell``        ``Box(1,) float32``: steps the agent has stayed on its node (0 on arrival).
-``action_mask``  ``Box(N,) int8``: 1 on the reachable set.
-
-Observation with ``observation="local"``: ``position``; ``observed``, ``target``, ``occupied`` and
-``action_mask`` as ``Box(N,) int8``; ``uncertainty`` as ``Box(N,) float32`` (0 where unobserved);
-``edges`` as ``Box(N, N) int8``.
-
-Rewards are per agent (see :mod:`sb3_pm.envs.rewards`). When an episode ends, every agent's info
-holds ``"metrics"``: ``avg_uncertainty``, ``max_neglect``, ``collisions``, ``peak_uncertainty``,
-``saturated_fraction``, ``idle_fraction`` and ``steps`` (:mod:`sb3_pm.envs.metrics`);
-``env.episode_metrics()`` returns them at any time. ``env.unwrapped.uncertainty`` and
-``env.unwrapped.positions`` expose the true state for tests and omniscient baselines.
-
-Implementation
---------------
-:class:`PersistentMonitoringEnv` is a PettingZoo ``ParallelEnv`` adapter around
-:class:`~sb3_pm.envs.core.MonitoringCore` (the dynamics), :class:`~sb3_pm.envs.mental_map.MentalMaps`
-(what each agent remembers), :mod:`sb3_pm.envs.rewards` and :mod:`sb3_pm.envs.metrics`. The
-factories at the bottom (:func:`parallel_env`, :func:`env`, :data:`raw_env`) are the public
-constructors; :mod:`sb3_pm.envs.persistent_monitoring_v0` re-exports them under the versioned name.
+Its arguments, spaces, rewards and metrics are documented in the versioned front file,
+:mod:`sb3_pm.envs.persistent_monitoring_v0`, as PettingZoo documents its environments. The
+dynamics are :mod:`sb3_pm.envs.core` (pure NumPy), the mental maps :mod:`sb3_pm.envs.mental_map`
+and the observations built from them :mod:`sb3_pm.envs.observations`.
 """
 
 from __future__ import annotations
@@ -136,8 +18,9 @@ from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from sb3_pm.envs.core import DEFAULT_U_MAX, MonitoringCore
-from sb3_pm.envs.mental_map import AGE, FEATURES, MentalMaps, U
+from sb3_pm.envs.mental_map import MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
+from sb3_pm.envs.observations import EnvObservations
 from sb3_pm.envs.rewards import RewardComputer, resolve_reward
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
@@ -150,7 +33,7 @@ ILLEGAL_ACTION_MODES = ("raise", "stay")
 _FAMILY_POSITIONS = "initial_positions cannot be given with a graph family (each episode's graph differs)"
 
 
-class PersistentMonitoringEnv(ParallelEnv):
+class PersistentMonitoringEnv(EnvObservations, ParallelEnv):
     """Agents patrol a graph to keep the uncertainty of its target nodes low."""
 
     metadata = {
@@ -364,37 +247,6 @@ class PersistentMonitoringEnv(ParallelEnv):
             raise InputError(f"failure_rate must be in [0, 1), got {rate}")
         return schedule, rate
 
-    # --------------------------------------------------------------- spaces
-    def _build_observation_space(self) -> spaces.Dict:
-        n = self.space_nodes
-        mask = spaces.Box(0, 1, shape=(n,), dtype=np.int8)
-        if self.observation_mode == "map":
-            # territory_input, then advice_input, each append one 0/1 column after FEATURES
-            extra = int(self.territory_input) + int(self.advice_input)
-            high = np.ones((n, len(FEATURES) + extra), dtype=np.float32)
-            high[:, FEATURES.index("u")] = self.u_max
-            high[:, FEATURES.index("age")] = self.max_cycles
-            return spaces.Dict(
-                {
-                    "nodes": spaces.Box(0.0, high, dtype=np.float32),
-                    "adjacency": spaces.Box(0, 1, shape=(n, n), dtype=np.int8),
-                    "position": spaces.Discrete(n),
-                    "dwell": spaces.Box(0.0, float(self.max_cycles), shape=(1,), dtype=np.float32),
-                    "action_mask": mask,
-                }
-            )
-        return spaces.Dict(
-            {
-                "position": spaces.Discrete(n),
-                "observed": mask,
-                "uncertainty": spaces.Box(0.0, float(self.u_max), shape=(n,), dtype=np.float32),
-                "target": mask,
-                "occupied": mask,
-                "edges": spaces.Box(0, 1, shape=(n, n), dtype=np.int8),
-                "action_mask": mask,
-            }
-        )
-
     def observation_space(self, agent: str) -> spaces.Dict:
         return self._observation_space
 
@@ -555,116 +407,6 @@ class PersistentMonitoringEnv(ParallelEnv):
     def uncertainty_trace(self) -> np.ndarray:
         """``(steps,)`` summed target uncertainty after each step of the current episode."""
         return self.metrics.uncertainty_trace()
-
-    # -------------------------------------------------------- observations
-    def _observe(self, counts: np.ndarray, presence: np.ndarray, advance_age: bool) -> None:
-        """Fold this step's local views into the maps: ``counts`` ``(N,)`` agents per node and
-        ``presence`` ``(N,)`` bool, ``counts > 0``."""
-        positions = self.core.positions
-        self._observed = self._observes[positions]  # (n_agents, N) bool
-        self._last_outcome_counts = counts
-        edge_nodes = self._edge_nodes[positions]
-        # Each map's edge row is its own node's unless an agent failed or the map is shared.
-        edge_positions: list[int] | None = None
-        # A failed agent senses nothing (nor feeds a shared map).
-        if np.count_nonzero(self._active) < self.n_agents:
-            self._observed = self._observed & self._active[:, None]
-            edge_nodes = edge_nodes & self._active[:, None]
-        elif not self.shared_map:
-            edge_positions = positions.tolist()
-        map_observed = self._observed
-        if self.shared_map:
-            # Centralized setting: every map receives the union of the team's observations.
-            map_observed = np.broadcast_to(self._observed.any(axis=0), self._observed.shape)
-            edge_nodes = np.broadcast_to(edge_nodes.any(axis=0), edge_nodes.shape)
-        self.maps.update(
-            positions,
-            map_observed,
-            self.core.uncertainty,
-            self._targets,
-            counts,
-            edge_nodes,
-            advance_age=advance_age,
-            edge_positions=edge_positions,
-            presence=presence,
-        )
-
-    def _observations(self) -> dict[str, dict[str, Any]]:
-        positions = self.core.positions
-        masks = self._reachable_i8[positions]  # fresh (n_agents, N); rows handed out as views
-        if self.observation_mode == "map":
-            nodes = self.maps.features  # a fresh array; rows handed out as views
-            extra = [self._territory_column] if self._territory_column is not None else []
-            if self._advice is not None:
-                extra.append(self._advice_column(positions))
-            if extra:  # one copy for every appended column
-                nodes = np.concatenate((nodes, *extra), axis=-1)
-            dwell = self._dwell.astype(np.float32)[:, None]
-            adjacency: Sequence[np.ndarray] | np.ndarray
-            if self.space_nodes > self.core.n_nodes:
-                nodes, adjacency, masks = self._padded(nodes, masks)
-            else:
-                adjacency = self.maps.adjacency_observations()
-            return {
-                agent: {
-                    "nodes": nodes[i],
-                    "adjacency": adjacency[i],
-                    "position": position,
-                    "dwell": dwell[i],
-                    "action_mask": masks[i],
-                }
-                for i, (agent, position) in enumerate(zip(self.possible_agents, positions.tolist()))
-            }
-        return {agent: self._local_observation(i, masks[i]) for i, agent in enumerate(self.possible_agents)}
-
-    def _advice_column(self, positions: np.ndarray) -> np.ndarray:
-        """``(n_agents, N, 1)`` float32: 1 on each agent's next move by the territory rule."""
-        assert self._advice is not None
-        channels = self.maps.channels
-        moves = self._advice.moves(positions, channels[U], channels[AGE], self._active)
-        column = np.zeros((self.n_agents, self.core.n_nodes, 1), dtype=np.float32)
-        advised = moves >= 0
-        column[advised.nonzero()[0], moves[advised], 0] = 1.0
-        return column
-
-    def _padded(self, nodes: np.ndarray, masks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Map observations padded from the graph's N nodes to the space's M.
-
-        A padding node has zero features, no edge and is never reachable: to the agent it looks
-        like a node it has not discovered, and since it has no edge the GAT passes nothing from it
-        to a real node. With ``laplacian: none`` the actor's logits on real nodes therefore do not
-        depend on the padding.
-
-        Shapes: nodes ``(n_agents, N, F)`` -> ``(n_agents, M, F)`` (F = 5, plus one column
-        each for ``territory_input`` and ``advice_input``); the maps' known adjacency
-        ``(n_agents, N, N)`` -> ``(n_agents, M, M)``; masks ``(n_agents, N)`` -> ``(n_agents, M)``.
-        """
-        n, m = self.graph.n_nodes, self.space_nodes
-        padded_nodes = np.zeros((self.n_agents, m, nodes.shape[-1]), dtype=nodes.dtype)
-        padded_nodes[:, :n] = nodes
-        padded_adjacency = np.zeros((self.n_agents, m, m), dtype=np.int8)
-        padded_adjacency[:, :n, :n] = self.maps.adjacency
-        padded_masks = np.zeros((self.n_agents, m), dtype=np.int8)
-        padded_masks[:, :n] = masks
-        return padded_nodes, padded_adjacency, padded_masks
-
-    def _local_observation(self, i: int, mask: np.ndarray) -> dict[str, Any]:
-        """The raw observation of agent ``i`` (no memory): its ball of radius ``obs_radius``."""
-        observed = self._observed[i]
-        position = int(self.core.positions[i])
-        others = self._last_outcome_counts.copy()
-        others[position] -= 1
-        edge_nodes = self._edge_nodes[position]
-        edges = self.graph.adjacency & (edge_nodes[:, None] | edge_nodes[None, :])
-        return {
-            "position": position,
-            "observed": observed.astype(np.int8),
-            "uncertainty": np.where(observed, self.core.uncertainty, 0).astype(np.float32),
-            "target": (observed & self._targets).astype(np.int8),
-            "occupied": (observed & (others > 0)).astype(np.int8),
-            "edges": edges.astype(np.int8),
-            "action_mask": mask,
-        }
 
     # ------------------------------------------------------------ rendering
     def render(self) -> Any:
