@@ -11,9 +11,9 @@ trained team's do) and times ``evaluate`` with each torch thread count, in episo
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
 ``--inference`` times the team
 acting one forward pass per agent (``serial``, the earlier releases' path), one stacked pass for the
-whole team computing every node's logit (``full``, :mod:`sb3_pm.agents.stacked_inference`), and that
-pass deciding from the allowed nodes' logits where the margin allows (``stacked``, the default,
-:mod:`sb3_pm.agents.pruned_inference`; the same actions, bit for bit; a team that samples its
+whole team computing every node's logit (``full``, :mod:`sb3_pm.agents.deployment.stacked_inference`), and
+that pass deciding from the allowed nodes' logits where the margin allows (``stacked``, the default,
+:mod:`sb3_pm.agents.deployment.pruned_inference`; the same actions, bit for bit; a team that samples its
 actions, at its ``deploy_temperature``, takes the full stacked pass under ``stacked`` too, since
 only most-likely actions are pruned), and prints their ratios to ``serial`` with the share of steps
 the pruned pass decided. An untrained team's logits are all within about 1e-4 of each other, below
@@ -55,7 +55,7 @@ def evaluation_speed(
     ``team_path``. Also the share of steps the pruned pass decided (``None`` for other passes)."""
     import statistics
 
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
     from sb3_pm.evaluation import evaluate
     from sb3_pm.zoo import load_config
 

@@ -73,7 +73,7 @@ def main() -> None:
 
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
     from sb3_pm.commands.train import parse_overrides
     from sb3_pm.zoo.config import load_config
 

@@ -23,7 +23,7 @@ runs (the CPU may be shared; the load average is printed).
 
 ``--rollouts`` picks how the learners' rollout passes run: ``stacked`` (the default,
 ``IndependentPPO.batched_rollouts``: one stacked pass per joint step for all learners,
-:mod:`sb3_pm.agents.rollout_batching`) and/or ``serial`` (each learner its own pass); both give the
+:mod:`sb3_pm.agents.training.rollout_batching`) and/or ``serial`` (each learner its own pass); both give the
 same parameters, so listing both measures the gain.
 
 ``--devices`` trains the team's learners on each torch device listed, for the ratios in one run:
@@ -40,7 +40,7 @@ the same parameters bit for bit (``tests/test_attention_kernels.py``), so listin
 gain.
 
 ``--update-slots`` picks how many learners may run their update phase at once
-(:mod:`sb3_pm.agents.update_slots`): ``auto`` (the default: one per core over torch's threads),
+(:mod:`sb3_pm.agents.multiplexing.update_slots`): ``auto`` (the default: one per core over torch's threads),
 ``all`` (every learner, the rule before it) or a number. The parameters are the same whatever the
 count, so listing several measures the gain (it shows with many learners: ``--agents 16``).
 
@@ -100,7 +100,7 @@ def _timed(phases: dict[str, float], name: str, method: Callable[..., Any]) -> C
 def _instrument(team: Any, phases: dict[str, float]) -> Callable[[], None]:
     """Time the team's phases (see the module docstring) into ``phases``; returns what undoes the
     patches of classes."""
-    from sb3_pm.agents.rollout_batching import RolloutBatcher
+    from sb3_pm.agents.training.rollout_batching import RolloutBatcher
     from sb3_pm.callbacks import EstimatorCallback
 
     team.hub._joint_step = _timed(phases, "environment step", team.hub._joint_step)
@@ -171,7 +171,7 @@ def team_speed(
 ) -> float:
     """Agent-steps per second of one team after a one-rollout warm-up (with ``profile``, its phases
     and, given ``cartpole``'s steps per second, the bounds of the module docstring are printed)."""
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
     from sb3_pm.policies import attention
     from sb3_pm.zoo.config import load_config
 

@@ -18,7 +18,7 @@ from sb3_pm.version import __version__
 register_envs()
 
 _LAZY = {
-    "IndependentPPO": "sb3_pm.agents.team",
+    "IndependentPPO": "sb3_pm.agents.training.team",
     "DCBFPPO": "sb3_pm.ppo_dcbf",
     "DCBFPolicy": "sb3_pm.ppo_dcbf",
     "CentralizedPPO": "sb3_pm.sharing.centralized",

@@ -20,7 +20,7 @@ an *omniscient* team (``omniscient = True``) may also read the true state throug
 
 Everything the harness and the commands ask of a team is declared here with the answer of a team
 that has no trained policies (a baseline); trained teams override it
-(:class:`sb3_pm.agents.deployment_rule.DeploymentRule`), so nothing probes a team with
+(:class:`sb3_pm.agents.deployment.rule.DeploymentRule`), so nothing probes a team with
 ``getattr``.
 """
 

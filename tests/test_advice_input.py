@@ -15,9 +15,9 @@ import pytest
 import torch as th
 from pettingzoo.test import parallel_api_test
 
-from sb3_pm.agents.pruned_inference import prune_problem
-from sb3_pm.agents.stacked_inference import StackedInference, stack_problem
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.deployment.pruned_inference import prune_problem
+from sb3_pm.agents.deployment.stacked_inference import StackedInference, stack_problem
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.envs.mental_map import FEATURES

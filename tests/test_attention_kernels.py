@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 import torch as th
 
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.policies import GraphAttention, attention, layers
 from sb3_pm.policies.attention import attention_bias, chunked_attention, unique_graphs, use_chunked

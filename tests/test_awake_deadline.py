@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sb3_pm.agents.awake_deadline import SUSPENSION_GAP, AwakeDeadline
+from sb3_pm.agents.multiplexing.awake_deadline import SUSPENSION_GAP, AwakeDeadline
 
 
 class FakeClock:

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_pm.agents.checkpoints import CheckpointError, CheckpointSchedule
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.checkpoints import CheckpointError, CheckpointSchedule
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.cli import main
 from sb3_pm.graphs import erdos_renyi
 
@@ -200,7 +200,7 @@ def test_resume_refuses_what_it_cannot_continue(tiny_train, capsys, monkeypatch)
 def test_side_by_side_updates_give_the_serial_parameters(monkeypatch) -> None:
     """Concurrent update phases (each learner's train() and estimator fit in its own thread) give
     the parameters of the serial path, bit for bit, and really run side by side."""
-    from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
+    from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
 
     side_by_side = []
     enter_update = ParallelEnvMultiplexer.enter_update

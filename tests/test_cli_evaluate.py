@@ -83,8 +83,8 @@ class TestEvaluate:
                 return team
 
         # Patch the class, not the module: the loader also imports the centralized team's module,
-        # which reads other names from sb3_pm.agents.team.
-        monkeypatch.setattr("sb3_pm.agents.team.IndependentPPO", FakePPO)
+        # which reads other names from sb3_pm.agents.training.team.
+        monkeypatch.setattr("sb3_pm.agents.training.team.IndependentPPO", FakePPO)
         team_dir = tmp_path / "my_team"
         team_dir.mkdir()
         argv = ["evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1"]
@@ -109,7 +109,7 @@ class TestEvaluate:
                 team.n_agents, team.env_kwargs = 3, {}
                 return team
 
-        monkeypatch.setattr("sb3_pm.agents.team.IndependentPPO", FakePPO)
+        monkeypatch.setattr("sb3_pm.agents.training.team.IndependentPPO", FakePPO)
         team_dir = tmp_path / "three"
         team_dir.mkdir()
         out_json = tmp_path / "r.json"
@@ -133,7 +133,7 @@ class TestEvaluate:
         assert code == 0 and json.loads(out_json.read_text())["config"]["n_agents"] == 4
 
     def test_trained_team_without_learner(self, capsys, tmp_path, monkeypatch) -> None:
-        monkeypatch.setitem(sys.modules, "sb3_pm.agents.team", None)  # import fails
+        monkeypatch.setitem(sys.modules, "sb3_pm.agents.training.team", None)  # import fails
         code, _, err = run_cli(
             capsys, "evaluate", "--policy", str(tmp_path), "--steps", "5", "--episodes", "1"
         )
@@ -198,7 +198,7 @@ def test_saved_team_type_comes_from_the_manifest_format(monkeypatch, tmp_path, m
     def fake(kind):
         return type(kind, (), {"load": staticmethod(lambda path, graph=None, device="cpu": kind)})
 
-    monkeypatch.setattr("sb3_pm.agents.team.IndependentPPO", fake("independent"))
+    monkeypatch.setattr("sb3_pm.agents.training.team.IndependentPPO", fake("independent"))
     monkeypatch.setattr("sb3_pm.sharing.centralized.CentralizedPPO", fake("centralized"))
     (tmp_path / "team").mkdir()
     (tmp_path / "team" / "manifest.json").write_text(json.dumps(manifest))

@@ -52,7 +52,7 @@ def test_train_writes_run_folder_and_refuses_overwrite(tiny_train, capsys) -> No
     assert machine["cpu"] and machine["torch_cpu_capability"] == str(torch.backends.cpu.get_cpu_capability())
     assert any((out / "tb").iterdir())  # TensorBoard runs, one per agent
 
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     team = IndependentPPO.load(out)  # the run folder loads (evaluate --policy RUN_DIR)
     assert team.num_timesteps == 32
@@ -189,7 +189,7 @@ def test_train_prints_and_records_staggered_learning_rates(tiny_train, capsys) -
         capsys.readouterr().out
     )
     assert yaml.safe_load((out / "config.yml").read_text())["learning_rate_spread"] == 4.0
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     team = IndependentPPO.load(out)
     try:

@@ -24,7 +24,7 @@ TERRITORY_BOUND = {"neglect_bound": 15.0, "neglect_scope": "territory"}
 
 
 def tiny_team(deploy_filter=TERRITORY_BOUND, **hyperparams):
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     return IndependentPPO(
         path_graph(10, targets=[0, 1, 8, 9]),
@@ -119,7 +119,7 @@ class TestTeam:
         manifest = json.loads((tmp_path / "t" / "manifest.json").read_text())
         assert manifest["deploy_filter"] == TERRITORY_BOUND
 
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
 
         loaded = IndependentPPO.load(tmp_path / "t")
         try:
@@ -154,7 +154,7 @@ class TestTeam:
             tiny_team(policy_kwargs={"neglect_bound": 20.0})
 
     def test_a_graph_family_has_no_territories(self) -> None:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
 
         with pytest.raises(InputError, match="scope 'territory' needs one graph"):
             IndependentPPO("family:er", n_agents=2, deploy_filter=TERRITORY_BOUND)
@@ -162,7 +162,7 @@ class TestTeam:
 
 class TestTransfer:
     def test_a_moved_bound_takes_the_new_graphs_territories(self) -> None:
-        from sb3_pm.agents.transfer import retarget_territories
+        from sb3_pm.agents.deployment.transfer import retarget_territories
         from sb3_pm.graphs.territories import target_territories
 
         graph = path_graph(12, targets=[0, 2, 9, 11])
@@ -176,7 +176,7 @@ class TestTransfer:
         assert {t for p in policies.values() for t in p.dcbf_config.territory} == {0, 2, 9, 11}
 
     def test_policies_without_a_territory_bound_are_left_alone(self) -> None:
-        from sb3_pm.agents.transfer import retarget_territories
+        from sb3_pm.agents.deployment.transfer import retarget_territories
 
         known = DCBFConfig(neglect_bound=20.0, neglect_scope="known")
         policies = {"agent_0": SimpleNamespace(dcbf_config=known)}
@@ -360,7 +360,7 @@ class TestFaults:
             team.close()
 
     def test_a_rule_the_learners_cannot_take_leaves_the_previous_one(self) -> None:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
 
         team = IndependentPPO(
             path_graph(10, targets=[0, 9]),
@@ -446,7 +446,7 @@ class TestSiteBound:
             check_deploy_filter({"neglect_bound": "automatic"})
 
     def test_evaluate_calibrates_the_site_first_and_the_team_keeps_its_bound(self, tmp_path) -> None:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
         from sb3_pm.evaluation import evaluate
         from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
 
@@ -510,7 +510,7 @@ class TestSiteBound:
             team.close()
 
     def test_a_team_trained_on_a_family_takes_it_and_calibrates_where_it_is_deployed(self) -> None:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
         from sb3_pm.evaluation import evaluate
         from sb3_pm.evaluation.neglect_calibration import calibrate_neglect_bound
         from sb3_pm.graphs.distributions import ErdosRenyiFamily

@@ -11,7 +11,7 @@ import pytest
 import torch as th
 import yaml
 
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.evaluation import evaluate
 from sb3_pm.experiments.spec import ExperimentError, load_experiment
 from sb3_pm.graphs import erdos_renyi

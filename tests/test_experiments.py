@@ -220,7 +220,7 @@ def test_a_cell_stopped_mid_training_resumes_from_its_checkpoint(
     import torch as th
 
     from sb3_pm.agents import checkpoints as checkpoints_module
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     experiment = load_tiny(tmp_path)
     reproduce(experiment, tmp_path / "whole", n_jobs=1, progress=False)
@@ -450,7 +450,7 @@ def test_untrained_variant_evaluates_the_initial_policy(
     text = path.read_text().replace("  learned: {}\n", "  learned: {}\n  untrained: {train: false}\n")
     path.write_text(text)
     experiment = load_experiment(path).with_graphs([str(tmp_path / "tiny.graphml")])
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     learned_seeds = []
     original = IndependentPPO.learn
@@ -602,7 +602,7 @@ def test_a_train_env_variant_trains_once_per_seed_and_deploys_on_every_graph(
         (0, "trained/transfer/family-er/seed0"),
         (1, "trained/transfer/family-er/seed1"),
     ]
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     team = IndependentPPO.load(tmp_path / "out" / "trained" / "transfer" / "family-er" / "seed0" / "team")
     assert team.graph.name == "family:er" and team.num_timesteps == 32  # the variant's own budget
@@ -631,7 +631,7 @@ def test_a_train_agents_variant_trains_that_team_size_and_deploys_the_experiment
     (cell,) = plan_cells(experiment, tmp_path / "out")
     assert runner_module.cell_config(cell, runner_module.Variant(**cell.variant)).n_agents == 2
     reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False)
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     team = IndependentPPO.load(tmp_path / "out" / "trained" / "small" / "family-er" / "seed0" / "team")
     assert team.n_agents == 2

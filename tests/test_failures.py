@@ -136,7 +136,7 @@ class TestOtherTeamSizes:
     @pytest.fixture(scope="class")
     @classmethod
     def team(cls):  # a 2-agent team; its parameters do not matter for the deployment rule
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
 
         return IndependentPPO(
             path_graph(6, [0, 5], name="line6"),
@@ -204,7 +204,7 @@ def test_failures_do_not_change_an_episode_without_them() -> None:
 
 
 def test_training_with_failures_is_refused() -> None:
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     with pytest.raises(InputError, match="deployment condition"):
         IndependentPPO(path_graph(6, [0, 5]), n_agents=2, env_kwargs={"failures": {"agent_1": 3}})

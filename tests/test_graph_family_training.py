@@ -9,8 +9,8 @@ import pytest
 import torch as th
 from pettingzoo.test import parallel_api_test
 
-from sb3_pm.agents.team import IndependentPPO
-from sb3_pm.agents.transfer import TransferredTeam, rebuild_policy
+from sb3_pm.agents.deployment.transfer import TransferredTeam, rebuild_policy
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation import evaluate, resolve_team

@@ -27,7 +27,10 @@ LAYERS: list[tuple[str, ...]] = [
     ("sb3_pm.policies", "sb3_pm.baselines"),
     ("sb3_pm.callbacks", "sb3_pm.ppo_dcbf"),
     ("sb3_pm.zoo",),
-    ("sb3_pm.agents", "sb3_pm.sharing"),
+    # a team by job: how it acts and is stored, and the env bridge its learners train through ...
+    ("sb3_pm.agents.deployment", "sb3_pm.agents.multiplexing"),
+    # ... below the training of a team, one learner per agent or one shared network
+    ("sb3_pm.agents", "sb3_pm.agents.training", "sb3_pm.sharing"),
     ("sb3_pm.evaluation",),
     ("sb3_pm.experiments",),
     # The top: the package itself (``import sb3_pm``), the Gymnasium registration it runs, and the

@@ -11,9 +11,9 @@ from sb3_contrib import MaskablePPO
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
-from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer, TeamAborted
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.multiplexing.learner_threads import learn_concurrently, raise_first_error
+from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer, TeamAborted
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
 
@@ -118,7 +118,7 @@ def test_each_episode_return_starts_from_zero() -> None:
 
 
 def test_a_stuck_learner_stops_the_team_with_a_clear_error() -> None:
-    from sb3_pm.agents.multiplexer import TeamTimeout
+    from sb3_pm.agents.multiplexing.multiplexer import TeamTimeout
 
     release = threading.Event()
 

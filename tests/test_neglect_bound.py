@@ -313,7 +313,7 @@ class TestFilterIntegration:
 
 class TestDeployment:
     def test_a_trained_team_takes_the_bound_and_counts_its_overrides(self, tmp_path) -> None:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
         from sb3_pm.evaluation import evaluate
 
         graph = path_graph(12, targets=[0, 11])
@@ -351,7 +351,7 @@ class TestDeployment:
         assert result.mean["steps"] == 200
 
     def test_the_territory_scope_gives_each_learner_its_agents_territory(self, tmp_path) -> None:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
 
         graph = path_graph(10, targets=[0, 1, 8, 9])
         team = IndependentPPO(

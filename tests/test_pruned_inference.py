@@ -9,8 +9,8 @@ import pytest
 import torch as th
 
 from sb3_pm.agents import pruned_inference
-from sb3_pm.agents.pruned_inference import PrunedInference, allowed_rows, decide, prune_problem
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.deployment.pruned_inference import PrunedInference, allowed_rows, decide, prune_problem
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
 

@@ -11,8 +11,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import obs_as_tensor
 
 from sb3_pm.agents import rollout_batching
-from sb3_pm.agents.rollout_batching import RolloutBatcher
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.rollout_batching import RolloutBatcher
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.graphs.distributions import ErdosRenyiFamily
 
@@ -167,7 +167,7 @@ def test_an_observation_other_than_the_published_one_gets_its_own_pass() -> None
 def test_a_stack_that_would_round_differently_leaves_every_pass_serial(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from sb3_pm.agents.stacked_inference import StackedInference
+    from sb3_pm.agents.deployment.stacked_inference import StackedInference
 
     monkeypatch.setattr(
         StackedInference, "_rounds_as_serial", lambda self, stack, maps=1, values=False: False

@@ -12,7 +12,7 @@ import pytest
 import torch as th
 from scipy import stats
 
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation import evaluate

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_pm.agents.stacked_inference import StackedInference, stack_problem
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.deployment.stacked_inference import StackedInference, stack_problem
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
 
@@ -204,7 +204,7 @@ def test_maps_for_the_sparse_kernel_run_serially() -> None:
 def test_a_pass_that_would_round_differently_is_refused_by_its_own_check(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import sb3_pm.agents.stacked_inference as stacked
+    import sb3_pm.agents.deployment.stacked_inference as stacked
 
     def batched_heads(stack: Any, name: str, x: th.Tensor) -> th.Tensor:  # one-output layers, batched
         weight, bias = stack.weights[f"{name}.weight"], stack.weights[f"{name}.bias"]

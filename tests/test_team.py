@@ -7,7 +7,7 @@ import json
 import pytest
 import torch as th
 
-from sb3_pm.agents.team import IndependentPPO, agent_seed
+from sb3_pm.agents.training.team import IndependentPPO, agent_seed
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.team_interface import Team

@@ -7,7 +7,7 @@ import torch as th
 
 pytest.importorskip("sb3_pm.ppo_dcbf")
 
-from sb3_pm.agents.team import IndependentPPO  # noqa: E402
+from sb3_pm.agents.training.team import IndependentPPO  # noqa: E402
 from sb3_pm.envs import persistent_monitoring_v0  # noqa: E402
 from sb3_pm.graphs import erdos_renyi  # noqa: E402
 from sb3_pm.zoo.registry import default_algo  # noqa: E402

@@ -11,7 +11,7 @@ import pytest
 import torch as th
 from pettingzoo.test import parallel_api_test
 
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.envs.mental_map import FEATURES
 from sb3_pm.errors import InputError

@@ -1,4 +1,4 @@
-"""Zero-shot transfer of a trained team to graphs of other sizes (sb3_pm.agents.transfer)."""
+"""Zero-shot transfer of a trained team to graphs of other sizes (sb3_pm.agents.deployment.transfer)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_pm.agents.team import IndependentPPO
-from sb3_pm.agents.transfer import TransferredTeam, rebuild_policy
+from sb3_pm.agents.deployment.transfer import TransferredTeam, rebuild_policy
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.evaluation import evaluate, resolve_team
 from sb3_pm.evaluation.teams import PolicyError

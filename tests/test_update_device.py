@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 import torch as th
 
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.errors import InputError
 from sb3_pm.ppo_dcbf import update_device as update_device_module
 from sb3_pm.ppo_dcbf.update_device import check_update_device, on_update_device

@@ -8,9 +8,9 @@ from typing import Any
 import pytest
 import torch as th
 
-from sb3_pm.agents.multiplexer import TeamTimeout
-from sb3_pm.agents.team import IndependentPPO
-from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
+from sb3_pm.agents.multiplexing.multiplexer import TeamTimeout
+from sb3_pm.agents.multiplexing.update_slots import UpdateSlots, default_update_slots
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.ppo_dcbf.ppo_dcbf import DCBFPPO
@@ -88,7 +88,7 @@ def test_bad_slot_counts_are_refused(count: Any) -> None:
 
 
 def test_default_is_one_slot_per_core_per_thread(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr("sb3_pm.agents.update_slots.usable_cores", lambda: 8)
+    monkeypatch.setattr("sb3_pm.agents.multiplexing.update_slots.usable_cores", lambda: 8)
     monkeypatch.setattr(th, "get_num_threads", lambda: 2)
     assert default_update_slots() == 4
     monkeypatch.setattr(th, "get_num_threads", lambda: 16)

@@ -9,7 +9,7 @@ import torch as th
 import yaml
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.zoo import ConfigError, load_config, parse_schedule, resolve_algo, resolve_policy_kwargs
 from sb3_pm.zoo.registry import RegistryError

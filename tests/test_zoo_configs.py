@@ -129,7 +129,7 @@ TEAM_ENTRIES = [
 
 @pytest.mark.parametrize(("name", "entry"), TEAM_ENTRIES, ids=lambda value: str(value))
 def test_ippo_entry_builds_a_team(name: str, entry: str) -> None:
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     config = load_config(ZOO / name, entry)
     assert config.entry == entry
@@ -255,8 +255,8 @@ def test_a_config_env_is_what_train_uses_without_env(tmp_path: Path) -> None:
 
 
 def test_ippo_transfer_team_deploys_on_another_graph() -> None:
-    from sb3_pm.agents.team import IndependentPPO
-    from sb3_pm.agents.transfer import TransferredTeam
+    from sb3_pm.agents.deployment.transfer import TransferredTeam
+    from sb3_pm.agents.training.team import IndependentPPO
 
     config = load_config("ippo_transfer", "paper-50")
     config.hyperparams.update(TINY)

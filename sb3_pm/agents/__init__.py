@@ -1,5 +1,12 @@
-"""Independent learners: :mod:`sb3_pm.agents.team` (``IndependentPPO``, one learner per agent) and
-:mod:`sb3_pm.agents.multiplexer` (one parallel env seen as one vec env per learner).
+"""Decentralized teams of independent learners, by job:
 
-Both load on first import of their module; this package itself imports nothing.
+* :mod:`sb3_pm.agents.deployment`: how a trained team acts (one acting rule, one ``predict``) and
+  how it is saved;
+* :mod:`sb3_pm.agents.multiplexing`: one PettingZoo parallel env seen as one SB3 ``VecEnv`` per
+  learner, with the learners' threads and random streams;
+* :mod:`sb3_pm.agents.training`: ``IndependentPPO`` (one learner per agent), its learners,
+  callbacks and checkpoints.
+
+Each subpackage imports only those listed above it. This package itself imports nothing (torch
+loads on first use of a learner).
 """

@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
     # Measured: two runs with the same seed gave different parameters with torch's default 2 threads
     # on 2 cores, and identical ones with 1 thread.
     torch.set_num_threads(args.threads)
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
     try:
         team = IndependentPPO.from_config(
@@ -240,8 +240,8 @@ def run(args: argparse.Namespace) -> int:
 
 def resume(args: argparse.Namespace) -> int:
     """``--resume DIR``: continue the run in DIR from its newest intact checkpoint."""
-    from sb3_pm.agents.checkpoints import CheckpointError
-    from sb3_pm.agents.team import MANIFEST, IndependentPPO
+    from sb3_pm.agents.training.checkpoints import CheckpointError
+    from sb3_pm.agents.training.team import MANIFEST, IndependentPPO
     from sb3_pm.errors import UsageError
 
     given = [f"--{name.replace('_', '-')}" for name in RUN_OPTIONS if getattr(args, name) not in (None, [])]
@@ -320,7 +320,7 @@ def _learn_and_save(
 
     :returns: the exit status: 0, or 130 when interrupted (after saying how to resume).
     """
-    from sb3_pm.agents.checkpoints import CHECKPOINTS, CheckpointSchedule, TrainingInterrupted
+    from sb3_pm.agents.training.checkpoints import CHECKPOINTS, CheckpointSchedule, TrainingInterrupted
 
     schedule = CheckpointSchedule(out / CHECKPOINTS, every=every) if every > 0 else None
 

@@ -48,13 +48,13 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
     imported lazily so that baselines never need torch."""
     path = Path(path)
     try:
-        from sb3_pm.agents.team import IndependentPPO
+        from sb3_pm.agents.training.team import IndependentPPO
         from sb3_pm.sharing.centralized import MANIFEST_FORMAT as CENTRALIZED
         from sb3_pm.sharing.centralized import CentralizedPPO
     except ImportError as error:
         raise PolicyError(
             f"cannot load the trained team in {path}: "
-            f"sb3_pm.agents.team.IndependentPPO is unavailable ({error})"
+            f"sb3_pm.agents.training.team.IndependentPPO is unavailable ({error})"
         ) from error
     # The manifest's ``format`` field says which team type wrote it (a run folder of
     # ``sb3-pm train`` keeps the team in ``team/``; the loaders handle both).
@@ -75,7 +75,7 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
         if not other_graph:
             return team_class.load(path, graph=graph, device=device)  # type: ignore[no-any-return]
         # Another graph: load the team on its own, then rebuild its policies for this one, or
-        # refuse with the reason (sb3_pm.agents.transfer).
+        # refuse with the reason (sb3_pm.agents.deployment.transfer).
         team = team_class.load(path, device=device)
         if team_class is CentralizedPPO:
             raise InputError(

@@ -250,8 +250,8 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
     """Train the learned team of a cell and save it to ``folder/team``."""
     config = cell_config(cell, variant)
     timesteps = variant.timesteps or cell.timesteps or config.n_timesteps
-    from sb3_pm.agents.checkpoints import CHECKPOINTS
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.checkpoints import CHECKPOINTS
+    from sb3_pm.agents.training.team import IndependentPPO
     from sb3_pm.sharing.centralized import CentralizedPPO
 
     team_class: Any = CentralizedPPO if variant.kind == "centralized" else IndependentPPO
@@ -282,8 +282,8 @@ CELL_CHECKPOINT_SECONDS = 900.0
 def _train_with_checkpoints(cell: Cell, config: Any, timesteps: int, folder: Path, graph: str) -> Any:
     """Train a decentralized cell with checkpoints in ``folder/checkpoints``, continuing from the
     newest one a stopped sweep left there (bit for bit, so a resumed sweep loses no training)."""
-    from sb3_pm.agents.checkpoints import CHECKPOINTS, CheckpointError, CheckpointSchedule
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.checkpoints import CHECKPOINTS, CheckpointError, CheckpointSchedule
+    from sb3_pm.agents.training.team import IndependentPPO
 
     schedule = CheckpointSchedule(
         folder / CHECKPOINTS, every=CELL_CHECKPOINT_EVERY, every_seconds=CELL_CHECKPOINT_SECONDS
@@ -345,7 +345,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
     """Train (if learned) and evaluate one cell; write ``evaluation.json`` and then ``DONE``."""
     import torch
 
-    from sb3_pm.agents.learned_team import LearnedTeam
+    from sb3_pm.agents.training.learned_team import LearnedTeam
 
     torch.set_num_threads(1)  # one job per core: threads inside a job would oversubscribe
     folder = Path(cell.folder)
@@ -416,7 +416,7 @@ def reproduce(
 
     :param device: torch device of the learned teams (``cpu``, ``cuda``, ``auto``).
     :param update_device: torch device of the learned teams' update phases alone (e.g. ``cuda``
-        with ``device="cpu"``: :attr:`~sb3_pm.agents.team.IndependentPPO.update_device`).
+        with ``device="cpu"``: :attr:`~sb3_pm.agents.training.team.IndependentPPO.update_device`).
     """
     out = Path(out)
     cells = plan_cells(experiment, out, device=device, update_device=update_device)

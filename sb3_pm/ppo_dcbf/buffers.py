@@ -2,7 +2,7 @@
 
 PPO's ``train()`` asks the buffer for one shuffled pass per epoch, and the buffer shuffles with
 NumPy's global generator. Learners whose update phases run at the same time, each in its own thread
-(:class:`~sb3_pm.agents.team.IndependentPPO` with ``concurrent_updates``), would then draw from that
+(:class:`~sb3_pm.agents.training.team.IndependentPPO` with ``concurrent_updates``), would then draw from that
 one generator in an order the OS scheduler decides. :meth:`OrderedRolloutBuffer.draw_orders` draws
 the epochs' orders in advance, while the learner still holds its turn and its own random stream is
 loaded: the very permutations ``get()`` would have drawn one epoch at a time, so the update is the

@@ -9,7 +9,7 @@ observations), one shared estimator and one network acting for every agent. Here
 - the same algorithm and policy classes as the decentralized team (``DCBFPPO`` + ``DCBFPolicy`` by
   default), with the same hyperparameters from the same config file.
 
-Budgets are counted as for :class:`~sb3_pm.agents.team.IndependentPPO`: ``learn(T)`` gives the
+Budgets are counted as for :class:`~sb3_pm.agents.training.team.IndependentPPO`: ``learn(T)`` gives the
 team ``n_agents * T`` agent-steps, so both teams see the same amount of experience.
 """
 
@@ -21,10 +21,10 @@ from typing import Any
 
 from stable_baselines3.common.utils import set_random_seed
 
-from sb3_pm.agents.learned_team import LearnedTeam
-from sb3_pm.agents.learner_callbacks import close_loggers, with_episode_metrics
-from sb3_pm.agents.learners import learn_seed, resolve_hyperparams
-from sb3_pm.agents.saved_teams import load_model_file
+from sb3_pm.agents.deployment.saved_teams import load_model_file
+from sb3_pm.agents.training.learned_team import LearnedTeam
+from sb3_pm.agents.training.learner_callbacks import close_loggers, with_episode_metrics
+from sb3_pm.agents.training.learners import learn_seed, resolve_hyperparams
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec
 from sb3_pm.policies.policy import check_advice_source
@@ -46,7 +46,7 @@ class CentralizedPPO(LearnedTeam):
     :param seed: seeds the model and the env copies.
     :param hyperparams: the algorithm's keyword arguments (``n_steps`` counts steps per entry).
     :param deploy_temperature: how the trained team acts by default (see
-        :attr:`~sb3_pm.agents.learned_team.LearnedTeam.deploy_temperature`).
+        :attr:`~sb3_pm.agents.training.learned_team.LearnedTeam.deploy_temperature`).
     """
 
     name = "centralized"

@@ -95,7 +95,7 @@ class ConfigError(InputError):
 
 @dataclass
 class TrainConfig:
-    """One resolved config entry: everything :class:`~sb3_pm.agents.team.IndependentPPO` needs.
+    """One resolved config entry: everything :class:`~sb3_pm.agents.training.team.IndependentPPO` needs.
 
     Values are kept as written (``lin_3e-4`` stays a string) so the entry can be written back to
     a run folder's ``config.yml``; the team resolves schedules and class names itself.

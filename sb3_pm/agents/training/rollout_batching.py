@@ -1,11 +1,11 @@
 """One stacked forward pass per rollout step for all of a team's learners.
 
 While a team collects its rollouts, every learner runs its own policy's forward pass on its own
-observation, one learner after the other (:mod:`sb3_pm.agents.multiplexer`'s baton): ``K`` small
+observation, one learner after the other (:mod:`sb3_pm.agents.multiplexing.multiplexer`'s baton): ``K`` small
 passes per joint step, each a few hundred tensor operations on ``n_envs`` maps, where the time goes
 to per-operation overhead rather than arithmetic. Every learner's observation for the next step is
 known as soon as the joint step is published, so the first learner to act can compute all ``K``
-passes as one :class:`~sb3_pm.agents.stacked_inference.StackedInference` pass (each policy with
+passes as one :class:`~sb3_pm.agents.deployment.stacked_inference.StackedInference` pass (each policy with
 its own parameters, on its own maps) and leave the others their results.
 
 Nothing is shared but the arithmetic, and nothing changes in what is computed:
@@ -34,8 +34,8 @@ from typing import Any
 
 import torch as th
 
-from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
-from sb3_pm.agents.stacked_inference import RolloutHeads, StackedInference
+from sb3_pm.agents.deployment.stacked_inference import RolloutHeads, StackedInference
+from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
 
 Heads = tuple[th.Tensor, th.Tensor, th.Tensor]
 

@@ -14,7 +14,7 @@ resumed run continue bit for bit: the state of every stream is part of the check
 Only the learner holding the baton runs code that draws from the process-wide generators, so
 swapping their state is safe. A learner updating side by side with others draws nothing from them:
 its update's draws are made up front, or from a torch generator of its own
-(:meth:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer.enter_update`). Without the baton
+(:meth:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer.enter_update`). Without the baton
 (``strict_order=False``) streams are not used. Only the CPU generators are carried: on a GPU,
 action sampling draws from the CUDA generator, which is shared.
 """

@@ -1,20 +1,21 @@
 """Team checkpoints: everything needed to continue a training run bit for bit.
 
-A checkpoint is taken at a rollout barrier (:class:`~sb3_pm.agents.agent_vec_env.RolloutBarrier`),
-where every learner has finished ``train()`` and its estimator fit and none has started the next
+A checkpoint is taken at a rollout barrier
+(:class:`~sb3_pm.agents.multiplexing.agent_vec_env.RolloutBarrier`), where every learner has finished
+``train()`` and its estimator fit and none has started the next
 rollout. What the run still depends on at that point is saved:
 
 * the learners, as a saved team (SB3 zips: parameters, optimizer states, step counts, the last
   observation of each env copy);
 * the env copies themselves (pickled: node uncertainties, positions, mental maps, their generators)
   and the multiplexer's running episode returns and lengths;
-* every learner's random stream (:mod:`sb3_pm.agents.streams`).
+* every learner's random stream (:mod:`sb3_pm.agents.multiplexing.streams`).
 
 Layout, inside a run folder::
 
     checkpoints/
       rollout_000010/       the barrier after 10 rollouts (counted from the run's start)
-        manifest.json ...   a saved team (see :mod:`sb3_pm.agents.team`)
+        manifest.json ...   a saved team (see :mod:`sb3_pm.agents.training.team`)
         state.pkl           env copies, multiplexer counters, random streams
         checkpoint.json     written last: step counts and the SHA-256 of every file
 
@@ -42,7 +43,7 @@ from sb3_pm.files import checksum_problem, move_aside, sha256_file, write_atomic
 from sb3_pm.version import __version__
 
 if TYPE_CHECKING:
-    from sb3_pm.agents.team import IndependentPPO
+    from sb3_pm.agents.training.team import IndependentPPO
 
 logger = logging.getLogger(__name__)
 

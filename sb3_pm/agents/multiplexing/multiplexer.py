@@ -5,9 +5,9 @@ drive a single-agent ``VecEnv``, while the environment needs every agent's actio
 step. :class:`ParallelEnvMultiplexer` bridges the two:
 
 * it owns ``n_envs`` copies of the parallel env and hands out one
-  :class:`~sb3_pm.agents.agent_vec_env.AgentVecEnv` per agent;
+  :class:`~sb3_pm.agents.multiplexing.agent_vec_env.AgentVecEnv` per agent;
 * each learner runs its own ``learn()`` in its own thread
-  (:func:`~sb3_pm.agents.learner_threads.learn_concurrently`);
+  (:func:`~sb3_pm.agents.multiplexing.learner_threads.learn_concurrently`);
 * an agent's ``step_wait`` (and ``reset``) submits its action and blocks until every agent has
   submitted; the last one steps all copies at once and publishes every agent's slice.
 
@@ -24,13 +24,10 @@ can make every random draw of its update phase up front (:meth:`~ParallelEnvMult
 hands the baton on at its rollout's end and runs ``train()``, its estimator fit and its callbacks'
 ``on_rollout_start`` next to the others, without the baton, until the rollout barrier.
 
-Each learner also draws from its own random stream (:mod:`sb3_pm.agents.streams`): its state is
-loaded into the process-wide generators when the learner takes the baton and stored back when it
-hands it on, so a learner's draws do not depend on the others' at all. Torch's generator (action
-sampling) is swapped at every turn; NumPy's and Python's, which SB3 draws from only in a learner's
-update phase, at the start of a ``learn()`` and from each rollout's end to the next barrier.
+Each learner also draws from its own random stream, swapped into the process-wide generators at
+its turns (:mod:`sb3_pm.agents.multiplexing.stream_turns`), so its draws do not depend on the others'.
 
-**Rollout barrier.** :class:`~sb3_pm.agents.agent_vec_env.RolloutBarrier`, a callback every team
+**Rollout barrier.** :class:`~sb3_pm.agents.multiplexing.agent_vec_env.RolloutBarrier`, a callback every team
 learner carries last, makes all learners meet at the start of each rollout (after every
 ``train()`` and estimator fit). There the team's :attr:`ParallelEnvMultiplexer.on_sync` hook runs
 alone, with every learner at the same point: that is where checkpoints are taken, and where a stop
@@ -45,10 +42,10 @@ env's own ``info["metrics"]`` is passed through.
 
 **Failure.** If a learner raises, or stops early (a callback returned ``False``), the multiplexer
 is aborted: every agent blocked in ``step_wait`` raises :class:`TeamAborted`, which
-:func:`~sb3_pm.agents.learner_threads.learn_concurrently` swallows, and the original error is
+:func:`~sb3_pm.agents.multiplexing.learner_threads.learn_concurrently` swallows, and the original error is
 re-raised to the caller. Blocked agents wake every :data:`POLL_INTERVAL` to check for an abort; a
 ``timeout`` bounds how long an agent waits for the others, counting only the time the process ran
-(:class:`~sb3_pm.agents.awake_deadline.AwakeDeadline`: a sweep suspended for an hour resumes).
+(:class:`~sb3_pm.agents.multiplexing.awake_deadline.AwakeDeadline`: a sweep suspended for an hour resumes).
 """
 
 from __future__ import annotations
@@ -62,10 +59,10 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
 
-from sb3_pm.agents.agent_vec_env import AgentVecEnv
-from sb3_pm.agents.awake_deadline import AwakeDeadline
-from sb3_pm.agents.stream_turns import LearnerStreams
-from sb3_pm.agents.update_slots import UpdateSlots
+from sb3_pm.agents.multiplexing.agent_vec_env import AgentVecEnv
+from sb3_pm.agents.multiplexing.awake_deadline import AwakeDeadline
+from sb3_pm.agents.multiplexing.stream_turns import LearnerStreams
+from sb3_pm.agents.multiplexing.update_slots import UpdateSlots
 
 #: How often (seconds) a blocked agent re-checks the abort flag even without a notification.
 POLL_INTERVAL = 0.5
@@ -140,7 +137,7 @@ class ParallelEnvMultiplexer(LearnerStreams):
         #: the reason the last ``on_sync`` stopped the team, if it did
         self.stopped: str | None = None
         #: with side-by-side updates, how many learners may be in their update phase at once
-        #: (``None``: all of them); see :mod:`sb3_pm.agents.update_slots`
+        #: (``None``: all of them); see :mod:`sb3_pm.agents.multiplexing.update_slots`
         self.update_slots: UpdateSlots | None = None
 
         # Per agent and copy: running return; per copy: running length (Monitor-style stats).

@@ -1,7 +1,7 @@
 """A team's deterministic actions from the logits of the allowed nodes only, with the same actions.
 
 An agent may move only to the nodes its DCBF mask allows (its own node and a few neighbours), yet
-the stacked pass (:mod:`sb3_pm.agents.stacked_inference`) computes the actor's logit on every node
+the stacked pass (:mod:`sb3_pm.agents.deployment.stacked_inference`) computes the actor's logit on every node
 of the graph, and the last attention layer's output on every node too. On the published 200-node
 graph the actor alone was a fifth of a deployed team's time. This pass computes, per map:
 
@@ -36,7 +36,7 @@ mode differ (it then returns that node) where this pass does not see it.
 :attr:`PrunedInference.counts` says how many steps each pass decided.
 
 **Where it runs.** On graphs of at least :data:`MIN_NODES` nodes, where the stacked pass runs
-(:func:`~sb3_pm.agents.stacked_inference.stack_problem`) and :func:`prune_problem` finds nothing
+(:func:`~sb3_pm.agents.deployment.stacked_inference.stack_problem`) and :func:`prune_problem` finds nothing
 against it (it refuses ``advice_prior``, which lifts one logit past the bound the margin rests
 on). ``tests/test_pruned_inference.py`` compares the actions with the serial path's on every
 step of several episodes, checks the margin's fallback on built logits, and checks that a pass
@@ -53,7 +53,7 @@ import numpy as np
 import torch as th
 from torch import nn
 
-from sb3_pm.agents.stacked_inference import (
+from sb3_pm.agents.deployment.stacked_inference import (
     _TRANSCENDENTAL,
     TAIL_FREE,
     StackedInference,
@@ -126,7 +126,7 @@ def _transcendental_widths(policy: DCBFActorCriticPolicy) -> list[int]:
 
 def row_multiple(policy: DCBFActorCriticPolicy) -> int:
     """The row counts a pruned pass pads to a multiple of, so that every transcendental activation
-    runs on whole blocks of :data:`~sb3_pm.agents.stacked_inference.TAIL_FREE` elements, as the
+    runs on whole blocks of :data:`~sb3_pm.agents.deployment.stacked_inference.TAIL_FREE` elements, as the
     full pass does (see :func:`prune_problem`)."""
     multiple = 1
     for width in _transcendental_widths(policy):
@@ -142,7 +142,7 @@ def logit_bound(policy: DCBFActorCriticPolicy) -> float:
 
 
 class PrunedInference(StackedInference):
-    """:class:`~sb3_pm.agents.stacked_inference.StackedInference` whose deterministic actions are
+    """:class:`~sb3_pm.agents.deployment.stacked_inference.StackedInference` whose deterministic actions are
     decided from the allowed nodes' logits where that gives the same action (module docstring)."""
 
     def __init__(self) -> None:

@@ -2,14 +2,14 @@
 
 Each agent is its own SB3 algorithm (``DCBFPPO`` by default, or sb3-contrib's ``MaskablePPO`` or
 plain ``PPO``) with its own parameters, buffers and optimizer. They are stepped together through a
-:class:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer`, each learner in its own thread, in a
+:class:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer`, each learner in its own thread, in a
 fixed turn order, each drawing from its own random stream, so a team run is reproducible from
-its seed and can be checkpointed and resumed bit for bit (:mod:`sb3_pm.agents.checkpoints`) on
+its seed and can be checkpointed and resumed bit for bit (:mod:`sb3_pm.agents.training.checkpoints`) on
 the CPU, with one torch thread (a GPU's scatter sums, with ``device`` or ``update_device``, vary
 in order between runs).
 
 The team implements the :class:`~sb3_pm.team_interface.Team` interface (through
-:class:`~sb3_pm.agents.learned_team.LearnedTeam`), so evaluation drives a learned team exactly as
+:class:`~sb3_pm.agents.training.learned_team.LearnedTeam`), so evaluation drives a learned team exactly as
 it drives a baseline.
 
 A saved team is a folder::
@@ -30,7 +30,13 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.utils import get_device, set_random_seed
 
-from sb3_pm.agents.checkpoints import (
+from sb3_pm.agents.deployment.saved_teams import MANIFEST, load_model_file
+from sb3_pm.agents.deployment.transfer import on_graph, transfer_problem
+from sb3_pm.agents.multiplexing.learner_threads import learn_concurrently, raise_first_error
+from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
+from sb3_pm.agents.multiplexing.streams import StreamState, capture_stream, learner_streams, load_stream
+from sb3_pm.agents.multiplexing.update_slots import UpdateSlots, default_update_slots
+from sb3_pm.agents.training.checkpoints import (
     CHECKPOINTS,
     RECORD,
     CheckpointSchedule,
@@ -40,22 +46,16 @@ from sb3_pm.agents.checkpoints import (
     read_record,
     restore_state,
 )
-from sb3_pm.agents.learned_team import LearnedTeam
-from sb3_pm.agents.learner_callbacks import (
+from sb3_pm.agents.training.learned_team import LearnedTeam
+from sb3_pm.agents.training.learner_callbacks import (
     CallbackArg,
     EpisodeMetricsCallback,
     close_loggers,
     learner_callbacks,
     per_agent_callbacks,
 )
-from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
-from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_kwargs
-from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
-from sb3_pm.agents.rollout_batching import RolloutBatcher
-from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
-from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
-from sb3_pm.agents.transfer import on_graph, transfer_problem
-from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
+from sb3_pm.agents.training.learners import agent_seed, check_same, learn_seed, learner_kwargs
+from sb3_pm.agents.training.rollout_batching import RolloutBatcher
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike
 from sb3_pm.policies.policy import check_advice_source
@@ -99,26 +99,26 @@ class IndependentPPO(LearnedTeam):
         ``None`` by the argmax, a positive number by sampling at that temperature. Saved with the
         team; training never reads it.
     :param deploy_filter: the DCBF neglect bound the trained team acts under
-        (:attr:`~sb3_pm.agents.learned_team.LearnedTeam.deploy_filter`), ``{"neglect_bound": B,
+        (:attr:`~sb3_pm.agents.training.learned_team.LearnedTeam.deploy_filter`), ``{"neglect_bound": B,
         "neglect_scope": S}``, or ``None``. Saved with the team; :meth:`learn` trains without it.
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
         or for an update slot (:attr:`update_slots`), before training stops with
-        :class:`~sb3_pm.agents.multiplexer.TeamTimeout`, naming it;
+        :class:`~sb3_pm.agents.multiplexing.multiplexer.TeamTimeout`, naming it;
         ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (about two
         minutes at a rollout's end for 16 learners on the 200-node graph, two updating at a time).
         Only the time the process runs counts: a sweep suspended (``SIGSTOP``) for longer goes on
-        when it is resumed (:class:`~sb3_pm.agents.awake_deadline.AwakeDeadline`).
+        when it is resumed (:class:`~sb3_pm.agents.multiplexing.awake_deadline.AwakeDeadline`).
     """
 
     name = "ippo"
     MANIFEST_FORMAT = "sb3_pm.team/1"
     resizable = True
     #: while training, run the learners' rollout passes as one stacked pass per joint step where it
-    #: applies (:mod:`sb3_pm.agents.rollout_batching`; the same parameters bit for bit)
+    #: applies (:mod:`sb3_pm.agents.training.rollout_batching`; the same parameters bit for bit)
     batched_rollouts: bool = True
     #: with side-by-side updates, how many learners may run their update phase at once: ``None``
     #: (one per usable core, over torch's threads) or a positive integer; the same parameters
-    #: either way (:mod:`sb3_pm.agents.update_slots`)
+    #: either way (:mod:`sb3_pm.agents.multiplexing.update_slots`)
     update_slots: int | None = None
 
     def __init__(
@@ -255,8 +255,8 @@ class IndependentPPO(LearnedTeam):
         ``learn(team.remaining_timesteps, reset_num_timesteps=False)``.
 
         Each learner draws from its own random stream, seeded from the team seed, the step count and
-        its index (:mod:`sb3_pm.agents.streams`); the caller's process-wide generators are left as
-        they were.
+        its index (:mod:`sb3_pm.agents.multiplexing.streams`); the caller's process-wide generators are left
+        as they were.
 
         :param callback: per-agent callbacks: a list, an ``{agent: callback}`` dict or a factory
             ``agent_name -> callback`` (a single callback object only for a one-agent team).
@@ -265,7 +265,7 @@ class IndependentPPO(LearnedTeam):
         :param tb_log_name: TensorBoard run name prefix; each agent logs to ``<prefix><agent>``.
         :param checkpoints: where and how often to write checkpoints (none by default). With
             checkpoints, a first Ctrl-C lets the team run to the next rollout barrier, writes a
-            checkpoint there and raises :class:`~sb3_pm.agents.checkpoints.TrainingInterrupted`; a
+            checkpoint there and raises :class:`~sb3_pm.agents.training.checkpoints.TrainingInterrupted`; a
             second one stops at once (the last periodic checkpoint stays).
         :param on_interrupt: called on that first Ctrl-C (to tell the user what happens next).
         :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``.
@@ -407,7 +407,7 @@ class IndependentPPO(LearnedTeam):
 
     def on_graph(self, graph: GraphLike) -> Team:
         """This team on ``graph``: itself on its own graph, else its policies rebuilt for ``graph``
-        (zero-shot transfer, :mod:`sb3_pm.agents.transfer`).
+        (zero-shot transfer, :mod:`sb3_pm.agents.deployment.transfer`).
 
         :raises InputError: if its policies are tied to the training graph's size, saying why.
         """

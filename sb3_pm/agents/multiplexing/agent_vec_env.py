@@ -1,7 +1,8 @@
 """The ``VecEnv`` each learner of a team sees, and the callback that makes the learners meet.
 
-An :class:`AgentVecEnv` is a view onto a :class:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer`:
-its ``step_wait`` submits the agent's actions and blocks until every agent has submitted (see the
+An :class:`AgentVecEnv` is a view onto a
+:class:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer`: its ``step_wait`` submits the
+agent's actions and blocks until every agent has submitted (see the
 multiplexer's module docstring). :class:`RolloutBarrier` makes every learner wait at the start of
 each rollout until all are there.
 """
@@ -18,7 +19,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 if TYPE_CHECKING:
-    from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
+    from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
 
 
 class AgentVecEnv(VecEnv):
@@ -109,10 +110,10 @@ class RolloutBarrier(BaseCallback):
     It must be the learner's last callback, so the barrier comes after everything the learner does
     between two rollouts (``train()``, the estimator fit). Its env must be an :class:`AgentVecEnv`.
     At each rollout's end it opens the learner's update phase
-    (:meth:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer.enter_update`); when the phase runs
+    (:meth:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer.enter_update`); when the phase runs
     side by side with the others, it first waits for one of the team's update slots
-    (:mod:`sb3_pm.agents.update_slots`), which it gives back at the barrier, and ``estimator`` (the
-    learner's estimator callback, if any) draws from the learner's own generator until the barrier.
+    (:mod:`sb3_pm.agents.multiplexing.update_slots`), which it gives back at the barrier, and ``estimator``
+    (the learner's estimator callback, if any) draws from the learner's own generator until the barrier.
 
     :param estimator: the learner's :class:`~sb3_pm.callbacks.EstimatorCallback`, or ``None``.
     """

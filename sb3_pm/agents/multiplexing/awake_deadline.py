@@ -5,7 +5,7 @@ must not hang a sweep forever). Measured on the wall clock, that deadline also f
 is stuck but the whole process was suspended for longer than the timeout: a sweep paused with
 ``SIGSTOP`` (to free the cores for something else), a laptop asleep, a paused virtual machine. On
 waking, every waiter saw its deadline long past and the team stopped. Waiters poll in short slices
-(:data:`~sb3_pm.agents.multiplexer.POLL_INTERVAL`), so a slice that took far longer than it asked
+(:data:`~sb3_pm.agents.multiplexing.multiplexer.POLL_INTERVAL`), so a slice that took far longer than it asked
 for means the process was not running; :class:`AwakeDeadline` moves the deadline back by that gap.
 """
 

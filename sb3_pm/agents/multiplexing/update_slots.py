@@ -1,7 +1,8 @@
 """How many learners of a team run their update phase at the same time.
 
-With side-by-side updates (:attr:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer.concurrent_updates`)
-every learner starts its ``train()`` and estimator fit at its rollout's end, each in its own thread.
+With side-by-side updates
+(:attr:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer.concurrent_updates`) every learner
+starts its ``train()`` and estimator fit at its rollout's end, each in its own thread.
 With many learners on few cores (16 learners on 2 cores for the 16-agent regime on ``paper-200``)
 the threads then take turns on the cores and on the GIL, and each one's working set is pushed out
 of the caches by the others': a 16-learner team trained 1.7× faster with two updates at a time

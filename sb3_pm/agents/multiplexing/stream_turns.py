@@ -1,7 +1,8 @@
 """The multiplexer's handling of the learners' random streams, turn by turn.
 
-:class:`LearnerStreams` is a part of :class:`~sb3_pm.agents.multiplexer.ParallelEnvMultiplexer`: it
-loads a learner's stream (:mod:`sb3_pm.agents.streams`) into the process-wide generators when the
+:class:`LearnerStreams` is a part of
+:class:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer`: it loads a learner's stream
+(:mod:`sb3_pm.agents.multiplexing.streams`) into the process-wide generators when the
 learner takes the baton, stores it back when the learner hands the baton on, and opens the
 learner's update phase, side by side with the others where every draw of it can be made up front.
 It relies on the multiplexer's ``_cond``, ``n_agents``, ``strict_order`` and ``_pass_baton``.
@@ -15,7 +16,7 @@ from dataclasses import replace
 
 import torch as th
 
-from sb3_pm.agents.streams import StreamState, capture_stream, load_stream
+from sb3_pm.agents.multiplexing.streams import StreamState, capture_stream, load_stream
 
 
 class LearnerStreams:
@@ -29,7 +30,7 @@ class LearnerStreams:
         raise NotImplementedError
 
     def _init_streams(self) -> None:
-        #: one random stream per agent (see :mod:`sb3_pm.agents.streams`); None: the shared one
+        #: one random stream per agent (see :mod:`sb3_pm.agents.multiplexing.streams`); None: the shared one
         self.streams: list[StreamState] | None = None
         #: per agent: its stream is loaded in the process-wide generators (all of it: "full")
         self._holds_stream = [False] * self.n_agents

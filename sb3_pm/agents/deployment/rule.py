@@ -1,8 +1,8 @@
 """:class:`DeploymentRule`: how a trained team acts, kept in one place, and its only ``predict``.
 
-Every trained team reaches it: :class:`~sb3_pm.agents.team.IndependentPPO` (one learner per
+Every trained team reaches it: :class:`~sb3_pm.agents.training.team.IndependentPPO` (one learner per
 agent), :class:`~sb3_pm.sharing.centralized.CentralizedPPO` (one shared network) and a trained team
-moved to another graph (:class:`~sb3_pm.agents.transfer.TransferredTeam`). They differ only in
+moved to another graph (:class:`~sb3_pm.agents.deployment.transfer.TransferredTeam`). They differ only in
 where their policies live (:meth:`DeploymentRule.policy_for`, :meth:`DeploymentRule.acting_policies`)
 and which graph gives their territories (:meth:`DeploymentRule._filter_territories`).
 
@@ -15,7 +15,7 @@ The acting rule is three values, held here and nowhere else:
 * :attr:`DeploymentRule.site_bound_pending`: a ``deploy_filter`` of ``auto`` waiting for the bound
   calibrated on the graph it acts on.
 
-A saved team's manifest records them (:mod:`sb3_pm.agents.saved_teams`).
+A saved team's manifest records them (:mod:`sb3_pm.agents.deployment.saved_teams`).
 """
 
 from __future__ import annotations
@@ -43,10 +43,10 @@ class DeploymentRule(Team):
     #: whether :meth:`_warn_if_site_bound_pending` has warned (once per team)
     _warned_pending: bool = False
     #: Act for the whole team in one batched pass where the policies allow it
-    #: (:mod:`sb3_pm.agents.stacked_inference`); ``False`` runs one pass per agent.
+    #: (:mod:`sb3_pm.agents.deployment.stacked_inference`); ``False`` runs one pass per agent.
     stacked_inference: bool = True
     #: Compute only the allowed nodes' logits where that decides the same action
-    #: (:mod:`sb3_pm.agents.pruned_inference`); ``False`` computes every node's logit.
+    #: (:mod:`sb3_pm.agents.deployment.pruned_inference`); ``False`` computes every node's logit.
     pruned_inference: bool = True
     #: One network acts for every agent: its observations go through it as one batch.
     shares_one_network: bool = False
@@ -81,7 +81,7 @@ class DeploymentRule(Team):
         unless the config set one); ``False`` samples at :attr:`sampling_temperature`.
 
         Policies of one architecture act in one stacked pass for the whole team
-        (:mod:`sb3_pm.agents.stacked_inference`, the same actions as one pass per agent); sampled
+        (:mod:`sb3_pm.agents.deployment.stacked_inference`, the same actions as one pass per agent); sampled
         actions are drawn agent by agent, in the team's order.
         """
         deterministic = self.acts_deterministically(deterministic)
@@ -102,7 +102,7 @@ class DeploymentRule(Team):
     def _stacked_pass(self) -> Any:
         stacker = self.__dict__.get("_stacker")
         if stacker is None:
-            from sb3_pm.agents.pruned_inference import PrunedInference
+            from sb3_pm.agents.deployment.pruned_inference import PrunedInference
 
             stacker = self.__dict__["_stacker"] = PrunedInference()
         return stacker

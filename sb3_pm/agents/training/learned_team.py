@@ -1,10 +1,10 @@
 """:class:`LearnedTeam`: what every trained team shares, whether its agents learn apart or together.
 
-:class:`~sb3_pm.agents.team.IndependentPPO` (one learner per agent) and
+:class:`~sb3_pm.agents.training.team.IndependentPPO` (one learner per agent) and
 :class:`~sb3_pm.sharing.centralized.CentralizedPPO` (one shared network) differ in how they train and
 act. They share the rest: the problem they were built for (graph, team size, env settings,
 algorithm, seed), the check that an episode runs on that graph, and saving to and loading from a
-team folder (:mod:`sb3_pm.agents.saved_teams`).
+team folder (:mod:`sb3_pm.agents.deployment.saved_teams`).
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ from typing import Any, ClassVar
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_pm.agents.deployment_rule import DeploymentRule
-from sb3_pm.agents.learners import resolve_learner
-from sb3_pm.agents.saved_teams import (
+from sb3_pm.agents.deployment.rule import DeploymentRule
+from sb3_pm.agents.deployment.saved_teams import (
     MANIFEST,
     check_same_graph,
     graph_for_saved_team,
@@ -28,6 +27,7 @@ from sb3_pm.agents.saved_teams import (
     team_manifest,
     write_manifest,
 )
+from sb3_pm.agents.training.learners import resolve_learner
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
 from sb3_pm.policies.dcbf import SITE_BOUND
@@ -138,7 +138,7 @@ class LearnedTeam(DeploymentRule):
     # ------------------------------------------------------ the DCBF filter
     def _filter_territories(self) -> dict[str, tuple[int, ...]]:
         """``{model file: the target nodes of its agent's territory}`` on the team's graph
-        (:meth:`~sb3_pm.agents.deployment_rule.DeploymentRule.set_filter`)."""
+        (:meth:`~sb3_pm.agents.deployment.rule.DeploymentRule.set_filter`)."""
         from sb3_pm.graphs.territories import agent_territories
 
         files = list(self.model_files())

@@ -9,7 +9,7 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-from sb3_pm.agents.agent_vec_env import RolloutBarrier
+from sb3_pm.agents.multiplexing.agent_vec_env import RolloutBarrier
 from sb3_pm.errors import InputError
 
 

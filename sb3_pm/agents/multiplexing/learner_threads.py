@@ -6,7 +6,12 @@ import threading
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-from sb3_pm.agents.multiplexer import POLL_INTERVAL, ParallelEnvMultiplexer, TeamAborted, TeamTimeout
+from sb3_pm.agents.multiplexing.multiplexer import (
+    POLL_INTERVAL,
+    ParallelEnvMultiplexer,
+    TeamAborted,
+    TeamTimeout,
+)
 
 
 def learn_concurrently(
