@@ -251,7 +251,7 @@ def test_drawn_minibatch_orders_leave_numpys_generator_alone() -> None:
 
 
 def test_a_checkpoint_is_also_due_after_every_seconds(tmp_path, monkeypatch) -> None:
-    from sb3_pm.agents import checkpoints
+    from sb3_pm.agents.training import checkpoints
 
     clock = [100.0]
     monkeypatch.setattr(checkpoints.time, "monotonic", lambda: clock[0])

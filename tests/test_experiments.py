@@ -219,7 +219,7 @@ def test_a_cell_stopped_mid_training_resumes_from_its_checkpoint(
 ) -> None:
     import torch as th
 
-    from sb3_pm.agents import checkpoints as checkpoints_module
+    from sb3_pm.agents.training import checkpoints as checkpoints_module
     from sb3_pm.agents.training.team import IndependentPPO
 
     experiment = load_tiny(tmp_path)
@@ -1068,7 +1068,7 @@ def test_jobs_side_by_side_share_the_cores_between_their_teams(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Each local job's team gets the cores over the jobs running at once as its update slots."""
-    from sb3_pm.agents import update_slots
+    from sb3_pm.agents.multiplexing import update_slots
     from sb3_pm.experiments import runner
 
     experiment = load_tiny(tmp_path)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_pm.agents import pruned_inference
+from sb3_pm.agents.deployment import pruned_inference
 from sb3_pm.agents.deployment.pruned_inference import PrunedInference, allowed_rows, decide, prune_problem
 from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0

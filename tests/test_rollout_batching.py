@@ -10,7 +10,7 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import obs_as_tensor
 
-from sb3_pm.agents import rollout_batching
+from sb3_pm.agents.training import rollout_batching
 from sb3_pm.agents.training.rollout_batching import RolloutBatcher
 from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.graphs import erdos_renyi
