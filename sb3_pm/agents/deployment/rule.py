@@ -40,6 +40,8 @@ class DeploymentRule(Team):
     algo: str
     #: the env settings the team was trained in (``env_kwargs`` of its config)
     env_kwargs: dict[str, Any]
+    #: the graph the team acts on, or the family it was trained on
+    graph: Any
     #: whether :meth:`_warn_if_site_bound_pending` has warned (once per team)
     _warned_pending: bool = False
     #: Act for the whole team in one batched pass where the policies allow it
@@ -61,8 +63,7 @@ class DeploymentRule(Team):
         """The graph the team acts on (``None`` for a team trained on a graph family)."""
         from sb3_pm.graphs import GraphSpec
 
-        graph = getattr(self, "graph", None)
-        return graph if isinstance(graph, GraphSpec) else None
+        return self.graph if isinstance(self.graph, GraphSpec) else None
 
     # ------------------------------------------------------------ acting
     def policy_for(self, agent: str) -> Any:
