@@ -59,7 +59,7 @@ FUSED_MIN_SCORES = 65_536
 #: at 4 heads, 2.5M scores, 46 ms plain against 56 ms chunked; 250 maps of 100 nodes at one head,
 #: 2.5M, 74 against 58 ms; 500 maps of 100
 #: nodes at one head, 5M, 97 against 72 ms; 250 maps of 200 nodes, 10M, 348 against 132 ms;
-#: docs/results/speed_probes/attention_kernel_sizes.py). On the CPU both paths give the same bits
+#: research/records/speed_probes/attention_kernel_sizes.py). On the CPU both paths give the same bits
 #: (tests/test_attention_kernels.py trains a team both ways), so the choice changes only the speed.
 #: The rule is for CPUs: on a GPU a chunked batch is hundreds of small kernel launches, and neither
 #: its speed nor its bits were measured there, so GPU batches keep the per-map rule.
