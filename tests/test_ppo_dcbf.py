@@ -222,3 +222,4 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
 def test_rejects_a_policy_without_dcbf() -> None:
     with pytest.raises(ValueError, match="MlpPolicy"):
         DCBFPPO("MlpPolicy", make_env())
+

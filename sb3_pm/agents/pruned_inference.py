@@ -72,7 +72,7 @@ MIN_ROWS = 4
 #: Graphs smaller than this act through the full stacked pass: the pruned pass adds dozens of
 #: small operations, and on 50 nodes they cost more than the arithmetic they save (300 steps of a
 #: trained team: 0.67 s pruned against 0.48 s full on ``paper-50``, 0.64 against 0.71 s on
-#: ``paper-100``, 0.78 against 1.28 s on ``paper-200``; research/LOG.md §3i).
+#: ``paper-100``, 0.78 against 1.28 s on ``paper-200``; docs/RESULTS.md §3i).
 MIN_NODES = 100
 #: The decision margin, as a fraction of the bound ``B`` on the normalized logits (module
 #: docstring): a float32's unit in the last place is 2**-23 to 2**-24 of its magnitude, so this is
