@@ -544,7 +544,16 @@ def test_a_baseline_variant_is_evaluated_under_its_own_env_kwargs(tmp_path: Path
     # known_map.yml runs local_greedy with the default maps and with known targets, on the same
     # episodes; the recorded config says which, and known targets change what the greedy agents do.
     out = tmp_path / "known_map"
-    argv = ["reproduce", "known_map", "--quick", "--out", str(out), "--jobs", "1", "--no-progress"]
+    argv = [
+        "reproduce",
+        str(experiment_file("known_map")),
+        "--quick",
+        "--out",
+        str(out),
+        "--jobs",
+        "1",
+        "--no-progress",
+    ]
     assert main([*argv, "--variants", "local_greedy", "local_greedy_known_targets"]) == 0
     payloads = {
         variant: json.loads((out / "cells" / variant / "paper-50" / "seed0" / "evaluation.json").read_text())
