@@ -96,14 +96,19 @@ neighbours, given by ``obs["action_mask"]``.
 
 Observation with ``observation="map"`` (a ``Dict``):
 
-``nodes``        ``Box(N, 5) float32``: per node ``[u, age, target, occupied, self]`` from the mental
-                 map (:mod:`sb3_pm.envs.mental_map`); ``Box(N, 6)`` with ``territory_input``, whose
-                 sixth column flags the agent's own territory; one more column with
-                 ``advice_input`` flags the territory rule's next move.
-``adjacency``    ``Box(N, N) int8``: the known adjacency.
-``position``     ``Discrete(N)``: the agent's node.
-``dwell``        ``Box(1,) float32``: steps the agent has stayed on its node (0 on arrival).
-``action_mask``  ``Box(N,) int8``: 1 on the reachable set.
+``nodes``
+    ``Box(N, 5) float32``: per node ``[u, age, target, occupied, self]`` from the mental
+    map (:mod:`sb3_pm.envs.mental_map`); ``Box(N, 6)`` with ``territory_input``, whose
+    sixth column flags the agent's own territory; one more column with
+    ``advice_input`` flags the territory rule's next move.
+``adjacency``
+    ``Box(N, N) int8``: the known adjacency.
+``position``
+    ``Discrete(N)``: the agent's node.
+``dwell``
+    ``Box(1,) float32``: steps the agent has stayed on its node (0 on arrival).
+``action_mask``
+    ``Box(N,) int8``: 1 on the reachable set.
 
 Observation with ``observation="local"``: ``position``; ``observed``, ``target``, ``occupied`` and
 ``action_mask`` as ``Box(N,) int8``; ``uncertainty`` as ``Box(N,) float32`` (0 where unobserved);
