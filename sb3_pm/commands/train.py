@@ -59,7 +59,7 @@ def register(subparsers: Any) -> None:
         help="rl-zoo style YAML: a path, or the name of a shipped config (ippo, ippo_paper, ippo_improved, "
         "ippo_transfer). "
         "Default: ippo, the package's copy of zoo/ippo.yml, the best configuration measured "
-        "(research/LOG.md); ippo_paper is the paper-faithful one",
+        "(docs/RESULTS.md); ippo_paper is the paper-faithful one",
     )
     parser.add_argument(
         "--env",

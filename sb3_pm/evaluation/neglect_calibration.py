@@ -17,12 +17,9 @@ deployment by the rule that follows the same split, ``territory_patrol``
 * if ``P`` reaches ``u_max`` the territories cannot be held and no bound is deployed (``None``);
   otherwise ``B = max(1, ceil(margin · P))``, at most ``u_max``.
 
-``margin`` = 1, the bound at the rule's own worst peak, is the best of 1, 1.2 and 1.5 measured
-with the transferable team (5 seeds, research/LOG.md §3h "Transfer", "The calibration margin"):
-lower than 1.2 on cliques-6x8 and karate (0.92× and 0.81×, significant over the runs) and level on
-``paper-50``, where 1.5 was higher on cliques-6x8 and karate. It was 1.2 before, set from
-``paper-50`` alone, where ``B = 50`` had been chosen earlier and the rule's peak is 44. A margin
-below 1 is refused: it would ask for a bound the territory rule itself did not keep. The rule
+``margin`` = 1, the bound at the rule's own worst peak, is the best of the margins measured with
+the transferable team (the measurements: research/LOG.md §3h, "Transfer", "The calibration
+margin"). A margin below 1 is refused: it would ask for a bound the territory rule itself did not keep. The rule
 needs the site's road network and target list, which a team with a known map has anyway; it reads
 no learned team.
 
