@@ -19,9 +19,9 @@ deployment by the rule that follows the same split, ``territory_patrol``
 
 ``margin`` = 1, the bound at the rule's own worst peak, is the best of the margins measured with
 the transferable team (the measurements: research/LOG.md §3h, "Transfer", "The calibration
-margin"). A margin below 1 is refused: it would ask for a bound the territory rule itself did not keep. The rule
-needs the site's road network and target list, which a team with a known map has anyway; it reads
-no learned team.
+margin"). A margin below 1 is refused: it would ask for a bound the territory rule itself did not
+keep. The rule needs the site's road network and target list, which a team with a known map has
+anyway; it reads no learned team.
 
 Rule 8's guarantee assumes targets start at ``u = 0`` (a target the map has not seen projects as
 its age), so a site with ``initial_uncertainty: random`` is refused rather than calibrated.
