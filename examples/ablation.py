@@ -9,7 +9,7 @@ What it shows:
   evaluation episodes.
 
 For multi-seed grids with resumable cells, use the experiments runner and
-``zoo/experiments/ablation.yml`` (``sb3-pm reproduce ablation``) instead (``sb3-pm reproduce``).
+``zoo/experiments/ablation.yml`` instead (``sb3-pm reproduce``).
 
 Usage::
 
