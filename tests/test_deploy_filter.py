@@ -18,6 +18,7 @@ from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import DCBFConfig, check_deploy_filter
 from sb3_pm.zoo.config import ConfigError, load_config
 from tests.conftest import path_graph
+from tests.paths import experiment_file
 
 TINY = {"n_steps": 10, "batch_size": 10, "n_epochs": 1}
 TERRITORY_BOUND = {"neglect_bound": 15.0, "neglect_scope": "territory"}
@@ -331,7 +332,7 @@ class TestExperiments:
         assert experiment_record(load_experiment("headline"))["deploy_filter"] == {
             "default": {"neglect_bound": 50.0, "neglect_scope": "territory"}
         }
-        assert "deploy_filter" not in experiment_record(load_experiment("territory_reward"))
+        assert "deploy_filter" not in experiment_record(load_experiment(experiment_file("territory_reward")))
         assert "deploy_filter" not in experiment_record(load_experiment("families"))
 
     def test_a_malformed_pin_names_the_file(self, tmp_path: Path) -> None:

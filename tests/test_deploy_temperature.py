@@ -17,6 +17,7 @@ from sb3_pm.experiments.spec import ExperimentError, load_experiment
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.graphs.io import save_graphml
 from sb3_pm.zoo.config import ConfigError, load_config
+from tests.paths import every_experiment_file, experiment_file
 from tests.test_sampling_temperature import ENV, GRAPH, spread_logits
 from tests.test_sampling_temperature import TINY as SAMPLING_TINY
 
@@ -119,7 +120,7 @@ def test_a_config_sets_it_and_a_run_folder_records_it() -> None:
 def test_an_experiment_variant_pins_it_without_training_differently() -> None:
     from sb3_pm.experiments.runner import cell_config, plan_cells
 
-    experiment = load_experiment("transfer_known_map")
+    experiment = load_experiment(experiment_file("transfer_known_map"))
     variant = next(v for v in experiment.variants if v.key == "known_map")
     learned = next(c for c in plan_cells(experiment, Path("unused")) if c.variant["key"] == "known_map")
     config = cell_config(learned, variant)
@@ -241,9 +242,8 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
     files pin the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
     from sb3_pm.experiments.runner import deploy_rules, experiment_record
-    from sb3_pm.zoo.shipped import EXPERIMENT_DIR, shipped_names
 
-    rules = {name: deploy_rules(load_experiment(name)) for name in shipped_names(EXPERIMENT_DIR)}
+    rules = {path.stem: deploy_rules(load_experiment(path)) for path in every_experiment_file()}
     assert {name: rule for name, rule in rules.items() if rule} == {
         "transfer_known_map": {"known_map_family": 0.25},
         "transfer_territory": {"known_map_territory": 0.25, "known_map_territory_family": 0.25},
@@ -251,9 +251,9 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
         "regime_100": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
         "regime_200": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
     }
-    assert experiment_record(load_experiment("transfer_known_map"))["deploy_temperature"] == {
-        "known_map_family": 0.25
-    }
+    assert experiment_record(load_experiment(experiment_file("transfer_known_map")))[
+        "deploy_temperature"
+    ] == {"known_map_family": 0.25}
     assert "deploy_temperature" not in experiment_record(load_experiment("comparison"))
 
 

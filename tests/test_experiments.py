@@ -14,8 +14,8 @@ from sb3_pm.errors import InputError
 from sb3_pm.experiments import ExperimentError, load_experiment, plan_cells, reproduce
 from sb3_pm.experiments import runner as runner_module
 from sb3_pm.zoo import load_config
+from tests.paths import ZOO, every_experiment_file, experiment_file, trains_the_default
 
-ZOO = Path(__file__).resolve().parents[1] / "zoo"
 EXPECTED_FILES = {
     "results.md",
     "results.csv",
@@ -41,7 +41,7 @@ def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
         main(
             [
                 "reproduce",
-                str(ZOO / "experiments" / f"{name}.yml"),
+                str(experiment_file(name)),
                 "--quick",
                 "--out",
                 str(out),
@@ -53,7 +53,7 @@ def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
         == 0
     )
     assert EXPECTED_FILES <= {p.name for p in out.iterdir()}
-    experiment = load_experiment(ZOO / "experiments" / f"{name}.yml").quick()
+    experiment = load_experiment(experiment_file(name)).quick()
     table = (out / "results.md").read_text()
     for variant in experiment.variants:
         assert variant.label in table
@@ -100,7 +100,7 @@ def _changes(merged: dict, direct: dict) -> dict:
 def test_tuning_variants_change_one_key_of_the_improved_config(tmp_path: Path) -> None:
     """tuning.yml is a one-change-at-a-time screen: ``improved`` trains zoo/ippo_improved.yml as it
     is, and every ``tune_*`` variant differs from it in exactly one setting."""
-    experiment = load_experiment(ZOO / "experiments" / "tuning.yml")
+    experiment = load_experiment(experiment_file("tuning"))
     learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline" and c.seed == 0]
     assert {c.variant["key"] for c in learned} >= {"improved", "tune_lr_3e3", "tune_reward_01"}
     for cell in learned:
@@ -134,10 +134,8 @@ def test_follow_up_variants_change_exactly_what_they_name(
     """The follow-ups of tuning.yml share ``improved`` and ``tune_lr_3e3`` with it (same training
     config, so finished cells can be reused), and each new variant is the improved config plus
     exactly the changes it names."""
-    experiment = load_experiment(ZOO / "experiments" / f"{name}.yml")
-    tuning = {
-        c.variant["key"]: c for c in plan_cells(load_experiment(ZOO / "experiments" / "tuning.yml"), tmp_path)
-    }
+    experiment = load_experiment(experiment_file(name))
+    tuning = {c.variant["key"]: c for c in plan_cells(load_experiment(experiment_file("tuning")), tmp_path)}
     learned = [c for c in plan_cells(experiment, tmp_path) if c.variant["kind"] != "baseline" and c.seed == 0]
     assert {c.variant["key"] for c in learned} == {"improved", "tune_lr_3e3", *expected_changes}
     for cell in learned:
@@ -398,7 +396,7 @@ def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[s
         main(
             [
                 "reproduce",
-                str(ZOO / "experiments" / "comparison.yml"),
+                str(experiment_file("comparison")),
                 "--out",
                 str(tmp_path / "o"),
                 "--graphs",
@@ -433,7 +431,7 @@ def test_cell_results_are_stored(tmp_path: Path) -> None:
 
 
 def test_cells_are_scheduled_longest_first(tmp_path: Path) -> None:
-    experiment = load_experiment(ZOO / "experiments" / "comparison.yml")
+    experiment = load_experiment(experiment_file("comparison"))
     cells = plan_cells(experiment, tmp_path)
     order = runner_module.schedule(cells)
     assert sorted(map(id, order)) == sorted(map(id, cells))  # a permutation: nothing lost or doubled
@@ -485,7 +483,7 @@ def test_untrained_variant_evaluates_the_initial_policy(
 )
 def test_improved_variants_are_the_improved_config(tmp_path: Path, key: str, changed: tuple | None) -> None:
     """``improved`` trains exactly zoo/ippo_improved.yml; each ``improved_*`` ablation changes one key."""
-    experiment = load_experiment(ZOO / "experiments" / "improvements.yml")
+    experiment = load_experiment(experiment_file("improvements"))
     cell = next(c for c in plan_cells(experiment, tmp_path) if c.variant["key"] == key)
     merged, direct = _against_improved(cell)
     if changed is not None:
@@ -546,7 +544,16 @@ def test_a_baseline_variant_is_evaluated_under_its_own_env_kwargs(tmp_path: Path
     # known_map.yml runs local_greedy with the default maps and with known targets, on the same
     # episodes; the recorded config says which, and known targets change what the greedy agents do.
     out = tmp_path / "known_map"
-    argv = ["reproduce", "known_map", "--quick", "--out", str(out), "--jobs", "1", "--no-progress"]
+    argv = [
+        "reproduce",
+        str(experiment_file("known_map")),
+        "--quick",
+        "--out",
+        str(out),
+        "--jobs",
+        "1",
+        "--no-progress",
+    ]
     assert main([*argv, "--variants", "local_greedy", "local_greedy_known_targets"]) == 0
     payloads = {
         variant: json.loads((out / "cells" / variant / "paper-50" / "seed0" / "evaluation.json").read_text())
@@ -641,21 +648,21 @@ def test_a_train_agents_variant_trains_that_team_size_and_deploys_the_experiment
     assert record["variants"]["small"]["train_agents"] == 2
 
 
-@pytest.mark.parametrize("path", sorted((ZOO / "experiments").glob("*.yml")), ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", every_experiment_file(), ids=lambda p: p.stem)
 def test_every_shipped_experiment_loads_and_plans(path: Path, tmp_path: Path) -> None:
     assert plan_cells(load_experiment(path), tmp_path)
 
 
 def _variants(name: str) -> dict:
     """The variants of the shipped experiment ``name``, by key."""
-    return {v.key: v for v in load_experiment(ZOO / "experiments" / f"{name}.yml").variants}
+    return {v.key: v for v in load_experiment(experiment_file(name)).variants}
 
 
 def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     variants = _variants("lr_schedule")
     assert variants["linear"].hyperparams == {"learning_rate": "lin_1e-3"}
     assert variants["constant"].hyperparams == {"learning_rate": 0.001}
-    budget = load_experiment(ZOO / "experiments" / "budget.yml")
+    budget = load_experiment(experiment_file("budget"))
     variants = _variants("budget")
     assert budget.timesteps == 50000 and variants["budget_50k"].timesteps is None
     assert variants["budget_100k"].timesteps == 100000
@@ -753,7 +760,7 @@ def test_every_experiment_built_on_ippo_transfer_is_checked_for_what_it_measured
     """A new file that trains zoo/ippo_transfer.yml must join TRANSFER_EXPERIMENTS (and so pin
     the settings it measures), or a change of the config would change what it measures."""
     built_on = set()
-    for path in sorted((ZOO / "experiments").glob("*.yml")):
+    for path in every_experiment_file():
         experiment = load_experiment(path)
         configs = [experiment.config, *(variant.config for variant in experiment.variants)]
         if any(_built_on_ippo_transfer(config) for config in configs):
@@ -776,7 +783,7 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
     """zoo/ippo_transfer.yml gives a known map, the territory input and reward, the rule's advice
     with a prior, and the calibrated bound; the files that measured other settings pin them, so
     every variant built on it trains (and, keeping its env settings, deploys) as measured."""
-    experiment = load_experiment(name)
+    experiment = load_experiment(experiment_file(name))
     learned = 0
     for cell in plan_cells(experiment, tmp_path):
         if cell.variant["kind"] == "baseline" or not _built_on_ippo_transfer(
@@ -845,8 +852,8 @@ CURRENT_DEFAULT_FILES = (HEADLINE, "fewer_epochs")
 STAGGERED_DEFAULT_FILES = ("territory_reward",)
 PREVIOUS_DEFAULT_FILES = sorted(
     path.stem
-    for path in (ZOO / "experiments").glob("*.yml")
-    if "\nconfig: ../ippo.yml\n" in path.read_text()
+    for path in every_experiment_file()
+    if trains_the_default(path)
     and path.stem not in CURRENT_DEFAULT_FILES
     and path.stem not in STAGGERED_DEFAULT_FILES
 )
@@ -859,7 +866,7 @@ EPOCHS_BEFORE = 10
 def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path, name: str) -> None:
     """The headline's cells are the default's; a file that varies the default changes only the
     hyperparameters its variants name."""
-    experiment = load_experiment(name)
+    experiment = load_experiment(experiment_file(name))
     assert not experiment.env_kwargs and not experiment.hyperparams
     default = load_config("ippo", "paper-50")
     learned = [cell for cell in plan_cells(experiment, tmp_path) if cell.variant["kind"] != "baseline"]
@@ -882,7 +889,7 @@ def test_experiments_measured_on_the_previous_default_train_as_they_were_measure
     recorded unless a variant sets ``known`` itself (and baselines, which read the same maps, are
     evaluated on discovered maps too). ``--quick`` keeps the pins: its hyperparams merge over the
     file's."""
-    experiment = load_experiment(name)
+    experiment = load_experiment(experiment_file(name))
     assert experiment.env_kwargs.get("graph_knowledge") == "discovered", name
     assert experiment.hyperparams["n_epochs"] == EPOCHS_BEFORE, name
     if quick:
@@ -926,7 +933,7 @@ def test_quick_budget_keys_win_over_a_variants_own(tmp_path: Path) -> None:
 def test_experiments_measured_on_the_staggered_default_pin_its_reward(tmp_path: Path, name: str) -> None:
     """Files measured against the default before the territory reward train that default as their
     ``default`` variant: the topology known, staggered rates, the reward without the term."""
-    experiment = load_experiment(name)
+    experiment = load_experiment(experiment_file(name))
     today = load_config("ippo", "paper-50")
     cells = {cell.variant["key"]: cell for cell in plan_cells(experiment, tmp_path)}
     config = runner_module.cell_config(cells["default"], runner_module.Variant(**cells["default"].variant))
@@ -949,7 +956,7 @@ def test_the_headline_default_is_the_fewer_epochs_variant_that_became_it(tmp_pat
     the same team config, graph, seeds and episodes as the headline's ``default`` cells."""
 
     def learned(name: str, key: str) -> list[tuple[Any, ...]]:
-        experiment = load_experiment(name)
+        experiment = load_experiment(experiment_file(name))
         cells = [c for c in plan_cells(experiment, tmp_path / name) if c.variant["key"] == key]
         assert cells
         return [
@@ -972,7 +979,11 @@ def test_the_headline_default_is_the_fewer_epochs_variant_that_became_it(tmp_pat
 def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path, name: str) -> None:
     """The headline measures the default as a user gets it: trained unfiltered, acting under
     paper-50's deploy filter (the neglect bound on each agent's own territory)."""
-    cells = [c for c in plan_cells(load_experiment(name), tmp_path) if c.variant["kind"] != "baseline"]
+    cells = [
+        c
+        for c in plan_cells(load_experiment(experiment_file(name)), tmp_path)
+        if c.variant["kind"] != "baseline"
+    ]
     assert cells
     for cell in cells:
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
@@ -1024,7 +1035,7 @@ def test_the_spread_is_recorded_and_a_centralized_variant_with_one_fails_before_
 
 
 ALL_BUT_CURRENT_DEFAULT_FILES = sorted(
-    path.stem for path in (ZOO / "experiments").glob("*.yml") if path.stem not in CURRENT_DEFAULT_FILES
+    path.stem for path in every_experiment_file() if path.stem not in CURRENT_DEFAULT_FILES
 )
 
 
@@ -1032,7 +1043,7 @@ ALL_BUT_CURRENT_DEFAULT_FILES = sorted(
 def test_only_the_headline_acts_under_paper_50s_deploy_filter(tmp_path: Path, name: str) -> None:
     """Every file but those of today's default was measured before the default's deploy filter: its
     learned cells, whatever config a variant names, act under the filter they trained under."""
-    experiment = load_experiment(name)
+    experiment = load_experiment(experiment_file(name))
     for cell in plan_cells(experiment, tmp_path):
         if cell.variant["kind"] == "baseline" or not (cell.variant.get("config") or cell.config):
             continue
@@ -1114,7 +1125,7 @@ def test_the_shipped_transfer_team_rows_train_on_the_config_family(name: str, va
     and the rows of the team before it on paper-50."""
     from sb3_pm.zoo.config import default_env
 
-    variants = {v.key: v for v in load_experiment(name).variants}
+    variants = {v.key: v for v in load_experiment(experiment_file(name)).variants}
     assert str(variants[variant].train_env) == default_env("ippo_transfer") == "family:er"
     before = "advice_prior" if name == "transfer_advice" else "transfer_advice"
     assert str(variants[before].train_env) == "paper-50"

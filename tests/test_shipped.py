@@ -24,10 +24,14 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "sb3_pm"
 
 
-def _package_data_globs() -> list[str]:
+def _setup_cfg() -> configparser.ConfigParser:
     parser = configparser.ConfigParser()
     parser.read(ROOT / "setup.cfg")
-    return [line.strip() for line in parser["options.package_data"]["sb3_pm"].splitlines() if line.strip()]
+    return parser
+
+
+def _lines(value: str) -> list[str]:
+    return [line.strip() for line in value.splitlines() if line.strip()]
 
 
 def test_the_shipped_config_folder_is_the_repository_zoo_folder() -> None:
@@ -36,16 +40,48 @@ def test_the_shipped_config_folder_is_the_repository_zoo_folder() -> None:
 
 
 def test_package_data_covers_every_config_experiment_and_graph() -> None:
-    """What a wheel holds is what setup.cfg's package_data globs match under sb3_pm/."""
-    globs = _package_data_globs()
+    """What a wheel holds is what setup.cfg's package_data globs match: zoo/ installs as the
+    package sb3_pm.configs (package_dir), the graphs under sb3_pm/."""
+    cfg = _setup_cfg()
+    mapping = dict(line.split(" = ") for line in _lines(cfg["options"]["package_dir"]))
+    assert mapping == {"sb3_pm.configs": "zoo", "sb3_pm.configs.experiments": "zoo/experiments"}
+    data = cfg["options.package_data"]
+    folders = {"sb3_pm.configs": CONFIG_DIR, "sb3_pm.configs.experiments": EXPERIMENT_DIR, "sb3_pm": PACKAGE}
     shipped = [*CONFIG_DIR.glob("*.yml"), *EXPERIMENT_DIR.glob("*.yml"), *DATA_DIR.glob("*.graphml")]
     assert len(shipped) >= 3 + 2 + 6
     for path in shipped:
-        relative = path.relative_to(PACKAGE).as_posix() if PACKAGE in path.parents else None
-        if relative is None:  # resolved through the configs link: name it as the wheel will
-            relative = "configs/" + path.relative_to(CONFIG_DIR).as_posix()
-        assert any(fnmatch.fnmatch(relative, pattern) for pattern in globs), relative
+        package = next((name for name, folder in folders.items() if path.parent == folder), "sb3_pm")
+        relative = path.relative_to(folders[package]).as_posix()
+        assert any(fnmatch.fnmatch(relative, pattern) for pattern in _lines(data[package])), relative
     assert {DATA_DIR / name for name in PUBLISHED.values()} <= set(DATA_DIR.glob("*.graphml"))
+    assert "py.typed" in _lines(data["sb3_pm"]) and (PACKAGE / "py.typed").is_file()
+
+
+def test_setup_cfg_lists_every_package() -> None:
+    """setup.cfg lists the packages (one of them is zoo/): a new subpackage must join the list."""
+    from setuptools import find_packages
+
+    listed = set(_lines(_setup_cfg()["options"]["packages"]))
+    found = set(find_packages(str(ROOT), include=["sb3_pm", "sb3_pm.*"]))
+    assert listed == found | {"sb3_pm.configs", "sb3_pm.configs.experiments"}
+
+
+def test_only_the_experiments_a_user_runs_ship() -> None:
+    """The package ships the paper's tables, the headline, the regimes, transfer, failures and
+    families; the one-off research sweeps stay in the repository's research/experiments/."""
+    assert {path.stem for path in EXPERIMENT_DIR.glob("*.yml")} == {
+        "comparison",
+        "ablation",
+        "headline",
+        "regime_100",
+        "regime_200",
+        "transfer",
+        "zero_shot",
+        "zero_shot_scaling",
+        "failures",
+        "families",
+    }
+    assert not (PACKAGE / "configs").exists()  # in a checkout the configs are zoo/, never a link
 
 
 @pytest.mark.parametrize("name", ["ippo", "ippo.yml", "zoo/ippo.yml", "ippo_paper"])

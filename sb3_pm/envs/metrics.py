@@ -2,23 +2,33 @@
 
 Step ``k`` (``k = 0..K-1``) is measured after its move and uncertainty update:
 
-``avg_uncertainty``     (1/K) sum_k sum_{targets} u_{m,k}
-``max_neglect``         over targets, the longest run of consecutive steps with no agent on the
-                        target (K for a target never visited during the episode)
-``collisions``          agent-steps on which an agent shared its node with another
-``peak_uncertainty``    the largest target u seen
-``saturated_fraction``  fraction of steps on which some target sat at the cap u_max
-``idle_fraction``       fraction of agent-steps spent alone on a target that was already at u = 0
-                        (guarding a cleared target instead of clearing another one)
+``avg_uncertainty``
+    (1/K) sum_k sum_{targets} u_{m,k}
+``max_neglect``
+    over targets, the longest run of consecutive steps with no agent on the
+    target (K for a target never visited during the episode)
+``collisions``
+    agent-steps on which an agent shared its node with another
+``peak_uncertainty``
+    the largest target u seen
+``saturated_fraction``
+    fraction of steps on which some target sat at the cap u_max
+``idle_fraction``
+    fraction of agent-steps spent alone on a target that was already at u = 0
+    (guarding a cleared target instead of clearing another one)
 
 With agent failures configured (the env's ``failures`` / ``failure_rate``), four more:
 
-``failed_agents``                    agents that failed during the episode
-``first_failure_step``               the step after which the first one failed (K if none did)
-``avg_uncertainty_before_failure``   the mean of the summed target uncertainty over steps
-                                     ``0..f-1`` (``f`` = first_failure_step)
-``avg_uncertainty_after_failure``    the same over steps ``f..K-1``; NaN when no agent failed (there
-                                     is no "after"; a random failure rate may spare an episode)
+``failed_agents``
+    agents that failed during the episode
+``first_failure_step``
+    the step after which the first one failed (K if none did)
+``avg_uncertainty_before_failure``
+    the mean of the summed target uncertainty over steps
+    ``0..f-1`` (``f`` = first_failure_step)
+``avg_uncertainty_after_failure``
+    the same over steps ``f..K-1``; NaN when no agent failed (there
+    is no "after"; a random failure rate may spare an episode)
 """
 
 from __future__ import annotations

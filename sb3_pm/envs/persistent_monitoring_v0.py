@@ -96,14 +96,19 @@ neighbours, given by ``obs["action_mask"]``.
 
 Observation with ``observation="map"`` (a ``Dict``):
 
-``nodes``        ``Box(N, 5) float32``: per node ``[u, age, target, occupied, self]`` from the mental
-                 map (:mod:`sb3_pm.envs.mental_map`); ``Box(N, 6)`` with ``territory_input``, whose
-                 sixth column flags the agent's own territory; one more column with
-                 ``advice_input`` flags the territory rule's next move.
-``adjacency``    ``Box(N, N) int8``: the known adjacency.
-``position``     ``Discrete(N)``: the agent's node.
-``dwell``        ``Box(1,) float32``: steps the agent has stayed on its node (0 on arrival).
-``action_mask``  ``Box(N,) int8``: 1 on the reachable set.
+``nodes``
+    ``Box(N, 5) float32``: per node ``[u, age, target, occupied, self]`` from the mental
+    map (:mod:`sb3_pm.envs.mental_map`); ``Box(N, 6)`` with ``territory_input``, whose
+    sixth column flags the agent's own territory; one more column with
+    ``advice_input`` flags the territory rule's next move.
+``adjacency``
+    ``Box(N, N) int8``: the known adjacency.
+``position``
+    ``Discrete(N)``: the agent's node.
+``dwell``
+    ``Box(1,) float32``: steps the agent has stayed on its node (0 on arrival).
+``action_mask``
+    ``Box(N,) int8``: 1 on the reachable set.
 
 Observation with ``observation="local"``: ``position``; ``observed``, ``target``, ``occupied`` and
 ``action_mask`` as ``Box(N,) int8``; ``uncertainty`` as ``Box(N,) float32`` (0 where unobserved);
@@ -117,15 +122,12 @@ holds ``"metrics"``: ``avg_uncertainty``, ``max_neglect``, ``collisions``, ``pea
 
 Implementation
 --------------
-:class:`PersistentMonitoringEnv` is a PettingZoo ``ParallelEnv`` adapter around
-:class:`~sb3_pm.envs.core.MonitoringCore` (the dynamics), :class:`~sb3_pm.envs.mental_map.MentalMaps`
-(what each agent remembers), :mod:`sb3_pm.envs.rewards` and :mod:`sb3_pm.envs.metrics`. The
-factories at the bottom (:func:`parallel_env`, :func:`env`, :data:`raw_env`) are the public
-constructors; :mod:`sb3_pm.envs.persistent_monitoring_v0` re-exports them under the versioned name.
-
-The implementation lives in :mod:`sb3_pm.envs.persistent_monitoring` (the simulation core in
-:mod:`sb3_pm.envs.core`); this module re-exports its constructors under the versioned name, as
-PettingZoo's ``*_vN`` modules do.
+:class:`~sb3_pm.envs.persistent_monitoring.PersistentMonitoringEnv` is a PettingZoo
+``ParallelEnv`` adapter around :class:`~sb3_pm.envs.core.MonitoringCore` (the dynamics),
+:class:`~sb3_pm.envs.mental_map.MentalMaps` (what each agent remembers),
+:mod:`sb3_pm.envs.observations`, :mod:`sb3_pm.envs.rewards` and :mod:`sb3_pm.envs.metrics`. This
+module re-exports its constructors (:func:`parallel_env`, :func:`env`, :data:`raw_env`) under the
+versioned name, as PettingZoo's ``*_vN`` modules do.
 
 Version history
 ---------------

@@ -3,27 +3,33 @@
 Each term is computed from what the agent itself did, found and remembers, so every reward is
 local: no agent's reward depends on another agent's observations or map. Terms:
 
-``collision``  -3 when another agent shares the agent's node (eq. 6).
-``momentum``   a counter reset each episode, +1 when the agent's node had u > 0 as it arrived,
-               else -1; the reward carries the counter's value (eq. 8). "Had u > 0 as it arrived"
-               is the value its presence acted on, so a visit that clears u = 1 counts as useful.
-``change``     Ū - U_i, paid at the episode's last step (eq. 7). U_i is the episode's sum over
-               steps and nodes of the agent's mental-map uncertainty; Ū is the mean of U_i over
-               the agent's previous 10 episodes (0 while it has none).
-``reduction``  the agent's marginal effect on total target uncertainty this step: how much lower u
-               is at its node than it would be without it (2 for u > 0, 1 for u = 0, less at the
-               cap; 0 when another agent is there too, since that one does the work alone). Local,
-               dense, and aligned with the avg_uncertainty metric.
-``clearing``   how much the agent actually lowers u at its node this step: 1 on a target with
-               u > 0 where it is alone, else 0. Unlike ``reduction`` it pays nothing for guarding a
-               target that is already at 0, which ``reduction`` pays at half the clearing rate
-               with no travel cost, so it removes the incentive to idle on cleared targets.
-``territory``  what ``clearing`` pays, but only on the targets of the agent's own territory: a
-               fixed, balanced split of the site's targets among the agents, which every agent
-               derives from the road network, the target list and its own index
-               (:mod:`sb3_pm.graphs.territories`), so no communication is needed. A convention that
-               tells otherwise identical learners apart, aimed at runs in which two learners
-               contest the same targets (not in the paper).
+``collision``
+    -3 when another agent shares the agent's node (eq. 6).
+``momentum``
+    a counter reset each episode, +1 when the agent's node had u > 0 as it arrived,
+    else -1; the reward carries the counter's value (eq. 8). "Had u > 0 as it arrived"
+    is the value its presence acted on, so a visit that clears u = 1 counts as useful.
+``change``
+    Ū - U_i, paid at the episode's last step (eq. 7). U_i is the episode's sum over
+    steps and nodes of the agent's mental-map uncertainty; Ū is the mean of U_i over
+    the agent's previous 10 episodes (0 while it has none).
+``reduction``
+    the agent's marginal effect on total target uncertainty this step: how much lower u
+    is at its node than it would be without it (2 for u > 0, 1 for u = 0, less at the
+    cap; 0 when another agent is there too, since that one does the work alone). Local,
+    dense, and aligned with the avg_uncertainty metric.
+``clearing``
+    how much the agent actually lowers u at its node this step: 1 on a target with
+    u > 0 where it is alone, else 0. Unlike ``reduction`` it pays nothing for guarding a
+    target that is already at 0, which ``reduction`` pays at half the clearing rate
+    with no travel cost, so it removes the incentive to idle on cleared targets.
+``territory``
+    what ``clearing`` pays, but only on the targets of the agent's own territory: a
+    fixed, balanced split of the site's targets among the agents, which every agent
+    derives from the road network, the target list and its own index
+    (:mod:`sb3_pm.graphs.territories`), so no communication is needed. A convention that
+    tells otherwise identical learners apart, aimed at runs in which two learners
+    contest the same targets (not in the paper).
 
 Presets: ``paper`` = 0.05 x (collision + change + momentum), as in the paper; ``reduction`` =
 1.0 x reduction + 0.05 x collision.

@@ -3,7 +3,7 @@
 The DCBF's neglect bound (rule 8, scope ``territory``) makes each agent keep the known targets of
 its own territory below ``B``. Its guarantee holds for one due target at a time, so a bound the
 territories cannot keep forces move after move and costs more than it saves: on the held-out
-graphs where every policy lets some target reach ``u_max`` (docs/RESULTS.md 3h, "Transfer"), a
+graphs where every policy lets some target reach ``u_max`` (research/LOG.md 3h, "Transfer"), a
 fixed ``B`` forced a third to two thirds of all moves. How tight a bound a site allows is a
 property of the site and the split, not of a learned team, so it can be measured before
 deployment by the rule that follows the same split, ``territory_patrol``
@@ -17,14 +17,11 @@ deployment by the rule that follows the same split, ``territory_patrol``
 * if ``P`` reaches ``u_max`` the territories cannot be held and no bound is deployed (``None``);
   otherwise ``B = max(1, ceil(margin · P))``, at most ``u_max``.
 
-``margin`` = 1, the bound at the rule's own worst peak, is the best of 1, 1.2 and 1.5 measured
-with the transferable team (5 seeds, docs/RESULTS.md §3h "Transfer", "The calibration margin"):
-lower than 1.2 on cliques-6x8 and karate (0.92× and 0.81×, significant over the runs) and level on
-``paper-50``, where 1.5 was higher on cliques-6x8 and karate. It was 1.2 before, set from
-``paper-50`` alone, where ``B = 50`` had been chosen earlier and the rule's peak is 44. A margin
-below 1 is refused: it would ask for a bound the territory rule itself did not keep. The rule
-needs the site's road network and target list, which a team with a known map has anyway; it reads
-no learned team.
+``margin`` = 1, the bound at the rule's own worst peak, is the best of the margins measured with
+the transferable team (the measurements: research/LOG.md §3h, "Transfer", "The calibration
+margin"). A margin below 1 is refused: it would ask for a bound the territory rule itself did not
+keep. The rule needs the site's road network and target list, which a team with a known map has
+anyway; it reads no learned team.
 
 Rule 8's guarantee assumes targets start at ``u = 0`` (a target the map has not seen projects as
 its age), so a site with ``initial_uncertainty: random`` is refused rather than calibrated.

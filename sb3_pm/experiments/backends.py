@@ -39,7 +39,8 @@ def run_jobs(
         at ``ray_address``).
     :param on_done: called as ``on_done(index, result)`` when a job finishes (progress reporting).
     :raises ValueError: for an unknown backend.
-    :raises ImportError: for ``"ray"`` when Ray is not installed (``pip install sb3_pm[ray]``).
+    :raises ImportError: for ``"ray"`` when Ray is not installed (``pip install ray``, or
+        ``pip install -e ".[ray]"`` in a checkout).
     """
     if backend not in BACKENDS:
         raise InputError(f"unknown backend {backend!r}; choose one of {BACKENDS}")
@@ -108,7 +109,9 @@ def _run_ray(
     try:
         import ray
     except ImportError as error:
-        raise ImportError("the ray backend needs Ray: pip install 'sb3_pm[ray]'") from error
+        raise ImportError(
+            "the ray backend needs Ray: pip install ray (in a checkout of sb3_pm: pip install -e '.[ray]')"
+        ) from error
     started_here = not ray.is_initialized()
     if started_here:
         if ray_address:

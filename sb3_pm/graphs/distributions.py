@@ -4,16 +4,21 @@ A team trained on one graph learns that graph. To learn a patrol that transfers,
 built on a :class:`GraphFamily` draws a new graph at every reset, from its own seeded generator, so
 the sequence of graphs flows from the environment's seed like every other draw. The families:
 
-``family:er``     Erdős–Rényi, N in [20, 60], edge probability in [0.1, 0.3] (raised to at least
-                  1.5 ln N / N, so that draws are connected: 0.225 at N = 20), 10–25% of the
-                  nodes targets (the paper's graphs are N = 50, p = 0.2, 16%).
-``family:rgg``    random geometric graphs, N in [30, 80], radius set for a nominal mean degree of
-                  7–12 (nodes near the square's edges have fewer neighbours; measured 5–10.5):
-                  sparse, spatial, large diameter.
-``family:rooms``  Algorithm 1 room rows, 2–5 rooms of 3–5 × 3–4 cells joined by single doors, with
-                  as many targets as 1–2 per room, placed uniformly over all cells.
-``family:mixed``  one of the three above, uniformly.
-a folder          every ``.graphml`` file in it, drawn uniformly (``family:DIR`` or the folder's path).
+``family:er``
+    Erdős–Rényi, N in [20, 60], edge probability in [0.1, 0.3] (raised to at least
+    1.5 ln N / N, so that draws are connected: 0.225 at N = 20), 10–25% of the
+    nodes targets (the paper's graphs are N = 50, p = 0.2, 16%).
+``family:rgg``
+    random geometric graphs, N in [30, 80], radius set for a nominal mean degree of
+    7–12 (nodes near the square's edges have fewer neighbours; measured 5–10.5):
+    sparse, spatial, large diameter.
+``family:rooms``
+    Algorithm 1 room rows, 2–5 rooms of 3–5 × 3–4 cells joined by single doors, with
+    as many targets as 1–2 per room, placed uniformly over all cells.
+``family:mixed``
+    one of the three above, uniformly.
+a folder
+    every ``.graphml`` file in it, drawn uniformly (``family:DIR`` or the folder's path).
 
 The classes are public: ``ErdosRenyiFamily(n_nodes_range=(30, 90))`` is a family with other
 ranges, for the Python API. Observation spaces have a fixed size in SB3, so a family states ``max_nodes``, the

@@ -1,7 +1,7 @@
 """Territories: a fixed, balanced split of a graph's targets among ``K`` agents.
 
 A team of independent learners settles, when it settles at all, on one learner per group of nearby
-targets (docs/RESULTS.md 3h, "Where the agents settle"); the runs that fail are those in which two
+targets (research/LOG.md 3h, "Where the agents settle"); the runs that fail are those in which two
 learners contest the same group. A territory is a convention that can be agreed before the mission
 from the site alone (its road network and its list of targets) and the agents' indices: no
 communication is needed to compute it, and every agent computes the same one. The ``territory``

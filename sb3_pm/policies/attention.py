@@ -39,8 +39,7 @@ BACKENDS = ("auto", "dense", "sparse")
 #: Below this adjacency density (self loops excluded) ``backend="auto"`` runs the sparse kernel.
 SPARSE_DENSITY = 0.05
 #: Graphs with at most this many nodes always run the dense kernel under ``backend="auto"``: for
-#: them the sparse kernel's indexing overhead dominates whatever the density (measured on 2 cores,
-#: 50 nodes at 1-6% density, B=250, 1 head: dense 35 ms, sparse 47 ms per PPO gradient step).
+#: them the sparse kernel's indexing overhead dominates whatever the density (research/LOG.md §3i).
 DENSE_MAX_SMALL = 64
 #: Batches of at most ``UNIQUE_MIN_BATCH`` maps on graphs up to this size always run the dense kernel.
 DENSE_MAX_SMALL_BATCH = 256
@@ -55,11 +54,8 @@ FUSED_MIN_SCORES = 65_536
 #: ... or, on the CPU, when the whole batch's scores ``B * heads * N * N`` reach this size (16 MB of
 #: floats, past the caches): a PPO minibatch of 250 maps on 130 nodes or more at one head. Well
 #: below it plain autograd over the whole batch is faster, and between 1M and 4M scores which wins
-#: depends on the shape (measured on 2 cores, per forward and backward pass: 250 maps of 50 nodes
-#: at 4 heads, 2.5M scores, 46 ms plain against 56 ms chunked; 250 maps of 100 nodes at one head,
-#: 2.5M, 74 against 58 ms; 500 maps of 100
-#: nodes at one head, 5M, 97 against 72 ms; 250 maps of 200 nodes, 10M, 348 against 132 ms;
-#: docs/results/speed_probes/attention_kernel_sizes.py). On the CPU both paths give the same bits
+#: depends on the shape (the timings per shape: research/LOG.md §3i, "The chunked kernel for large
+#: minibatches"). On the CPU both paths give the same bits
 #: (tests/test_attention_kernels.py trains a team both ways), so the choice changes only the speed.
 #: The rule is for CPUs: on a GPU a chunked batch is hundreds of small kernel launches, and neither
 #: its speed nor its bits were measured there, so GPU batches keep the per-map rule.

@@ -28,7 +28,7 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
 ``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
 among all reachable nodes but still dwells on a target until it is cleared. This is not in the
 paper; it exists because rules 2-4 leave a single allowed action on almost every step (measured in
-docs/RESULTS.md), so the learned actor barely acts.
+research/LOG.md), so the learned actor barely acts.
 
 Decisions where the paper is silent: γ gates the whole filter including the freeze (the freeze is
 rule 5 of the filter); rule 6 also applies to the frozen ``{φ}`` but can never empty it. A final

@@ -4,7 +4,7 @@ A team's rollout step is a few hundred small tensor operations per learner on ``
 on a GPU each is a kernel launch that costs more than its arithmetic, so rollouts run faster on
 the CPU. The update phase is the opposite: ten epochs of minibatches of ``(batch, N, N)``
 attention scores, which a GPU computes several times faster than two CPU cores from 200 nodes on
-(docs/RESULTS.md §3i, "On a GPU"). :func:`on_update_device` moves a learner's policy, the PPO
+(research/LOG.md §3i, "On a GPU"). :func:`on_update_device` moves a learner's policy, the PPO
 optimizer's state and its rollout buffer's output device to the update device for the length of
 ``train()`` and back afterwards, so everything outside ``train()`` (rollouts, the stacked acting
 pass, the estimator fit, saving) sees a CPU learner.

@@ -18,7 +18,8 @@ which registers them), so ``--gym-packages`` is optional::
     python -m sb3_pm.zoo --algo dcbf_ppo --env sb3_pm/PersistentMonitoring-paper50-v0 \\
         -conf zoo/dcbf_ppo.yml -n 2048
 
-rl-zoo is an optional extra (``pip install "sb3_pm[zoo]"``); it is imported only here, lazily.
+rl-zoo is an optional extra (``pip install -e ".[zoo]"`` in a checkout, or ``pip install rl_zoo3``);
+it is imported only here, lazily.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ def _require_rl_zoo() -> None:
         import rl_zoo3  # noqa: F401
     except ImportError as error:  # pragma: no cover - depends on the install
         raise ImportError(
-            'rl-baselines3-zoo is not installed: pip install "sb3_pm[zoo]" (or pip install rl_zoo3)'
+            "rl-baselines3-zoo is not installed: pip install rl_zoo3"
+            ' (or, in a checkout of sb3_pm: pip install -e ".[zoo]")'
         ) from error
 
 

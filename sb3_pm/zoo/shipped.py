@@ -1,8 +1,9 @@
 """Configs that ship with the package, found by name or by path.
 
 The rl-zoo style training configs and the experiment files live in the repository's ``zoo/``
-folder and install with the package as ``sb3_pm/configs/`` (in a checkout that folder is a link to
-``zoo/``). A user may name one in three ways, tried in this order:
+folder. The wheel carries the same files as ``sb3_pm/configs/`` (setup.cfg maps the package
+``sb3_pm.configs`` to ``zoo/``); a checkout, or an editable install, reads ``zoo/`` itself. A user
+may name one in three ways, tried in this order:
 
 1. a path that exists (``zoo/ippo.yml`` from the repository root, ``~/my_config.yml``);
 2. a shipped file by name, with or without ``.yml``: ``ippo``, ``ippo_paper.yml``, and for
@@ -15,8 +16,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-#: Where the shipped configs are (``sb3_pm/configs``).
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+_PACKAGE_DIR = Path(__file__).resolve().parents[1]
+#: Where the shipped configs are: ``sb3_pm/configs`` in an installed wheel, else the checkout's ``zoo/``.
+CONFIG_DIR = (
+    _PACKAGE_DIR / "configs" if (_PACKAGE_DIR / "configs").is_dir() else _PACKAGE_DIR.parent / "zoo"
+)
 #: Where the shipped experiment files are.
 EXPERIMENT_DIR = CONFIG_DIR / "experiments"
 #: The training config used when none is named: the best measured configuration.

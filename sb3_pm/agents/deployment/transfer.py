@@ -8,7 +8,7 @@ critic mean-pools. Two things tie it to ``N``:
   the first GAT layer's input width; ``laplacian: none`` does not;
 * the observation space (``N`` nodes) SB3 checks observations against.
 
-Choice (measured in docs/RESULTS.md, "Transfer"): the observation spaces are **rebuilt** for the new
+Choice (measured in research/LOG.md, "Transfer"): the observation spaces are **rebuilt** for the new
 graph rather than padded to a maximum size with a node mask. Rebuilding keeps every tensor at its
 true size (no cost on small graphs, no cap on large ones), and each learner's policy is rebuilt
 with the same constructor arguments on the new spaces and given the trained parameters. The only

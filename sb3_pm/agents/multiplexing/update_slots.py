@@ -5,8 +5,8 @@ With side-by-side updates
 starts its ``train()`` and estimator fit at its rollout's end, each in its own thread.
 With many learners on few cores (16 learners on 2 cores for the 16-agent regime on ``paper-200``)
 the threads then take turns on the cores and on the GIL, and each one's working set is pushed out
-of the caches by the others': a 16-learner team trained 1.7× faster with two updates at a time
-than with all sixteen (docs/RESULTS.md §3i, "Update slots"). :class:`UpdateSlots` lets at most
+of the caches by the others, so a 16-learner team trains faster with two updates at a time than
+with all sixteen (research/LOG.md §3i, "Update slots"). :class:`UpdateSlots` lets at most
 ``count`` learners be in their update phase at once; the others wait for a slot at their
 rollout's end. A learner that cannot update side by side (``target_kl`` set) updates holding the
 baton, one at a time, and takes no slot: in a team that mixes both kinds, up to ``count + 1``

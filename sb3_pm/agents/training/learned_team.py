@@ -156,8 +156,10 @@ class LearnedTeam(DeploymentRule):
 
     @property
     def deploy_filter(self) -> dict[str, Any] | None:
-        """The DCBF neglect bound the trained team acts under, ``{"neglect_bound": B,
-        "neglect_scope": S}``, or ``None``: it acts under the filter it trained under.
+        """The DCBF neglect bound the trained team acts under, or ``None``.
+
+        The bound is ``{"neglect_bound": B, "neglect_scope": S}``; with ``None`` the team acts
+        under the filter it trained under.
 
         Set by the config's ``deploy_filter`` and saved with the team. Training never reads it:
         :meth:`learn` trains with the bound off and switches it on again when it returns, so the
