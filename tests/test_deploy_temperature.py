@@ -240,10 +240,13 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
     and the regimes' transfer rows (zoo/ippo_transfer.yml's own rule) sample; the other transfer
     files pin the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
-    from sb3_pm.experiments.runner import deploy_rules, experiment_record
+    from sb3_pm.experiments.runner import experiment_record, team_rules
     from sb3_pm.zoo.shipped import EXPERIMENT_DIR, shipped_names
 
-    rules = {name: deploy_rules(load_experiment(name)) for name in shipped_names(EXPERIMENT_DIR)}
+    rules = {
+        name: team_rules(load_experiment(name)).get("deploy_temperature", {})
+        for name in shipped_names(EXPERIMENT_DIR)
+    }
     assert {name: rule for name, rule in rules.items() if rule} == {
         "transfer_known_map": {"known_map_family": 0.25},
         "transfer_territory": {"known_map_territory": 0.25, "known_map_territory_family": 0.25},

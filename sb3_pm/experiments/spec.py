@@ -181,31 +181,25 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
     return out
 
 
-def _check_team_pins(hyperparams: dict[str, Any], source: Path, where: str = "") -> None:
-    """The team keys among ``hyperparams``: a ``deploy_temperature`` must be null or a positive
-    number, a ``learning_rate_spread`` a number >= 1, a ``deploy_filter`` null or a neglect bound."""
-    if "deploy_filter" in hyperparams:
-        from sb3_pm.policies.dcbf import check_deploy_filter
+def _check_settings(settings: dict[str, Any], source: Path, where: str) -> None:
+    """Check the config keys of an experiment's or a variant's ``settings`` against the schema:
+    ``hyperparams`` (team and algorithm keys, :func:`sb3_pm.zoo.checks.check_settings`),
+    ``policy_kwargs`` and ``env_kwargs`` (the keys the experiment sets itself are refused below, by
+    name). Each learned cell's config is the entry with these merged over it, which the config
+    loader checks again, whole."""
+    from sb3_pm.zoo.checks import check_mapping, check_settings
+    from sb3_pm.zoo.schema import KEYS, POLICY_KEYS
 
-        try:
-            check_deploy_filter(hyperparams["deploy_filter"])
-        except InputError as error:
-            raise _fail(source, f"{where}hyperparams.deploy_filter: {error}") from None
-    if "learning_rate_spread" in hyperparams:
-        from sb3_pm.zoo.config import check_learning_rate_spread
-
-        try:
-            check_learning_rate_spread(hyperparams["learning_rate_spread"], f"{where}hyperparams")
-        except InputError as error:
-            raise _fail(source, str(error)) from None
-    if "deploy_temperature" not in hyperparams:
-        return
-    from sb3_pm.policies.sampling import check_deploy_temperature
-
+    env_kwargs = settings.get("env_kwargs") or {}
+    if isinstance(env_kwargs, dict):
+        env_kwargs = {k: v for k, v in env_kwargs.items() if k not in _EXPERIMENT_ENV_KEYS}
     try:
-        check_deploy_temperature(hyperparams["deploy_temperature"])
+        check_settings(settings.get("hyperparams") or {}, f"{where}hyperparams")
+        policy_kwargs = settings.get("policy_kwargs") or {}
+        check_mapping(policy_kwargs, POLICY_KEYS, f"{where}policy_kwargs", "a policy key")
+        check_mapping(env_kwargs, KEYS["env"], f"{where}env_kwargs", "an env key")
     except InputError as error:
-        raise _fail(source, f"{where}hyperparams.deploy_temperature: {error}") from None
+        raise _fail(source, str(error)) from None
 
 
 def _check_removed(settings: dict[str, Any], source: Path, where: str) -> None:
@@ -221,6 +215,47 @@ def _check_removed(settings: dict[str, Any], source: Path, where: str) -> None:
                 check_removed(part, where)
     except InputError as error:
         raise _fail(source, str(error)) from None
+
+
+def variant_config(
+    variant: Variant,
+    config: str | Path | None,
+    graph: str,
+    hyperparams: dict[str, Any],
+    env_kwargs: dict[str, Any],
+    max_cycles: int,
+    n_agents: int,
+) -> Any:
+    """A learned variant's training config (a :class:`~sb3_pm.zoo.config.TrainConfig`) on
+    ``graph``: the entry of its config (the variant's own, else the experiment's ``config``) with,
+    merged over it and checked as the file's own keys, the experiment's ``hyperparams`` and then
+    the variant's (team keys among them: ``deploy_temperature``, ``deploy_filter``,
+    ``learning_rate_spread``, ``n_envs``), the variant's ``policy_kwargs`` (key by key), the
+    experiment's and the variant's ``env_kwargs`` with the experiment's ``max_cycles``, the team
+    size (``train_agents``, else the experiment's ``n_agents``) and the variant's ``agents``.
+
+    :raises ConfigError: for a merged entry the config loader refuses.
+    """
+    from sb3_pm.zoo.config import load_config
+
+    source = variant.config or config
+    if source is None:
+        raise ExperimentError(f"variant {variant.key!r}: learned variants need 'config' (the training YAML)")
+    overrides: dict[str, Any] = {**hyperparams, **variant.hyperparams}
+    if variant.policy_kwargs:
+        overrides["policy_kwargs"] = {**(overrides.get("policy_kwargs") or {}), **variant.policy_kwargs}
+    overrides["env_kwargs"] = {
+        **(overrides.get("env_kwargs") or {}),
+        **env_kwargs,
+        **variant.env_kwargs,
+        "max_cycles": max_cycles,
+    }
+    # train_agents: a team trained with that many agents and deployed with the experiment's n_agents
+    overrides["n_agents"] = variant.train_agents or n_agents
+    if variant.agents:  # replaces the file's own ``agents``, validated against the team size
+        overrides["agents"] = variant.agents
+    origin = f"the experiment's and variant {variant.key!r}'s settings"
+    return load_config(source, variant.train_env or graph, overrides, origin=origin)
 
 
 def load_experiment(path: str | Path) -> Experiment:
@@ -265,7 +300,7 @@ def load_experiment(path: str | Path) -> Experiment:
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
         _check_removed(settings, path, f"variant {key!r}")
-        _check_team_pins(settings.get("hyperparams", {}), path, f"variant {key!r}: ")
+        _check_settings(settings, path, f"variant {key!r}: ")
         clash = sorted(_EXPERIMENT_ENV_KEYS & set(settings.get("env_kwargs", {})))
         if kind == "baseline" and clash:
             raise _fail(
@@ -354,7 +389,8 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"training config not found: {config_path}")
     if not isinstance(raw.get("hyperparams", {}) or {}, dict):
         raise _fail(path, "'hyperparams' must be a mapping")
-    _check_team_pins(raw.get("hyperparams", {}) or {}, path)
+    _check_settings(raw, path, "")
+    _check_settings({"env_kwargs": raw.get("eval_env_kwargs")}, path, "eval_")
     quick = raw.get("quick", {}) or {}
     if not isinstance(quick, dict):
         raise _fail(path, "'quick' must be a mapping")
