@@ -114,6 +114,24 @@ def test_a_variants_setting_out_of_range_fails_when_the_experiment_is_read(tmp_p
         load_experiment(path)
 
 
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("max_cycles: 50.0", "max_cycles: expected an integer >= 1, got 50.0"),
+        ("max_cycles: '50'", "max_cycles: expected an integer >= 1, got '50'"),
+        ("episodes: 0", "episodes: expected an integer >= 1, got 0"),
+        ("timesteps: 1.5e3", "timesteps: expected an integer >= 1 or null, got '1.5e3'"),
+        ("quick: {max_cycles: 2.5}", r"quick\.max_cycles: expected an integer >= 1, got 2\.5"),
+    ],
+)
+def test_an_experiments_own_setting_is_not_coerced(tmp_path: Path, line: str, message: str) -> None:
+    path = tmp_path / "e.yml"
+    path.write_text(f"graphs: [paper-50]\nseeds: [0]\n{line}\nvariants: {{r: {{kind: baseline, policy: random}}}}\n")
+    with pytest.raises(ExperimentError, match=message) as info:
+        load_experiment(path)
+    assert "\n" not in str(info.value) and str(info.value).count(str(path)) == 1
+
+
 def test_the_schema_lists_what_the_algorithms_take() -> None:
     from sb3_pm.zoo.registry import resolve_algo
 
@@ -182,12 +200,17 @@ def test_config_md_holds_the_tables_the_schema_generates() -> None:
     assert render_doc(text) == text, "run: python -m sb3_pm.zoo.schema_doc --write docs/CONFIG.md"
 
 
-def test_the_schema_module_imports_no_torch() -> None:
+def test_the_schema_module_and_the_file_readers_import_no_torch() -> None:
     code = (
         "import importlib.util, sys\n"
         f"spec = importlib.util.spec_from_file_location('schema', {str(ROOT / 'sb3_pm/zoo/schema.py')!r})\n"
         "module = importlib.util.module_from_spec(spec); sys.modules['schema'] = module\n"
         "spec.loader.exec_module(module)\n"
         "assert module.KEYS and 'torch' not in sys.modules, sorted(sys.modules)\n"
+        # nor does reading a config file or an experiment file
+        "from sb3_pm.zoo.config import read_yaml\n"
+        "from sb3_pm.experiments.spec import load_experiment\n"
+        "read_yaml('ippo'), load_experiment('comparison')\n"
+        "assert 'torch' not in sys.modules\n"
     )
-    subprocess.run([sys.executable, "-c", code], check=True)
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

@@ -51,40 +51,13 @@ from typing import Any
 import yaml
 
 from sb3_pm.errors import InputError
+from sb3_pm.zoo.schema import KEYS
 
-VARIANT_KINDS = ("independent", "centralized", "baseline")
+VARIANT_KINDS = KEYS["variant"]["kind"].choices
 #: Env arguments the experiment itself sets; an evaluation's or a baseline's env_kwargs may not.
 _EXPERIMENT_ENV_KEYS = frozenset({"graph", "n_agents", "max_cycles"})
-_TOP_KEYS = {
-    "name",
-    "graphs",
-    "seeds",
-    "episodes",
-    "max_cycles",
-    "n_agents",
-    "config",
-    "timesteps",
-    "quick",
-    "variants",
-    "description",
-    "env_kwargs",
-    "eval_env_kwargs",
-    "hyperparams",
-}
-_VARIANT_KEYS = {
-    "kind",
-    "policy",
-    "policy_kwargs",
-    "hyperparams",
-    "env_kwargs",
-    "label",
-    "train",
-    "config",
-    "train_env",
-    "timesteps",
-    "agents",
-    "train_agents",
-}
+#: The experiment's scalar settings, checked as the schema says (no ``50.0`` for ``max_cycles``).
+_SCALARS = ("episodes", "max_cycles", "n_agents", "timesteps")
 
 
 class ExperimentError(InputError):
@@ -168,8 +141,9 @@ def _fail(source: Path | None, message: str) -> ExperimentError:
 def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in raw.items():
-        if key not in _TOP_KEYS - {"variants", "quick", "name", "description"}:
+        if key not in set(KEYS["experiment"]) - {"variants", "quick", "name", "description"}:
             raise _fail(source, f"unknown or unsupported key {key!r} in quick overrides")
+        _check_scalar(key, value, source, "quick.")
         if key in ("graphs",):
             out[key] = tuple(str(g) for g in value)
         elif key == "seeds":
@@ -179,6 +153,22 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
         else:
             out[key] = value
     return out
+
+
+def _check_scalar(key: str, value: Any, source: Path | None, where: str = "") -> None:
+    """Refuse a scalar setting of the wrong type or out of range (:data:`_SCALARS`), or a seed
+    that is not an integer >= 0, naming it."""
+    from sb3_pm.zoo.checks import check_value
+
+    try:
+        if key in _SCALARS:
+            check_value(KEYS["experiment"][key], value, f"{where}{key}")
+    except InputError as error:
+        raise _fail(source, str(error)) from None
+    if key == "seeds" and isinstance(value, list):
+        bad = [s for s in value if isinstance(s, bool) or not isinstance(s, int) or s < 0]
+        if bad:
+            raise _fail(source, f"{where}seeds: expected integers >= 0, got {bad[0]!r}")
 
 
 def _check_settings(settings: dict[str, Any], source: Path, where: str) -> None:
@@ -274,9 +264,11 @@ def load_experiment(path: str | Path) -> Experiment:
         raise _fail(path, f"not valid YAML: {error}") from error
     if not isinstance(raw, dict):
         raise _fail(path, "expected a mapping at the top level")
-    unknown = sorted(set(raw) - _TOP_KEYS)
+    unknown = sorted(set(raw) - set(KEYS["experiment"]))
     if unknown:
-        raise _fail(path, f"unknown keys {unknown}; allowed: {sorted(_TOP_KEYS)}")
+        raise _fail(path, f"unknown keys {unknown}; allowed: {sorted(KEYS['experiment'])}")
+    for key, value in raw.items():
+        _check_scalar(key, value, path)
     _check_removed(raw, path, "experiment")
     for key in ("graphs", "seeds", "variants"):
         if not raw.get(key):
@@ -288,9 +280,9 @@ def load_experiment(path: str | Path) -> Experiment:
         settings = settings or {}
         if not isinstance(settings, dict):
             raise _fail(path, f"variant {key!r} must be a mapping")
-        bad = sorted(set(settings) - _VARIANT_KEYS)
+        bad = sorted(set(settings) - set(KEYS["variant"]))
         if bad:
-            raise _fail(path, f"variant {key!r}: unknown keys {bad}; allowed: {sorted(_VARIANT_KEYS)}")
+            raise _fail(path, f"variant {key!r}: unknown keys {bad}; allowed: {sorted(KEYS['variant'])}")
         kind = settings.get("kind", "independent")
         if kind not in VARIANT_KINDS:
             raise _fail(path, f"variant {key!r}: kind must be one of {VARIANT_KINDS}, got {kind!r}")
@@ -412,6 +404,8 @@ def load_experiment(path: str | Path) -> Experiment:
             source=path,
         )
         experiment.quick()  # validate the overrides now rather than at --quick time
+    except ExperimentError:
+        raise  # already names the file
     except (TypeError, ValueError) as error:
         raise _fail(path, str(error)) from error
     if experiment.episodes < 1:

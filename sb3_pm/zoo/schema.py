@@ -334,9 +334,55 @@ REWARD = Section('reward', 'Reward terms (`env_kwargs.reward`)', 'reward', keys=
 #: ``reward: <preset>`` names these weights (``sb3_pm.envs.rewards.REWARD_PRESETS``).
 REWARD_PRESETS = ("paper", "reduction")
 
+EXPERIMENT = Section('experiment', 'Experiment keys (`zoo/experiments/*.yml`)', 'experiment', keys=(
+    Key('name', 'str', None, default_text="the file's stem", help='the experiment, in reports'),
+    Key('description', 'str', None, nullable=True, help='what the experiment measures (not used)'),
+    Key('graphs', 'list', None, help='preset names, graph families or `.graphml` paths (required)'),
+    Key('seeds', 'list', None, help='training seeds; the evaluation seeds derive from them (required)'),
+    Key('episodes', 'int', 10, low=1, help='evaluation episodes per cell'),
+    Key('max_cycles', 'int', 500, low=1, help="every cell's episode length, training and evaluation"),
+    Key('n_agents', 'int', 4, low=1, help='team size of every cell'),
+    Key('config', 'str', None, nullable=True,
+        help='the team config of the learned variants, relative to the file (required with one)'),
+    Key('timesteps', 'int', None, low=1, nullable=True,
+        help="steps per learner; `null`: the config's `n_timesteps`"),
+    Key('env_kwargs', 'mapping', {}, help="env keys of every cell, merged into the config's"),
+    Key('eval_env_kwargs', 'mapping', {},
+        help="env keys of every cell's evaluation, never of training (`failures: {agent_1: 250}`)"),
+    Key('hyperparams', 'mapping', {},
+        help="team and algorithm keys merged into every learned variant's config entry"),
+    Key('quick', 'mapping', {}, help="`--quick`'s overrides of the keys above, for smoke tests"),
+    Key('variants', 'mapping', None, help='the rows of the tables: name -> variant keys (required)'),
+))
+
+VARIANT = Section('variant', 'Variant keys (`variants: {name: ...}`)', 'variant', keys=(
+    Key('kind', 'str', 'independent', choices=('independent', 'centralized', 'baseline'),
+        help='a decentralized team, one shared network and map, or a hand-written baseline'),
+    Key('label', 'str', None, default_text='the variant\'s name', help='the name in tables'),
+    Key('policy', 'str', None, nullable=True, help='a baseline: its name (required)'),
+    Key('config', 'str', None, nullable=True,
+        help="a learned variant: another team config to start from, relative to the file"),
+    Key('hyperparams', 'mapping', {}, help="team and algorithm keys merged over the experiment's"),
+    Key('policy_kwargs', 'mapping', {}, help="policy keys merged over the config's, key by key"),
+    Key('env_kwargs', 'mapping', {},
+        help="env keys merged over the experiment's (a baseline: its evaluation env's)"),
+    Key('train', 'bool', True, help='`false`: evaluate the team as built, untrained (a control)'),
+    Key('train_env', 'str', None, nullable=True,
+        help='independent: train one team per seed on this graph or family, deploy it on every graph'),
+    Key('train_agents', 'int', None, low=1, nullable=True,
+        help="with `train_env`: the team size it trains with (deployed with the experiment's `n_agents`)"),
+    Key('timesteps', 'int', None, low=1, nullable=True, help="this variant's budget per learner"),
+    Key('agents', 'mapping', {}, help="independent: per-agent overrides, replacing the config's `agents`"),
+))
+
+#: The experiment file's sections (:mod:`sb3_pm.experiments.spec` reads them).
+EXPERIMENT_SECTIONS: tuple[Section, ...] = (EXPERIMENT, VARIANT)
+
 SECTIONS: tuple[Section, ...] = (TEAM, ALGORITHM, ENCODER, ESTIMATOR, ACTOR_CRITIC, DCBF, ENV, REWARD)
 #: Every key by section name and key name.
-KEYS: dict[str, dict[str, Key]] = {s.name: {k.name: k for k in s.keys} for s in SECTIONS}
+KEYS: dict[str, dict[str, Key]] = {
+    section.name: {key.name: key for key in section.keys} for section in SECTIONS + EXPERIMENT_SECTIONS
+}
 #: The team's own keys (never passed to a learner, never overridden per agent).
 TEAM_KEYS: tuple[str, ...] = TEAM.names()
 #: The team keys an experiment records for each learned variant as its config resolves them (so a
@@ -369,6 +415,7 @@ def algorithm_keys(algo: str) -> dict[str, Key]:
 
 
 __all__ = [
+    "EXPERIMENT_SECTIONS",
     "KEYS",
     "POLICY_KEYS",
     "RECORDED_TEAM_KEYS",

@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from sb3_pm.zoo.schema import SECTIONS, Key, Section
+from sb3_pm.zoo.schema import EXPERIMENT_SECTIONS, SECTIONS, Key, Section
 
 
 def _default_text(key: Key) -> str:
@@ -35,6 +35,8 @@ def markdown_table(section: Section) -> str:
     for key in section.keys:
         kind = {"deploy_temperature": "float", "deploy_filter": "mapping"}.get(key.kind, key.kind)
         default = "(a weight)" if section.where == "reward" else _default_text(key)
+        if default == "none" and section.where == "experiment":
+            default = "required"
         allowed = key.range_text()
         lines.append(f"| `{key.name}` | {kind} | {default} | {allowed} | {key.help} |")
     return "\n".join(lines)
@@ -50,7 +52,7 @@ def render_doc(text: str) -> str:
 
     :raises ValueError: for a section whose markers are missing.
     """
-    for section in SECTIONS:
+    for section in SECTIONS + EXPERIMENT_SECTIONS:
         begin, end = _markers(section)
         head, found, rest = text.partition(begin)
         _, found_end, tail = rest.partition(end)
@@ -66,7 +68,7 @@ def main(argv: list[str]) -> int:
         path = Path(argv[1])
         path.write_text(render_doc(path.read_text()))
         return 0
-    for section in SECTIONS:
+    for section in SECTIONS + EXPERIMENT_SECTIONS:
         print(f"### {section.title}\n\n{markdown_table(section)}\n")
     return 0
 
