@@ -61,7 +61,9 @@ BASE = "default:\n  algo: maskable_ppo\n  n_steps: 16\n"
         ("policy_kwargs: {freeze_steps: 2.5}", "policy_kwargs.freeze_steps", "expected an integer >= 0"),
     ],
 )
-def test_a_value_out_of_range_is_one_line_naming_the_key(tmp_path: Path, line: str, key: str, message: str) -> None:
+def test_a_value_out_of_range_is_one_line_naming_the_key(
+    tmp_path: Path, line: str, key: str, message: str
+) -> None:
     algo = "algo: dcbf_ppo" if line.startswith("policy_kwargs") else "algo: maskable_ppo"
     path = tmp_path / "c.yml"
     path.write_text(BASE.replace("algo: maskable_ppo", algo) + f"  {line}\n")
@@ -74,9 +76,15 @@ def test_a_value_out_of_range_is_one_line_naming_the_key(tmp_path: Path, line: s
 @pytest.mark.parametrize(
     ("line", "message"),
     [
-        ("policy_kwargs: {gat_heads: 1}", r"policy_kwargs: unknown key 'gat_heads' \(not an argument of MultiInputPolicy\)"),
+        (
+            "policy_kwargs: {gat_heads: 1}",
+            r"policy_kwargs: unknown key 'gat_heads' \(not an argument of MultiInputPolicy\)",
+        ),
         ("use_sde: true", r"unknown key 'use_sde' \(not a team key, nor an argument of maskable_ppo\)"),
-        ("env_kwargs: {n_agents: 3}", r"env_kwargs: unknown key 'n_agents' \(not an argument of the environment\)"),
+        (
+            "env_kwargs: {n_agents: 3}",
+            r"env_kwargs: unknown key 'n_agents' \(not an argument of the environment\)",
+        ),
     ],
 )
 def test_a_key_the_learner_does_not_take_is_refused(tmp_path: Path, line: str, message: str) -> None:
@@ -107,7 +115,8 @@ def test_a_variants_setting_out_of_range_fails_when_the_experiment_is_read(tmp_p
         f"graphs: [paper-50]\nseeds: [0]\nconfig: {ROOT / 'zoo' / 'ippo.yml'}\n"
         "variants:\n  hot: {hyperparams: {gamma: 1.5}}\n"
     )
-    with pytest.raises(ExperimentError, match=r"e\.yml: variant 'hot': hyperparams\.gamma: expected a number in \(0, 1\]"):
+    message = r"e\.yml: variant 'hot': hyperparams\.gamma: expected a number in \(0, 1\]"
+    with pytest.raises(ExperimentError, match=message):
         load_experiment(path)
     path.write_text(path.read_text().replace("hyperparams: {gamma: 1.5}", "env_kwargs: {max_cycle: 5}"))
     with pytest.raises(ExperimentError, match=r"variant 'hot': env_kwargs: unknown key 'max_cycle'"):
@@ -126,7 +135,8 @@ def test_a_variants_setting_out_of_range_fails_when_the_experiment_is_read(tmp_p
 )
 def test_an_experiments_own_setting_is_not_coerced(tmp_path: Path, line: str, message: str) -> None:
     path = tmp_path / "e.yml"
-    path.write_text(f"graphs: [paper-50]\nseeds: [0]\n{line}\nvariants: {{r: {{kind: baseline, policy: random}}}}\n")
+    variants = "variants: {r: {kind: baseline, policy: random}}"
+    path.write_text(f"graphs: [paper-50]\nseeds: [0]\n{line}\n{variants}\n")
     with pytest.raises(ExperimentError, match=message) as info:
         load_experiment(path)
     assert "\n" not in str(info.value) and str(info.value).count(str(path)) == 1
@@ -168,7 +178,8 @@ def test_the_schema_lists_what_the_environment_and_the_policy_take() -> None:
     assert tuple(KEYS["reward"]) == TERMS
     assert SCHEMA_PRESETS == tuple(REWARD_PRESETS) and KEYS["env"]["reward"].default in SCHEMA_PRESETS
     policy = inspect.signature(DCBFActorCriticPolicy.__init__).parameters
-    taken = {name for name in policy if name not in ("self", "observation_space", "action_space", "lr_schedule")}
+    spaces = ("self", "observation_space", "action_space", "lr_schedule")
+    taken = {name for name in policy if name not in spaces}
     assert set(POLICY_KEYS) == taken
     for name, key in POLICY_KEYS.items():
         default = policy[name].default
