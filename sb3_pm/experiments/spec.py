@@ -40,6 +40,9 @@ config file's own ``agents`` key would be, replacing it, and validated the same 
 ``train_agents`` (independent variants with ``train_env``: the team size it trains with, instead
 of the experiment's ``n_agents``; the cells deploy that team with ``n_agents``, agent_i acting
 with learner agent_(i mod train_agents), e.g. a 4-agent team in the 16-agent regime).
+
+Both lists of keys, with their types and ranges, are sections of :mod:`sb3_pm.zoo.schema`
+(``experiment`` and ``variant``), as docs/CONFIG.md shows them.
 """
 
 from __future__ import annotations

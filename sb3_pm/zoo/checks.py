@@ -103,6 +103,7 @@ def check_value(key: Key, value: Any, where: str, loose: bool = False) -> Any:
     if kind == "str":
         if not isinstance(value, str) or (key.choices and value not in key.choices):
             expected = f"one of {', '.join(map(str, key.choices))}" if key.choices else "a name"
+            expected = key.expects or expected
             raise _fail(key, where, expected, value)
         return value
     if kind == "mapping":

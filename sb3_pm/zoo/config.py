@@ -21,8 +21,10 @@ Example (``zoo/ippo.yml``)::
 
 A graph looks up its own entry (the ``--env`` string, then the file stem of a GraphML path) and
 falls back to ``default:``. Entries do not inherit from ``default:`` implicitly; use YAML anchors,
-as rl-zoo does. Every key is checked against the algorithm's and the environment's signatures, so a
-typo is an error that names the file, the entry and the key rather than a silently ignored value.
+as rl-zoo does. Every key is checked, here and once, against :mod:`sb3_pm.zoo.schema` (the one list
+of keys, with their types, ranges and meanings; docs/CONFIG.md's tables are generated from it), so a
+typo or an out-of-range value is an error that names the file, the entry and the key rather than a
+silently ignored value or a traceback mid-training.
 """
 
 from __future__ import annotations

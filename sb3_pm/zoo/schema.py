@@ -68,6 +68,7 @@ class Key:
     :param nullable: ``null`` is allowed.
     :param algos: the algorithms that take it (empty: every one).
     :param default_text: the default as the docs table writes it, where ``default`` cannot say it.
+    :param expects: what an error says a ``str`` key expected (empty: its choices, or a name).
     """
 
     name: str
@@ -82,6 +83,7 @@ class Key:
     nullable: bool = False
     algos: tuple[str, ...] = ()
     default_text: str = ""
+    expects: str = ""
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:  # a typo in this file, caught on import
@@ -143,7 +145,7 @@ TEAM = Section('team', 'Team keys', 'entry', keys=(
         help='environment arguments, see [below](#env_kwargs)'),
     Key('agents', 'mapping', {},
         help='per-agent overrides, see [below](#per-agent-overrides)'),
-    Key('env', 'str', None, nullable=True,
+    Key('env', 'str', None, nullable=True, expects='a graph or family name',
         help='the graph or graph family `sb3-pm train` trains on without `--env` (`family:er`: a new graph'
         ' every episode); `--env` wins'),
     Key('deploy_temperature', 'deploy_temperature', None, low=0.0, low_open=True, nullable=True,
