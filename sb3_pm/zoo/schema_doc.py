@@ -58,7 +58,9 @@ def render_doc(text: str) -> str:
         _, found_end, tail = rest.partition(end)
         if not found or not found_end:
             raise ValueError(f"no {begin} ... {end} markers")
-        text = f"{head}{begin}\n{markdown_table(section)}\n{end}{tail}"
+        # The policy's four tables share one heading in CONFIG.md: each says which part it is.
+        title = f"**{section.title}**\n\n" if section.where == "policy_kwargs" else ""
+        text = f"{head}{begin}\n{title}{markdown_table(section)}\n{end}{tail}"
     return text
 
 
