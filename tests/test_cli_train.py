@@ -79,14 +79,15 @@ def test_train_user_errors(tiny_train, capsys) -> None:
 def test_train_overrides_rl_zoo_style(tiny_train, capsys) -> None:
     config, graph, out = tiny_train
     argv = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "16", "--out", str(out)]
-    overrides = ["--hyperparams", "learning_rate:5e-4", "n_steps:8", "--env-kwargs", "reward:reduction"]
+    # n_steps 32, over the file's 16: a rollout must hold the file's batch_size of 16
+    overrides = ["--hyperparams", "learning_rate:5e-4", "n_steps:32", "--env-kwargs", "reward:reduction"]
     assert main([*argv, *overrides, "--no-progress"]) == 0
     resolved = yaml.safe_load((out / "config.yml").read_text())
-    assert resolved["learning_rate"] == 5e-4 and resolved["n_steps"] == 8
+    assert resolved["learning_rate"] == 5e-4 and resolved["n_steps"] == 32
     # env_kwargs merge key by key: the file's max_cycles stays.
     assert resolved["env_kwargs"] == {"max_cycles": 10, "reward": "reduction"}
     assert (
-        "--hyperparams learning_rate:5e-4 n_steps:8 --env-kwargs reward:reduction"
+        "--hyperparams learning_rate:5e-4 n_steps:32 --env-kwargs reward:reduction"
         in (out / "command.txt").read_text()
     )
     capsys.readouterr()

@@ -241,9 +241,12 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
     and the regimes' transfer rows (zoo/ippo_transfer.yml's own rule) sample; the other transfer
     files pin the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
-    from sb3_pm.experiments.runner import deploy_rules, experiment_record
+    from sb3_pm.experiments.runner import experiment_record, team_rules
 
-    rules = {path.stem: deploy_rules(load_experiment(path)) for path in every_experiment_file()}
+    rules = {
+        path.stem: team_rules(load_experiment(path)).get("deploy_temperature", {})
+        for path in every_experiment_file()
+    }
     assert {name: rule for name, rule in rules.items() if rule} == {
         "transfer_known_map": {"known_map_family": 0.25},
         "transfer_territory": {"known_map_territory": 0.25, "known_map_territory_family": 0.25},

@@ -288,7 +288,9 @@ def test_update_device_reaches_every_learned_cell(tmp_path: Path, monkeypatch: p
 def test_an_update_device_for_learners_that_cannot_take_it_is_refused_before_training(tmp_path: Path) -> None:
     experiment = load_tiny(tmp_path)
     config = tmp_path / "config.yml"
-    config.write_text(config.read_text() + "  algo: maskable_ppo\n")
+    # maskable_ppo's MultiInputPolicy has no GAT encoder: the config loader would refuse hidden_dim
+    text = config.read_text().replace("hidden_dim: 8, gat_heads: 1", "net_arch: [8]")
+    config.write_text(text + "  algo: maskable_ppo\n")
     with pytest.raises(InputError, match="needs dcbf_ppo learners; variant 'learned' uses maskable_ppo"):
         reproduce(experiment, tmp_path / "out", n_jobs=1, progress=False, update_device="cpu:0")
     assert not (tmp_path / "out" / "cells").exists()  # nothing trained

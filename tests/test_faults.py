@@ -89,7 +89,7 @@ def test_overwrite_removes_only_what_a_run_writes(setup, capsys) -> None:
         (["--seed", "-1"], "--seed must be at least 0"),
         (["--hyperparams", "n_agents:20"], "more agents (20) than nodes (12)"),
         (["--hyperparams", "policy_kwargs:{no_such_option: 1}"], "no_such_option"),
-        (["--hyperparams", "n_steps:-5"], "n_steps: expected an integer >= 1, got -5"),
+        (["--hyperparams", "n_steps:-5"], "n_steps: expected an integer >= 2, got -5"),
     ],
 )
 def test_bad_input_leaves_no_stub_folder(setup, capsys, extra, message) -> None:

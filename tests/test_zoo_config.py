@@ -294,7 +294,7 @@ def test_a_removed_research_switch_is_one_line_naming_the_tag(tmp_path, where, k
     and the research snapshot tag that still has it."""
     from sb3_pm.errors import InputError
     from sb3_pm.experiments.spec import load_experiment
-    from sb3_pm.zoo.config import REMOVED_KEYS
+    from sb3_pm.zoo.schema import REMOVED_KEYS
 
     name = _removed_name(where, key, value)
     assert name in REMOVED_KEYS

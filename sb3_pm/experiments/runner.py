@@ -33,7 +33,6 @@ import shlex
 import shutil
 import sys
 import time
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -45,14 +44,12 @@ from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluat
 from sb3_pm.experiments.backends import default_jobs, run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
+from sb3_pm.experiments.record import EVAL_SEED_OFFSET, experiment_record, team_rules
 from sb3_pm.experiments.report import code_version, write_report
-from sb3_pm.experiments.spec import Experiment, ExperimentError, Variant
+from sb3_pm.experiments.spec import Experiment, Variant, variant_config
 from sb3_pm.files import move_aside
 from sb3_pm.graphs import graph_label
 from sb3_pm.machine import usable_cores, write_machine_record
-
-#: Evaluation env seeds start here, far from the seeds training episodes use.
-EVAL_SEED_OFFSET = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -199,51 +196,11 @@ def train_shared_team(cell: Cell) -> str:
 
 def cell_config(cell: Cell, variant: Variant) -> Any:
     """The training config of a learned cell: the base config's entry for the cell's graph, with the
-    experiment's and then the variant's overrides merged over it (``policy_kwargs`` key by key)."""
-    from sb3_pm.zoo.config import load_config
-
-    source = variant.config or cell.config
-    assert source is not None
-    # Per-agent overrides go through the loader, which validates them as a file's own ``agents``
-    # (agent names against the cell's team size).
-    team_size = variant.train_agents or cell.n_agents  # train_agents: a team deployed with n_agents
-    overrides = {"agents": variant.agents, "n_agents": team_size} if variant.agents else None
-    config = load_config(source, variant.train_env or cell.graph, overrides)
-    pins = {**cell.hyperparams, **variant.hyperparams}
-    config.deploy_temperature = pinned_deploy_temperature(config, pins)
-    config.learning_rate_spread = pinned_learning_rate_spread(config, pins)
-    config.deploy_filter = pinned_deploy_filter(config, pins)
-    team_pins = ("deploy_temperature", "learning_rate_spread", "deploy_filter")
-    config.hyperparams.update({key: value for key, value in pins.items() if key not in team_pins})
-    config.n_envs = int(config.hyperparams.pop("n_envs", config.n_envs))
-    if variant.policy_kwargs:
-        config.hyperparams["policy_kwargs"] = {
-            **config.hyperparams.get("policy_kwargs", {}),
-            **variant.policy_kwargs,
-        }
-    config.env_kwargs.update({**cell.env_kwargs, **variant.env_kwargs, "max_cycles": cell.max_cycles})
-    config.n_agents = team_size
-    return config
-
-
-def pinned_deploy_temperature(config: Any, hyperparams: dict[str, Any]) -> float | None:
-    """The config's ``deploy_temperature``, unless the experiment's or the variant's
-    ``hyperparams`` pin it (a team key, never passed to the algorithm; ``null``: argmax)."""
-    if "deploy_temperature" not in hyperparams:
-        return config.deploy_temperature  # type: ignore[no-any-return]
-    from sb3_pm.policies.sampling import check_deploy_temperature
-
-    return check_deploy_temperature(hyperparams["deploy_temperature"])
-
-
-def pinned_deploy_filter(config: Any, hyperparams: dict[str, Any]) -> dict[str, Any] | None:
-    """The config's ``deploy_filter``, unless the experiment's or the variant's ``hyperparams`` pin
-    it (a team key, never passed to the algorithm; ``null``: the filter as trained)."""
-    if "deploy_filter" not in hyperparams:
-        return config.deploy_filter  # type: ignore[no-any-return]
-    from sb3_pm.policies.dcbf import check_deploy_filter
-
-    return check_deploy_filter(hyperparams["deploy_filter"])
+    experiment's and then the variant's settings merged over it and checked as the file's own keys
+    (:func:`~sb3_pm.experiments.spec.variant_overrides`)."""
+    return variant_config(
+        variant, cell.config, cell.graph, cell.hyperparams, cell.env_kwargs, cell.max_cycles, cell.n_agents
+    )
 
 
 def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
@@ -468,139 +425,13 @@ def reproduce(
     return comparison
 
 
-#: Variant fields left out of the record when they hold these defaults.
-_RECORD_DEFAULTS: dict[str, Any] = {
-    "train": True,
-    "config": None,
-    "train_env": None,
-    "timesteps": None,
-    "agents": {},
-    "train_agents": None,
-}
-
-
-def pinned_learning_rate_spread(config: Any, hyperparams: dict[str, Any]) -> float:
-    """The config's ``learning_rate_spread``, unless the experiment's or the variant's
-    ``hyperparams`` pin it (a team key, never passed to the algorithm)."""
-    if "learning_rate_spread" not in hyperparams:
-        return float(config.learning_rate_spread)
-    from sb3_pm.zoo.config import check_learning_rate_spread
-
-    return check_learning_rate_spread(hyperparams["learning_rate_spread"], "hyperparams")
-
-
-def _resolved_team_key(
-    experiment: Experiment, resolve: Any
-) -> Iterator[tuple[Variant, str | Path, dict[str, Any]]]:
-    """``(variant, config, {graph: resolve(config entry, pins)})`` for each learned variant, with
-    the experiment's and the variant's ``hyperparams`` as the pins."""
-    from sb3_pm.zoo.config import load_config
-
-    for variant in experiment.variants:
-        source = variant.config or experiment.config
-        if not variant.learned or source is None:
-            continue
-        pins = {**experiment.hyperparams, **variant.hyperparams}
-        graphs = [variant.train_env] if variant.train_env else experiment.graphs
-        yield variant, source, {graph: resolve(load_config(source, graph), pins) for graph in graphs}
-
-
-def _one_or_per_graph(per_graph: dict[str, Any]) -> Any:
-    values = set(per_graph.values())
-    return values.pop() if len(values) == 1 else per_graph
-
-
-def deploy_rules(experiment: Experiment) -> dict[str, Any]:
-    """``{variant: deploy_temperature}`` of the learned variants that sample at deployment, as their
-    configs and pins resolve (one value, or ``{graph: value}`` where the entries differ).
-
-    The record names a config by its path only, so without this an edited ``deploy_temperature``
-    would let a resumed folder mix cells evaluated both ways.
-    """
-    return {
-        variant.key: _one_or_per_graph(per_graph)
-        for variant, _, per_graph in _resolved_team_key(experiment, pinned_deploy_temperature)
-        if set(per_graph.values()) != {None}
-    }
-
-
-def filter_rules(experiment: Experiment) -> dict[str, Any]:
-    """``{variant: deploy_filter}`` of the learned variants that act under a deploy filter, as their
-    configs and pins resolve (one mapping, or ``{graph: mapping or None}`` where the entries differ).
-
-    Recorded like :func:`deploy_rules`: a folder evaluated without the filter does not resume into
-    cells evaluated with it.
-    """
-    rules: dict[str, Any] = {}
-    for variant, _, per_graph in _resolved_team_key(experiment, pinned_deploy_filter):
-        values = list(per_graph.values())
-        if all(value is None for value in values):
-            continue
-        rules[variant.key] = values[0] if all(value == values[0] for value in values) else per_graph
-    return rules
-
-
-def spread_rules(experiment: Experiment) -> dict[str, Any]:
-    """``{variant: learning_rate_spread}`` of the learned variants whose learners' rates differ, as
-    their configs and pins resolve (one value, or ``{graph: value}`` where the entries differ).
-
-    Recorded like :func:`deploy_rules`, so that a folder started before a config's spread changed
-    does not resume into cells trained both ways.
-
-    :raises ExperimentError: for a centralized variant with a spread (one network, one rate), here
-        rather than when its first cell trains.
-    """
-    rules: dict[str, Any] = {}
-    for variant, source, per_graph in _resolved_team_key(experiment, pinned_learning_rate_spread):
-        if set(per_graph.values()) == {1.0}:
-            continue
-        if variant.kind == "centralized":
-            raise ExperimentError(
-                f"{experiment.source}: variant {variant.key!r}: a centralized team has one learning "
-                f"rate, but its config spreads them ({source}); pin hyperparams: "
-                "{learning_rate_spread: 1}"
-            )
-        rules[variant.key] = _one_or_per_graph(per_graph)
-    return rules
-
-
-def experiment_record(experiment: Experiment) -> dict[str, Any]:
-    # eval_env_kwargs is recorded only when set (folders written before it existed resume), so a
-    # changed deployment condition is a different experiment and never reuses finished cells;
-    # likewise the learned variants' sampling rules (deploy_rules) and learning-rate spreads.
-    extra: dict[str, Any] = (
-        {"eval_env_kwargs": experiment.eval_env_kwargs} if experiment.eval_env_kwargs else {}
-    )
-    rules = deploy_rules(experiment)
-    if rules:
-        extra["deploy_temperature"] = rules
-    spreads = spread_rules(experiment)
-    if spreads:
-        extra["learning_rate_spread"] = spreads
-    filters = filter_rules(experiment)
-    if filters:
-        extra["deploy_filter"] = filters
-    return {
-        **extra,
-        "name": experiment.name,
-        "graphs": list(experiment.graphs),
-        "seeds": list(experiment.seeds),
-        "episodes": experiment.episodes,
-        "max_cycles": experiment.max_cycles,
-        "n_agents": experiment.n_agents,
-        "config": None if experiment.config is None else str(experiment.config),
-        "timesteps": experiment.timesteps,
-        "env_kwargs": experiment.env_kwargs,
-        "hyperparams": experiment.hyperparams,
-        "evaluation_seeds": f"{EVAL_SEED_OFFSET} + seed * {SEED_STRIDE} + episode",
-        # ``train`` and ``config`` are recorded only when set, so folders written before these keys
-        # existed resume.
-        "variants": {
-            v.key: {
-                k: val
-                for k, val in asdict(v).items()
-                if k != "key" and not (k in _RECORD_DEFAULTS and val == _RECORD_DEFAULTS[k])
-            }
-            for v in experiment.variants
-        },
-    }
+__all__ = [
+    "EVAL_SEED_OFFSET",
+    "Cell",
+    "cell_config",
+    "experiment_record",
+    "plan_cells",
+    "reproduce",
+    "run_cell",
+    "team_rules",
+]

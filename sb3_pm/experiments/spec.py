@@ -40,6 +40,9 @@ config file's own ``agents`` key would be, replacing it, and validated the same 
 ``train_agents`` (independent variants with ``train_env``: the team size it trains with, instead
 of the experiment's ``n_agents``; the cells deploy that team with ``n_agents``, agent_i acting
 with learner agent_(i mod train_agents), e.g. a 4-agent team in the 16-agent regime).
+
+Both lists of keys, with their types and ranges, are sections of :mod:`sb3_pm.zoo.schema`
+(``experiment`` and ``variant``), as docs/CONFIG.md shows them.
 """
 
 from __future__ import annotations
@@ -51,40 +54,13 @@ from typing import Any
 import yaml
 
 from sb3_pm.errors import InputError
+from sb3_pm.zoo.schema import KEYS
 
-VARIANT_KINDS = ("independent", "centralized", "baseline")
+VARIANT_KINDS = KEYS["variant"]["kind"].choices
 #: Env arguments the experiment itself sets; an evaluation's or a baseline's env_kwargs may not.
 _EXPERIMENT_ENV_KEYS = frozenset({"graph", "n_agents", "max_cycles"})
-_TOP_KEYS = {
-    "name",
-    "graphs",
-    "seeds",
-    "episodes",
-    "max_cycles",
-    "n_agents",
-    "config",
-    "timesteps",
-    "quick",
-    "variants",
-    "description",
-    "env_kwargs",
-    "eval_env_kwargs",
-    "hyperparams",
-}
-_VARIANT_KEYS = {
-    "kind",
-    "policy",
-    "policy_kwargs",
-    "hyperparams",
-    "env_kwargs",
-    "label",
-    "train",
-    "config",
-    "train_env",
-    "timesteps",
-    "agents",
-    "train_agents",
-}
+#: The experiment's scalar settings, checked as the schema says (no ``50.0`` for ``max_cycles``).
+_SCALARS = ("episodes", "max_cycles", "n_agents", "timesteps")
 
 
 class ExperimentError(InputError):
@@ -168,8 +144,9 @@ def _fail(source: Path | None, message: str) -> ExperimentError:
 def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in raw.items():
-        if key not in _TOP_KEYS - {"variants", "quick", "name", "description"}:
+        if key not in set(KEYS["experiment"]) - {"variants", "quick", "name", "description"}:
             raise _fail(source, f"unknown or unsupported key {key!r} in quick overrides")
+        _check_scalar(key, value, source, "quick.")
         if key in ("graphs",):
             out[key] = tuple(str(g) for g in value)
         elif key == "seeds":
@@ -181,31 +158,41 @@ def _coerce_top(raw: dict[str, Any], source: Path | None, base: Path | None) -> 
     return out
 
 
-def _check_team_pins(hyperparams: dict[str, Any], source: Path, where: str = "") -> None:
-    """The team keys among ``hyperparams``: a ``deploy_temperature`` must be null or a positive
-    number, a ``learning_rate_spread`` a number >= 1, a ``deploy_filter`` null or a neglect bound."""
-    if "deploy_filter" in hyperparams:
-        from sb3_pm.policies.dcbf import check_deploy_filter
-
-        try:
-            check_deploy_filter(hyperparams["deploy_filter"])
-        except InputError as error:
-            raise _fail(source, f"{where}hyperparams.deploy_filter: {error}") from None
-    if "learning_rate_spread" in hyperparams:
-        from sb3_pm.zoo.config import check_learning_rate_spread
-
-        try:
-            check_learning_rate_spread(hyperparams["learning_rate_spread"], f"{where}hyperparams")
-        except InputError as error:
-            raise _fail(source, str(error)) from None
-    if "deploy_temperature" not in hyperparams:
-        return
-    from sb3_pm.policies.sampling import check_deploy_temperature
+def _check_scalar(key: str, value: Any, source: Path | None, where: str = "") -> None:
+    """Refuse a scalar setting of the wrong type or out of range (:data:`_SCALARS`), or a seed
+    that is not an integer >= 0, naming it."""
+    from sb3_pm.zoo.checks import check_value
 
     try:
-        check_deploy_temperature(hyperparams["deploy_temperature"])
+        if key in _SCALARS:
+            check_value(KEYS["experiment"][key], value, f"{where}{key}")
     except InputError as error:
-        raise _fail(source, f"{where}hyperparams.deploy_temperature: {error}") from None
+        raise _fail(source, str(error)) from None
+    if key == "seeds" and isinstance(value, list):
+        bad = [s for s in value if isinstance(s, bool) or not isinstance(s, int) or s < 0]
+        if bad:
+            raise _fail(source, f"{where}seeds: expected integers >= 0, got {bad[0]!r}")
+
+
+def _check_settings(settings: dict[str, Any], source: Path, where: str) -> None:
+    """Check the config keys of an experiment's or a variant's ``settings`` against the schema:
+    ``hyperparams`` (team and algorithm keys, :func:`sb3_pm.zoo.checks.check_settings`),
+    ``policy_kwargs`` and ``env_kwargs`` (the keys the experiment sets itself are refused below, by
+    name). Each learned cell's config is the entry with these merged over it, which the config
+    loader checks again, whole."""
+    from sb3_pm.zoo.checks import check_mapping, check_settings
+    from sb3_pm.zoo.schema import KEYS, POLICY_KEYS
+
+    env_kwargs = settings.get("env_kwargs") or {}
+    if isinstance(env_kwargs, dict):
+        env_kwargs = {k: v for k, v in env_kwargs.items() if k not in _EXPERIMENT_ENV_KEYS}
+    try:
+        check_settings(settings.get("hyperparams") or {}, f"{where}hyperparams")
+        policy_kwargs = settings.get("policy_kwargs") or {}
+        check_mapping(policy_kwargs, POLICY_KEYS, f"{where}policy_kwargs", "a policy key")
+        check_mapping(env_kwargs, KEYS["env"], f"{where}env_kwargs", "an env key")
+    except InputError as error:
+        raise _fail(source, str(error)) from None
 
 
 def _check_removed(settings: dict[str, Any], source: Path, where: str) -> None:
@@ -221,6 +208,47 @@ def _check_removed(settings: dict[str, Any], source: Path, where: str) -> None:
                 check_removed(part, where)
     except InputError as error:
         raise _fail(source, str(error)) from None
+
+
+def variant_config(
+    variant: Variant,
+    config: str | Path | None,
+    graph: str,
+    hyperparams: dict[str, Any],
+    env_kwargs: dict[str, Any],
+    max_cycles: int,
+    n_agents: int,
+) -> Any:
+    """A learned variant's training config (a :class:`~sb3_pm.zoo.config.TrainConfig`) on
+    ``graph``: the entry of its config (the variant's own, else the experiment's ``config``) with,
+    merged over it and checked as the file's own keys, the experiment's ``hyperparams`` and then
+    the variant's (team keys among them: ``deploy_temperature``, ``deploy_filter``,
+    ``learning_rate_spread``, ``n_envs``), the variant's ``policy_kwargs`` (key by key), the
+    experiment's and the variant's ``env_kwargs`` with the experiment's ``max_cycles``, the team
+    size (``train_agents``, else the experiment's ``n_agents``) and the variant's ``agents``.
+
+    :raises ConfigError: for a merged entry the config loader refuses.
+    """
+    from sb3_pm.zoo.config import load_config
+
+    source = variant.config or config
+    if source is None:
+        raise ExperimentError(f"variant {variant.key!r}: learned variants need 'config' (the training YAML)")
+    overrides: dict[str, Any] = {**hyperparams, **variant.hyperparams}
+    if variant.policy_kwargs:
+        overrides["policy_kwargs"] = {**(overrides.get("policy_kwargs") or {}), **variant.policy_kwargs}
+    overrides["env_kwargs"] = {
+        **(overrides.get("env_kwargs") or {}),
+        **env_kwargs,
+        **variant.env_kwargs,
+        "max_cycles": max_cycles,
+    }
+    # train_agents: a team trained with that many agents and deployed with the experiment's n_agents
+    overrides["n_agents"] = variant.train_agents or n_agents
+    if variant.agents:  # replaces the file's own ``agents``, validated against the team size
+        overrides["agents"] = variant.agents
+    origin = f"the experiment's and variant {variant.key!r}'s settings"
+    return load_config(source, variant.train_env or graph, overrides, origin=origin)
 
 
 def load_experiment(path: str | Path) -> Experiment:
@@ -239,9 +267,11 @@ def load_experiment(path: str | Path) -> Experiment:
         raise _fail(path, f"not valid YAML: {error}") from error
     if not isinstance(raw, dict):
         raise _fail(path, "expected a mapping at the top level")
-    unknown = sorted(set(raw) - _TOP_KEYS)
+    unknown = sorted(set(raw) - set(KEYS["experiment"]))
     if unknown:
-        raise _fail(path, f"unknown keys {unknown}; allowed: {sorted(_TOP_KEYS)}")
+        raise _fail(path, f"unknown keys {unknown}; allowed: {sorted(KEYS['experiment'])}")
+    for key, value in raw.items():
+        _check_scalar(key, value, path)
     _check_removed(raw, path, "experiment")
     for key in ("graphs", "seeds", "variants"):
         if not raw.get(key):
@@ -253,9 +283,9 @@ def load_experiment(path: str | Path) -> Experiment:
         settings = settings or {}
         if not isinstance(settings, dict):
             raise _fail(path, f"variant {key!r} must be a mapping")
-        bad = sorted(set(settings) - _VARIANT_KEYS)
+        bad = sorted(set(settings) - set(KEYS["variant"]))
         if bad:
-            raise _fail(path, f"variant {key!r}: unknown keys {bad}; allowed: {sorted(_VARIANT_KEYS)}")
+            raise _fail(path, f"variant {key!r}: unknown keys {bad}; allowed: {sorted(KEYS['variant'])}")
         kind = settings.get("kind", "independent")
         if kind not in VARIANT_KINDS:
             raise _fail(path, f"variant {key!r}: kind must be one of {VARIANT_KINDS}, got {kind!r}")
@@ -265,7 +295,7 @@ def load_experiment(path: str | Path) -> Experiment:
             if not isinstance(settings.get(mapping, {}), dict):
                 raise _fail(path, f"variant {key!r}: {mapping!r} must be a mapping")
         _check_removed(settings, path, f"variant {key!r}")
-        _check_team_pins(settings.get("hyperparams", {}), path, f"variant {key!r}: ")
+        _check_settings(settings, path, f"variant {key!r}: ")
         clash = sorted(_EXPERIMENT_ENV_KEYS & set(settings.get("env_kwargs", {})))
         if kind == "baseline" and clash:
             raise _fail(
@@ -354,7 +384,8 @@ def load_experiment(path: str | Path) -> Experiment:
             raise _fail(path, f"training config not found: {config_path}")
     if not isinstance(raw.get("hyperparams", {}) or {}, dict):
         raise _fail(path, "'hyperparams' must be a mapping")
-    _check_team_pins(raw.get("hyperparams", {}) or {}, path)
+    _check_settings(raw, path, "")
+    _check_settings({"env_kwargs": raw.get("eval_env_kwargs")}, path, "eval_")
     quick = raw.get("quick", {}) or {}
     if not isinstance(quick, dict):
         raise _fail(path, "'quick' must be a mapping")
@@ -376,6 +407,8 @@ def load_experiment(path: str | Path) -> Experiment:
             source=path,
         )
         experiment.quick()  # validate the overrides now rather than at --quick time
+    except ExperimentError:
+        raise  # already names the file
     except (TypeError, ValueError) as error:
         raise _fail(path, str(error)) from error
     if experiment.episodes < 1:

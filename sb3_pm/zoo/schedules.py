@@ -9,8 +9,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from stable_baselines3.common.utils import LinearSchedule
-
 from sb3_pm.errors import InputError
 
 #: Hyperparameters that SB3's PPO accepts as a schedule as well as a number.
@@ -32,6 +30,9 @@ def parse_schedule(value: Any, key: str = "value") -> Any:
                 raise InputError(
                     f"{key}: {value!r} is not a schedule; write lin_<number>, e.g. lin_3e-4"
                 ) from error
+            # Imported here: reading a config (and sb3_pm.zoo) must not import torch.
+            from stable_baselines3.common.utils import LinearSchedule
+
             return LinearSchedule(start, 0.0, 1.0)
         try:
             return float(text)
