@@ -52,8 +52,8 @@ from sb3_pm.agents.learner_callbacks import (
 from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
 from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_kwargs
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
-from sb3_pm.agents.pruned_inference import PrunedInference
 from sb3_pm.agents.rollout_batching import RolloutBatcher
+from sb3_pm.agents.team_forward import TeamForward
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
 from sb3_pm.agents.transfer import on_graph, transfer_problem
@@ -115,12 +115,10 @@ class IndependentPPO(LearnedTeam):
 
     name = "ippo"
     MANIFEST_FORMAT = "sb3_pm.team/1"
-    #: act deterministically through one stacked forward pass per step where it applies
+    #: act through one forward pass for the whole team per step where it applies
+    #: (:mod:`sb3_pm.agents.team_forward`); ``False``: one pass per agent
     stacked_inference: bool = True
-    #: in that pass, decide from the allowed nodes' logits where that gives the same action
-    #: (:mod:`sb3_pm.agents.pruned_inference`); ``False`` computes every node's logit
-    pruned_inference: bool = True
-    #: while training, run the learners' rollout passes as one stacked pass per joint step where it
+    #: while training, run the learners' rollout passes as one team pass per joint step where it
     #: applies (:mod:`sb3_pm.agents.rollout_batching`; the same parameters bit for bit)
     batched_rollouts: bool = True
     #: with side-by-side updates, how many learners may run their update phase at once: ``None``
@@ -151,7 +149,7 @@ class IndependentPPO(LearnedTeam):
     ) -> None:
         self._set_problem(graph, n_agents, n_envs, seed, algo, policy, env_kwargs, deploy_temperature)
         self._deploy_filter = self._checked_deploy_filter(deploy_filter)
-        self._stacker = PrunedInference()  # the stacked acting pass, pruned to the allowed nodes
+        self._team_forward = TeamForward()  # the whole team's acting pass
         self.verbose = verbose
         self.device = device
         self.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
@@ -418,21 +416,19 @@ class IndependentPPO(LearnedTeam):
         at :attr:`sampling_temperature` (the rule's temperature if it has one, else 1 unless
         :meth:`set_sampling_temperature` said otherwise).
 
-        The actions of DCBF learners come from one stacked forward pass for the whole team
-        (:mod:`sb3_pm.agents.stacked_inference`; the same logits as one pass per agent, bit for
-        bit; sampled actions are then drawn agent by agent, as one pass per agent draws them).
-        Deterministic ones compute only the allowed nodes' logits where that decides the same action
-        (:mod:`sb3_pm.agents.pruned_inference`). Set :attr:`stacked_inference` to ``False`` to run
-        them one by one, :attr:`pruned_inference` to ``False`` to compute every node's logit.
+        The actions of DCBF learners come from one forward pass for the whole team
+        (:mod:`sb3_pm.agents.team_forward`: each learner's own policy code on its own parameters,
+        the same actions as one pass per agent; sampled actions are drawn agent by agent, as one
+        pass per agent draws them). Set :attr:`stacked_inference` to ``False`` to run them one by
+        one.
         """
         deterministic = self.acts_deterministically(deterministic)
         if self.stacked_inference:
-            self._stacker.prune = self.pruned_inference
-            stacked = self._stacker.predict(
-                observations, lambda a: self.models[self.learner_for(a)].policy, deterministic
-            )
-            if stacked is not None:
-                return stacked
+            agents = list(observations)
+            policies = [self.models[self.learner_for(a)].policy for a in agents]
+            together = self._team_forward.actions(policies, [observations[a] for a in agents], deterministic)
+            if together is not None:
+                return {agent: int(action) for agent, action in zip(agents, together)}
         actions: dict[str, int] = {}
         for agent, obs in observations.items():
             model = self.models[self.learner_for(agent)]

@@ -31,7 +31,6 @@ allowed``, ``derived_features`` or ``extra_attention``. :func:`team_problem` say
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any, NamedTuple
@@ -47,6 +46,13 @@ from sb3_pm.policies.estimator import GATHER_MIN_ROWS
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
 
+#: Elements (a multiple of) that keep every element of an activation in its vectorized loop's
+#: body: two vectors of the widest instruction set torch uses (2 x 16 floats), with a margin of 2.
+TAIL_FREE = 64
+#: Below this many elements torch runs an elementwise operation on one thread (its grain size).
+_ONE_THREAD_ELEMENTS = 32_768
+#: Activations that round the same wherever an element falls in the loop.
+_EXACT = (nn.ReLU, nn.LeakyReLU, nn.Identity)
 #: Constructor parameters that do not change what a policy computes when it acts.
 _NOT_ARCHITECTURE = ("lr_schedule", "optimizer_class", "optimizer_kwargs", "estimator_lr", "neglect_territory")
 
@@ -103,28 +109,31 @@ class _Calls(nn.Module):
     """Runs its policy's own methods: ``functional_call`` on it swaps the policy's parameters for
     one learner's slice of the stacked ones.
 
-    The one-unit output layers (the estimator's, ``action_net``, ``value_net``) are left out: they
-    run as matrix-vector products, and a batched product over the learners rounds differently, so
-    they run learner by learner on their own modules (:meth:`TeamForward._run`).
+    Products with one output unit (the estimator's output layer, ``action_net``, ``value_net``)
+    or a few input rows (one per map: the actor's product with the own node's embedding, the
+    critic) run as matrix-vector kernels, which no batched product over the learners rounds alike;
+    they run learner by learner on their own modules instead (:meth:`TeamForward._run`).
     """
 
     def __init__(self, policy: DCBFActorCriticPolicy) -> None:
         super().__init__()
         self.policy = policy
 
-    def forward(self, stage: str, pre: dict[str, th.Tensor], *args: Any) -> Any:
-        """``stage="estimator"``: the estimator's last hidden layer ``(B, N, w)`` on the ``B`` maps
-        ``pre``; ``stage="heads"`` (args: ``û`` ``(B, N)``, ``values``): the actor body's output
-        ``(B, N, pi_out)`` and with ``values`` the critic body's ``(B, vf_out)``, as
-        :meth:`DCBFActorCriticPolicy._heads` computes them before its output layers."""
+    def forward(self, stage: str, pre: dict[str, th.Tensor], *args: th.Tensor) -> Any:
+        """On the ``B`` maps ``pre``: ``stage="embed"``, the GAT's node embeddings ``(B, N, h)``
+        and, with an estimator, its last hidden layer ``(B, N, w)``; ``stage="actor"`` (args: the
+        heads' per-node inputs ``(B, N, d)``, the own node's embedding ``(B, h)`` and
+        :meth:`~DCBFActorCriticPolicy._actor_own_term` ``(B, w)``), the actor body's output
+        ``(B, N, pi_out)``."""
         policy = self.policy
-        if stage == "estimator":
-            assert policy.estimator is not None
-            return policy.estimator.last_hidden(pre["nodes"])
-        u_hat, values = args
-        embeddings, own = policy._node_inputs(pre, u_hat)
-        actor = policy._actor_hidden(embeddings, own)
-        return (actor, policy._critic_hidden(embeddings, own)) if values else (actor,)
+        if stage == "actor":
+            embeddings, own, own_term = args
+            return policy._actor_hidden(embeddings, own, own_term=own_term)
+        extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
+        embeddings = extractor.node_embeddings(pre)
+        if policy.estimator is None:
+            return (embeddings,)
+        return embeddings, policy.estimator.last_hidden(pre["nodes"])
 
 
 class TeamForward:
@@ -162,13 +171,10 @@ class TeamForward:
             - observations: ``K`` mental-map observations (numpy), one map each
             - output: ``(K,)`` int64
         """
-        result = self._run(policies, observations, None)
+        result = self.logits(policies, observations)
         if result is None:
             return None
-        logits, _, masks, forced = result
-        if forced is not None:
-            for k, policy in enumerate(policies):
-                policy.count_forced(forced[k : k + 1])
+        logits, masks = result
         if deterministic:
             return masked_mode(logits, masks).cpu().numpy()
         actions = np.empty(len(policies), dtype=np.int64)
@@ -176,6 +182,26 @@ class TeamForward:
             for k, policy in enumerate(policies):  # the (1, N) row one pass would draw from, its own draw
                 actions[k] = int(policy.draw(logits[k : k + 1], masks[k : k + 1]).reshape(-1)[0])
         return actions
+
+    def logits(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
+    ) -> tuple[th.Tensor, th.Tensor] | None:
+        """What :meth:`actions` decides from: every policy's logits on its own observation and its
+        DCBF mask (the observation's ``action_mask`` intersected with the filter's), counting rule
+        8's decisions; ``None`` where this step must run one pass per policy.
+
+        Shapes:
+            - observations: ``K`` mental-map observations (numpy), one map each
+            - output: logits ``(K, N)`` float, masks ``(K, N)`` bool
+        """
+        result = self._run(policies, observations, None)
+        if result is None:
+            return None
+        logits, _, masks, forced = result
+        if forced is not None:
+            for k, policy in enumerate(policies):
+                policy.count_forced(forced[k : k + 1])
+        return logits, masks
 
     def rollout_heads(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
@@ -210,8 +236,12 @@ class TeamForward:
             self._policies, self._problem = list(policies), team_problem(policies)
             self._calls, self._graph_cache = None, None
             if self._problem is None:
-                self._calls = _Calls(copy.deepcopy(policies[0])).eval()
+                self._calls = _Calls(_skeleton(policies[0])).eval()
                 self._sources = _stage_sources(self._calls, policies)
+        if self._problem is None:  # deployment may change a learner's filter at any time
+            settings = replace(policies[0].dcbf_config, territory=())
+            if any(replace(p.dcbf_config, territory=()) != settings for p in policies):
+                return "the policies' DCBF filter settings differ"
         return self._problem
 
     # ------------------------------------------------------------------ the pass
@@ -250,6 +280,7 @@ class TeamForward:
         for policy in policies:
             policy.set_training_mode(False)  # as SB3's predict and collect_rollouts do
         groups = _groups(len(policies), len(policies) * batch)
+        rollout = maps is not None
         with th.no_grad():
             pre = first._preprocess(arrays)
             pre.update(self._graph_inputs(first, pre["adjacency"]))
@@ -257,29 +288,37 @@ class TeamForward:
                 stage: {name: th.stack(group) for name, group in sources}
                 for stage, sources in self._sources.items()
             }
-            if first.estimator is None:
-                u_hat = first.uncertainty(pre)  # the maps' own u: no parameters
-            else:
-                hidden = self._mapped(params["estimator"], "estimator", {"nodes": pre["nodes"]})
-                u_hat = th.cat(
-                    [
-                        p.estimator.scaled(p.estimator.normalized_from_hidden(hidden[k].clone(), pre["nodes"][rows]))
-                        for k, (p, rows) in enumerate(zip(policies, groups))
-                    ]
-                )
-            rollout = maps is not None
             read = ("nodes", "adjacency", "position_index", "attention_bias", "encoding")
             inputs = {key: pre[key] for key in read if key in pre}  # what the extractor and heads read
-            bodies = self._mapped(params["heads"], "heads", inputs, u_hat, rollout)
+            embedded = self._mapped(params["embed"], "embed", inputs)
+            own_maps = [{key: value[rows] for key, value in pre.items()} for rows in groups]
+            u_hats, heads_inputs, owns, own_terms, values = [], [], [], [], []
+            for k, (policy, maps_k) in enumerate(zip(policies, own_maps)):
+                estimator = policy.estimator
+                if estimator is None:
+                    u_hat = policy.uncertainty(maps_k)  # the maps' own u: no parameters
+                else:
+                    u_hat = estimator.scaled(estimator.normalized_from_hidden(embedded[1][k].clone(), maps_k["nodes"]))
+                per_node, own = policy._with_estimate(embedded[0][k].clone(), maps_k, u_hat)
+                u_hats.append(u_hat)
+                heads_inputs.append(per_node)
+                owns.append(own)
+                own_terms.append(policy._actor_own_term(own))
+                if rollout:
+                    values.append(policy._value(per_node, own))
+            hidden = self._mapped(
+                params["actor"], "actor", {}, th.cat(heads_inputs), th.cat(owns), th.cat(own_terms)
+            )
             logits = th.cat(
                 [
-                    p._with_advice(p._actor_output(bodies[0][k].clone()), {"nodes": pre["nodes"][rows]})
-                    for k, (p, rows) in enumerate(zip(policies, groups))
+                    policy._with_advice(policy._actor_output(hidden[k].clone()), maps_k)
+                    for k, (policy, maps_k) in enumerate(zip(policies, own_maps))
                 ]
             )
-            values = th.cat([p.value_net(bodies[1][k].clone()) for k, p in enumerate(policies)]) if rollout else None
+            u_hat = th.cat(u_hats)
             masks, forced = _filtered_masks(policies, pre, u_hat, None if rollout else arrays["action_mask"])
-        return logits, values, masks, forced
+        values_all = th.cat(values) if rollout else None
+        return logits, values_all, masks, forced
 
     def _graph_inputs(self, policy: DCBFActorCriticPolicy, adjacency: th.Tensor) -> dict[str, th.Tensor]:
         """The dense kernel's inputs of every map (:meth:`GATFeaturesExtractor.node_embeddings`),
@@ -301,7 +340,7 @@ class TeamForward:
         each): ``(K, B, ...)`` outputs."""
         calls = self._calls
         assert calls is not None
-        k = next(iter(params.values())).shape[0]
+        k = next(iter(params.values())).shape[0]  # every stage reads parameters
         split = {key: value.reshape(k, -1, *value.shape[1:]) for key, value in pre.items()}
         tensors = tuple(a.reshape(k, -1, *a.shape[1:]) for a in args if isinstance(a, th.Tensor))
         flags = tuple(a for a in args if not isinstance(a, th.Tensor))
@@ -313,24 +352,32 @@ class TeamForward:
         return vmap(one)(params, split, *tensors)
 
 
+def _skeleton(policy: DCBFActorCriticPolicy) -> DCBFActorCriticPolicy:
+    """A new policy built as ``policy`` was (its module tree, for the stacked parameters to run
+    through), drawing nothing from torch's global generator, so training and sampling draw as they
+    would without it."""
+    with th.random.fork_rng(devices=[]):
+        return type(policy)(**policy._get_constructor_parameters()).to(policy.device)
+
+
 def _stage_sources(calls: _Calls, policies: Sequence[Any]) -> dict[str, list[tuple[str, list[th.Tensor]]]]:
     """Per stage of :meth:`_Calls.forward`, the parameters it reads, each as its name in ``calls``
     and every policy's tensor of it, found once (walking the module trees on every step cost more
     than the pass's arithmetic; the values are read anew on every call). Each stage is given only
     its own: ``functional_call`` swaps every tensor it is given, twice per call."""
     policy = calls.policy
-    outputs = [policy.action_net, policy.value_net]
-    estimator = {id(p) for p in policy.estimator.parameters()} if policy.estimator is not None else set()
+    outputs: list[nn.Module] = [policy.action_net, policy.value_net, policy.critic_body]
     if policy.estimator is not None:
         outputs.append(policy.estimator.net[-1])
     apart = {id(p) for module in outputs for p in module.parameters()}  # run policy by policy
     copied = [id(p) for p in calls.parameters()]
     owned = [list(p.parameters()) for p in policies]  # the same order as the copy's (one architecture)
-    sources: dict[str, list[tuple[str, list[th.Tensor]]]] = {"estimator": [], "heads": []}
+    actor = {id(p) for p in policy.actor_body.parameters()}
+    sources: dict[str, list[tuple[str, list[th.Tensor]]]] = {"embed": [], "actor": []}
     for index, (name, parameter) in enumerate(calls.named_parameters()):
         if id(parameter) in apart:
             continue
-        stage = "estimator" if id(parameter) in estimator else "heads"
+        stage = "actor" if id(parameter) in actor else "embed"
         sources[stage].append((name, [tensors[index] for tensors in owned]))
     assert len(copied) == len(owned[0])
     return sources
@@ -344,17 +391,42 @@ def _groups(k: int, rows: int) -> list[slice]:
 
 def _shape_problem(policy: DCBFActorCriticPolicy, adjacency: th.Tensor, maps: int) -> str | None:
     """Why ``maps`` maps per policy (adjacencies ``(K * maps, N, N)``) cannot be mapped over the
-    learners: one pass per policy would take a kernel with data-dependent branches."""
+    learners: one pass per policy would take a kernel with data-dependent branches, or the
+    batched pass would round otherwise."""
     extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
     n = adjacency.shape[-1]
-    for start in range(0, adjacency.shape[0], maps):
-        if not use_dense(adjacency[start : start + maps], extractor.backend):
-            return "a policy's maps would take the sparse attention kernel"
     if any(use_chunked(maps, int(layer.heads), n, adjacency.device.type == "cpu") for layer in extractor.gat):
         return f"{maps} maps of {n} nodes take the chunked attention kernel"
     if policy.estimator is not None and maps * n >= GATHER_MIN_ROWS:
         return f"{maps} maps of {n} nodes take the estimator's row gathering"
+    for start in range(0, adjacency.shape[0], maps):
+        if not use_dense(adjacency[start : start + maps], extractor.backend):
+            return "a policy's maps would take the sparse attention kernel"
+    k = adjacency.shape[0] // maps
+    for size in _activation_sizes(policy, maps):
+        # A vectorized elementwise loop computes its last elements with scalar code, which rounds
+        # transcendental functions otherwise; on the K learners' tensor at once those elements
+        # fall elsewhere, unless each learner's part is whole blocks and one thread runs it all.
+        if size % TAIL_FREE or (th.get_num_threads() > 1 and k * size >= _ONE_THREAD_ELEMENTS):
+            return f"{maps} maps of {n} nodes leave an activation's elements outside its vector loop"
     return None
+
+
+def _activation_sizes(policy: DCBFActorCriticPolicy, maps: int) -> list[int]:
+    """The elements of each tensor the mapped part of a policy's pass on ``maps`` maps applies a
+    transcendental activation to (the GAT's and the actor's)."""
+    extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
+    n = policy.n_nodes
+    sizes: list[int] = []
+    if not isinstance(extractor.activation, _EXACT):
+        sizes += [maps * n * int(layer.out_channels) for layer in extractor.gat]
+    width = 0
+    for layer in policy.actor_body:
+        if isinstance(layer, nn.Linear):
+            width = layer.out_features
+        elif not isinstance(layer, _EXACT):
+            sizes.append(maps * n * width)
+    return sizes
 
 
 def _filtered_masks(

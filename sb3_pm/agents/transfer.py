@@ -31,7 +31,7 @@ import numpy as np
 import torch as th
 
 from sb3_pm.agents.deployment_rule import DeploymentRule
-from sb3_pm.agents.pruned_inference import PrunedInference
+from sb3_pm.agents.team_forward import TeamForward
 from sb3_pm.agents.saved_teams import check_same_graph
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
@@ -124,11 +124,9 @@ class TransferredTeam(DeploymentRule, Team):
     omniscient = False
     #: as :attr:`IndependentPPO.stacked_inference <sb3_pm.agents.team.IndependentPPO.stacked_inference>`
     stacked_inference: bool = True
-    #: as :attr:`IndependentPPO.pruned_inference <sb3_pm.agents.team.IndependentPPO.pruned_inference>`
-    pruned_inference: bool = True
 
     def __init__(self, source: Any, graph: GraphSpec) -> None:
-        self._stacker = PrunedInference()
+        self._team_forward = TeamForward()
         from sb3_pm.envs import persistent_monitoring_v0
 
         self.source, self.graph = source, graph
@@ -181,17 +179,16 @@ class TransferredTeam(DeploymentRule, Team):
     def predict(
         self, observations: dict[str, Observation], deterministic: bool | None = None
     ) -> dict[str, int]:
-        """Each agent's action from its learner's rebuilt policy, through one stacked pass where it
-        applies, as in ``IndependentPPO.predict`` (``None``: the team's :attr:`deploy_temperature`
-        decides)."""
+        """Each agent's action from its learner's rebuilt policy, through one pass for the whole
+        team where it applies, as in ``IndependentPPO.predict`` (``None``: the team's
+        :attr:`deploy_temperature` decides)."""
         deterministic = self.acts_deterministically(deterministic)
         if self.stacked_inference:
-            self._stacker.prune = self.pruned_inference
-            stacked = self._stacker.predict(
-                observations, lambda a: self.policies[self.learner_for(a)], deterministic
-            )
-            if stacked is not None:
-                return stacked
+            agents = list(observations)
+            policies = [self.policies[self.learner_for(a)] for a in agents]
+            together = self._team_forward.actions(policies, [observations[a] for a in agents], deterministic)
+            if together is not None:
+                return {agent: int(action) for agent, action in zip(agents, together)}
         actions: dict[str, int] = {}
         for agent, obs in observations.items():
             policy = self.policies[self.learner_for(agent)]
