@@ -15,8 +15,8 @@ import pytest
 import torch as th
 from pettingzoo.test import parallel_api_test
 
-from sb3_pm.agents.team_forward import TeamForward, team_problem
 from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.team_forward import TeamForward, team_problem
 from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.envs.mental_map import FEATURES

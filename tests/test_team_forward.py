@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_pm.agents.team_forward import TeamForward, team_problem
 from sb3_pm.agents.team import IndependentPPO
+from sb3_pm.agents.team_forward import TeamForward, team_problem
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
 
@@ -357,3 +357,34 @@ def test_a_transferred_team_with_more_agents_and_the_rule_prior_samples_together
         draws.append(chosen)
     assert len(draws[0]) == 40 and draws[0] == draws[1]
     assert len(served) == 40 and all(served)  # every step of the team run was served by its pass
+
+
+@pytest.mark.parametrize("deterministic", [True, False], ids=["most-likely", "sampled"])
+def test_the_default_team_evaluates_to_the_same_episodes_either_way(
+    deterministic: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The shipped configuration on the published 50-node graph (each learner bounding its own
+    territory, as deployed): whole evaluated episodes, their traces and metrics, are the same with
+    one pass for the team as with one pass per agent, every step served by the team's pass."""
+    from sb3_pm.evaluation import evaluate
+    from sb3_pm.zoo import load_config
+
+    served: list[bool] = []
+    original = TeamForward.actions
+
+    def spy(self: TeamForward, policies: Any, observations: Any, deterministic: bool) -> Any:
+        result = original(self, policies, observations, deterministic)
+        served.append(result is not None)
+        return result
+
+    monkeypatch.setattr(TeamForward, "actions", spy)
+    results = []
+    for together in (False, True):
+        team = IndependentPPO.from_config(load_config("ippo", "paper-50"), "paper-50", seed=0)
+        team.stacked_inference = together
+        run = evaluate(team, "paper-50", episodes=2, max_cycles=60, seed=3, deterministic=deterministic)
+        results.append(run.episodes)
+    assert len(served) == 2 * 60 and all(served)  # only the team run asks, and is served every step
+    for serial, joint in zip(*results, strict=True):
+        assert serial.metrics == joint.metrics
+        assert np.array_equal(serial.trace, joint.trace)

@@ -53,9 +53,9 @@ from sb3_pm.agents.learner_threads import learn_concurrently, raise_first_error
 from sb3_pm.agents.learners import agent_seed, check_same, learn_seed, learner_kwargs
 from sb3_pm.agents.multiplexer import ParallelEnvMultiplexer
 from sb3_pm.agents.rollout_batching import RolloutBatcher
-from sb3_pm.agents.team_forward import TeamForward
 from sb3_pm.agents.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.streams import StreamState, capture_stream, learner_streams, load_stream
+from sb3_pm.agents.team_forward import TeamForward
 from sb3_pm.agents.transfer import on_graph, transfer_problem
 from sb3_pm.agents.update_slots import UpdateSlots, default_update_slots
 from sb3_pm.errors import InputError

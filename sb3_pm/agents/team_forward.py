@@ -1,32 +1,37 @@
 """A whole team's forward pass at once: the learners' own policy code, mapped over their parameters.
 
 A deployed team acts with one small forward pass per agent per step, and a training team's rollout
-step runs one per learner: each a few hundred small tensor operations, so the time goes to
-per-operation overhead rather than arithmetic. When the learners' policies share one architecture
-(always, for a team built from one config), their parameters can be stacked along a leading axis
-(``torch.func.stack_module_state``) and the policy's own methods mapped over that axis with
-``torch.func.vmap`` and ``torch.func.functional_call``: every operation then runs once for the
-``K`` learners, each learner's maps with its own weights. No layer is written twice: the GAT, the
-estimator, the actor, the critic and ``advice_prior`` are the policy's code, and the parameters
-are found by the module tree, not by name.
+step runs one per learner: a few hundred small tensor operations each, so the time goes to
+per-operation overhead rather than arithmetic. The learners' policies share one architecture
+(always, for a team built from one config), so their parameters are stacked along a leading axis
+and the policy's own methods run once for all ``K`` learners, through ``torch.func.vmap`` over
+``torch.func.functional_call`` on a module tree built like theirs. Nothing of the network is
+written twice (the GAT, the estimator, the actor, the critic and ``advice_prior`` are the policy's
+code), and parameters are matched by the module tree, never by name. The tensors to stack are found
+once per list of policies (``torch.func.stack_module_state`` walks the module trees on every call,
+which cost as much as the arithmetic) and their values stacked anew on every call.
 
-What has no parameters runs on the ``K * B`` maps directly, through the policy's own functions:
-SB3's preprocessing, the positional encodings and attention masks of the maps' adjacencies, the
-DCBF filter (policy by policy where the learners' neglect bounds cover different territories), and
-the draw of a sampled action (policy by policy, in the team's order, each on its own row at its own
-temperature, so torch's generator is consumed as one pass per agent consumes it).
+What has no parameters runs on the ``K * B`` maps at once, through the policy's own functions:
+SB3's preprocessing, the positional encodings and attention masks, and the DCBF filter (each map
+with its own learner's territory). Sampled actions are drawn learner by learner, in the team's
+order, each from its own row at its own temperature, as one pass per agent draws them.
 
-Nothing is shared but the arithmetic: agent ``k``'s action depends only on its own observation and
-its own learner's parameters. The batched kernels need not round as a single learner's do, so the
-logits may differ from one pass per agent in the last bits (``tests/test_team_forward.py`` compares
-the actions on whole episodes, and a short training run's parameters).
+**Bit for bit.** A batched product over the learners rounds as each learner's own product except
+where that one runs as a matrix-vector kernel: products with one output unit (the estimator's
+output layer, ``action_net``, ``value_net``) or with one row per map (the actor's product with
+the own node's embedding, the critic). Those run learner by learner, on each policy's own modules
+and methods; so do the few elementwise steps between them. An elementwise activation rounds alike
+where each learner's part fills whole blocks of its vector loop (:data:`TAIL_FREE`) and one thread
+runs it. So the logits, values and masks are one pass per agent's, bit for bit, and a seeded
+training run ends with the same parameters (``tests/test_team_forward.py``,
+``tests/test_rollout_batching.py``).
 
-The pass covers the configurations the package trains by default; it returns ``None`` (the caller
-then runs one pass per agent) for policies of other classes, policies that differ in more than
-their parameters and DCBF territory, or steps it cannot map without data-dependent branches: a
-batch the dense attention kernel would not run (:func:`~sb3_pm.policies.attention.use_dense`), one
-large enough for the chunked attention kernel or the estimator's row gathering, ``actor_nodes:
-allowed``, ``derived_features`` or ``extra_attention``. :func:`team_problem` says why.
+The pass returns ``None`` (the caller then runs one pass per agent) for policies of other classes,
+policies that differ in more than their parameters and DCBF territory, ``actor_nodes: allowed``,
+``derived_features``, ``extra_attention`` or ``gat_backend: sparse`` (:func:`team_problem`), and for
+steps whose one-pass-per-agent kernels take data-dependent branches (the sparse or chunked
+attention kernels, the estimator's row gathering) or whose activations would round otherwise
+(:attr:`TeamForward.refusal` says why).
 """
 
 from __future__ import annotations
@@ -40,8 +45,8 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, vmap
 
-from sb3_pm.policies.dcbf import territory_mask
 from sb3_pm.policies.attention import attention_bias, use_chunked, use_dense
+from sb3_pm.policies.dcbf import territory_mask
 from sb3_pm.policies.estimator import GATHER_MIN_ROWS
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
@@ -54,7 +59,13 @@ _ONE_THREAD_ELEMENTS = 32_768
 #: Activations that round the same wherever an element falls in the loop.
 _EXACT = (nn.ReLU, nn.LeakyReLU, nn.Identity)
 #: Constructor parameters that do not change what a policy computes when it acts.
-_NOT_ARCHITECTURE = ("lr_schedule", "optimizer_class", "optimizer_kwargs", "estimator_lr", "neglect_territory")
+_NOT_ARCHITECTURE = (
+    "lr_schedule",
+    "optimizer_class",
+    "optimizer_kwargs",
+    "estimator_lr",
+    "neglect_territory",
+)
 
 
 class RolloutHeads(NamedTuple):
@@ -107,13 +118,8 @@ def _signature(policy: DCBFActorCriticPolicy) -> tuple[Any, ...]:
 
 class _Calls(nn.Module):
     """Runs its policy's own methods: ``functional_call`` on it swaps the policy's parameters for
-    one learner's slice of the stacked ones.
-
-    Products with one output unit (the estimator's output layer, ``action_net``, ``value_net``)
-    or a few input rows (one per map: the actor's product with the own node's embedding, the
-    critic) run as matrix-vector kernels, which no batched product over the learners rounds alike;
-    they run learner by learner on their own modules instead (:meth:`TeamForward._run`).
-    """
+    one learner's slice of the stacked ones. The matrix-vector products (module docstring) are not
+    among them: :meth:`TeamForward._run` runs those learner by learner."""
 
     def __init__(self, policy: DCBFActorCriticPolicy) -> None:
         super().__init__()
@@ -140,10 +146,8 @@ class TeamForward:
     """Every learner's forward pass as one pass over the stacked parameters (module docstring).
 
     Remembers, for the last list of policies it served, whether they can act as one pass, their
-    parameter tensors, and a copy of the first policy whose module tree the stacked parameters run
-    through (a copy, so that a learner's own modules are never touched, even while it trains in
-    another thread). The parameters' values are stacked anew on every call.
-    """
+    parameter tensors, and a policy built like the first whose module tree the stacked parameters
+    run through (not a learner's own, which may be training in another thread)."""
 
     def __init__(self) -> None:
         self._policies: list[Any] = []  # held so that their ids stay theirs
@@ -152,8 +156,8 @@ class TeamForward:
         #: per stage of :meth:`_Calls.forward`, the parameters it reads: (name in the copy, every
         #: policy's tensor of it)
         self._sources: dict[str, list[tuple[str, list[th.Tensor]]]] = {}
-        #: (adjacencies, encodings, attention masks) of the last call: a map's known adjacency
-        #: changes only when its agent discovers an edge, so most steps reuse them
+        #: (adjacencies, encodings, attention masks) of the last call: a known map changes only
+        #: when its agent discovers an edge
         self._graph_cache: tuple[th.Tensor, th.Tensor | None, th.Tensor] | None = None
         #: why the last call returned ``None`` (``None``: it did not)
         self.refusal: str | None = None
@@ -162,15 +166,11 @@ class TeamForward:
     def actions(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]], deterministic: bool
     ) -> np.ndarray | None:
-        """The action of ``policies[k]`` on ``observations[k]`` for every ``k``, as
-        ``policy.predict(obs, deterministic, action_masks=obs["action_mask"])`` gives it, one
-        policy after another (sampled ones drawn in that order); counts rule 8's decisions.
-        ``None`` where this step must run one pass per policy.
-
-        Shapes:
-            - observations: ``K`` mental-map observations (numpy), one map each
-            - output: ``(K,)`` int64
-        """
+        """``(K,)`` int64: the action of ``policies[k]`` on the mental-map observation
+        ``observations[k]`` (numpy, one map) for every ``k``, as ``policy.predict(obs,
+        deterministic, action_masks=obs["action_mask"])`` gives it one policy after another
+        (sampled ones drawn in that order); counts rule 8's decisions. ``None``: this step must run
+        one pass per policy."""
         result = self.logits(policies, observations)
         if result is None:
             return None
@@ -186,14 +186,9 @@ class TeamForward:
     def logits(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
     ) -> tuple[th.Tensor, th.Tensor] | None:
-        """What :meth:`actions` decides from: every policy's logits on its own observation and its
-        DCBF mask (the observation's ``action_mask`` intersected with the filter's), counting rule
-        8's decisions; ``None`` where this step must run one pass per policy.
-
-        Shapes:
-            - observations: ``K`` mental-map observations (numpy), one map each
-            - output: logits ``(K, N)`` float, masks ``(K, N)`` bool
-        """
+        """What :meth:`actions` decides from: every policy's logits ``(K, N)`` on its own
+        observation and its DCBF mask ``(K, N)`` bool (the observation's ``action_mask``
+        intersected with the filter's), counting rule 8's decisions; ``None`` as :meth:`actions`."""
         result = self._run(policies, observations, None)
         if result is None:
             return None
@@ -207,15 +202,10 @@ class TeamForward:
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
     ) -> list[RolloutHeads] | None:
         """Every learner's :meth:`~sb3_pm.policies.DCBFActorCriticPolicy.rollout_heads` on its own
-        batch of maps (a learner's ``VecEnv`` observation), with rule 8's decisions that call would
-        count (counted by the caller, when a learner takes its result); ``None`` where this step
-        must run one pass per learner.
-
-        Shapes:
-            - observations: ``K`` observations (numpy dicts), each ``(B, ...)`` per key
-            - output: per learner, logits ``(B, N)``, values ``(B, 1)``, masks ``(B, N)`` bool and
-              rule 8's decisions ``(B,)`` bool (``None`` when rule 8 is off)
-        """
+        ``VecEnv`` observation (numpy, ``(B, ...)`` per key): logits ``(B, N)``, values ``(B, 1)``,
+        masks ``(B, N)`` bool, and rule 8's decisions ``(B,)`` bool that call would count (``None``
+        with rule 8 off; the caller counts them when a learner takes its result). ``None``: this
+        step must run one pass per learner."""
         if not observations or not isinstance(observations[0], Mapping) or "nodes" not in observations[0]:
             self.refusal = "the observations are not mental maps"
             return None
@@ -230,15 +220,15 @@ class TeamForward:
         ]
 
     def problem(self, policies: Sequence[Any]) -> str | None:
-        """:func:`team_problem`, remembered for the same policy objects (whose architecture does
-        not change); a new list also gets a new copy to run the stacked parameters through."""
+        """:func:`team_problem`, remembered for the same policy objects, or a difference in their
+        filter settings (deployment may change them at any time)."""
         if len(policies) != len(self._policies) or any(a is not b for a, b in zip(policies, self._policies)):
             self._policies, self._problem = list(policies), team_problem(policies)
             self._calls, self._graph_cache = None, None
             if self._problem is None:
                 self._calls = _Calls(_skeleton(policies[0])).eval()
                 self._sources = _stage_sources(self._calls, policies)
-        if self._problem is None:  # deployment may change a learner's filter at any time
+        if self._problem is None:
             settings = replace(policies[0].dcbf_config, territory=())
             if any(replace(p.dcbf_config, territory=()) != settings for p in policies):
                 return "the policies' DCBF filter settings differ"
@@ -267,13 +257,13 @@ class TeamForward:
         arrays = {}
         for key in MAP_KEYS:
             shape = space[key].shape  # type: ignore[index]
-            values = [np.asarray(obs[key]) for obs in observations]
+            given = [np.asarray(obs[key]) for obs in observations]
             allowed = (shape, (1, *shape)) if maps is None else ((maps, *shape),)
-            if any(v.shape not in allowed for v in values):
+            if any(v.shape not in allowed for v in given):
                 self.refusal = "an observation is not of the observation space's shape"
                 return None  # one pass per policy raises SB3's error for it
-            arrays[key] = th.as_tensor(np.concatenate([v.reshape(batch, *shape) for v in values]))
-        arrays = {key: value.to(first.device) for key, value in arrays.items()}
+            stacked = np.concatenate([v.reshape(batch, *shape) for v in given])
+            arrays[key] = th.as_tensor(stacked).to(first.device)
         self.refusal = _shape_problem(first, arrays["adjacency"], batch)
         if self.refusal is not None:
             return None
@@ -292,38 +282,34 @@ class TeamForward:
             inputs = {key: pre[key] for key in read if key in pre}  # what the extractor and heads read
             embedded = self._mapped(params["embed"], "embed", inputs)
             own_maps = [{key: value[rows] for key, value in pre.items()} for rows in groups]
-            u_hats, heads_inputs, owns, own_terms, values = [], [], [], [], []
+            parts: list[list[th.Tensor]] = [[], [], [], [], []]  # û, heads' inputs, own, own term, values
             for k, (policy, maps_k) in enumerate(zip(policies, own_maps)):
                 estimator = policy.estimator
                 if estimator is None:
                     u_hat = policy.uncertainty(maps_k)  # the maps' own u: no parameters
                 else:
-                    u_hat = estimator.scaled(estimator.normalized_from_hidden(embedded[1][k].clone(), maps_k["nodes"]))
+                    hidden_k = embedded[1][k].clone()  # a learner's own tensor, as alone
+                    u_hat = estimator.scaled(estimator.normalized_from_hidden(hidden_k, maps_k["nodes"]))
                 per_node, own = policy._with_estimate(embedded[0][k].clone(), maps_k, u_hat)
-                u_hats.append(u_hat)
-                heads_inputs.append(per_node)
-                owns.append(own)
-                own_terms.append(policy._actor_own_term(own))
-                if rollout:
-                    values.append(policy._value(per_node, own))
-            hidden = self._mapped(
-                params["actor"], "actor", {}, th.cat(heads_inputs), th.cat(owns), th.cat(own_terms)
-            )
+                row = [u_hat, per_node, own, policy._actor_own_term(own)]
+                row += [policy._value(per_node, own)] if rollout else []
+                for part, tensor in zip(parts, row):
+                    part.append(tensor)
+            u_hats, per_nodes, owns, own_terms = (th.cat(part) for part in parts[:4])
+            values = th.cat(parts[4]) if rollout else None
+            hidden = self._mapped(params["actor"], "actor", {}, per_nodes, owns, own_terms)
             logits = th.cat(
                 [
                     policy._with_advice(policy._actor_output(hidden[k].clone()), maps_k)
                     for k, (policy, maps_k) in enumerate(zip(policies, own_maps))
                 ]
             )
-            u_hat = th.cat(u_hats)
-            masks, forced = _filtered_masks(policies, pre, u_hat, None if rollout else arrays["action_mask"])
-        values_all = th.cat(values) if rollout else None
-        return logits, values_all, masks, forced
+            masks, forced = _filtered_masks(policies, pre, u_hats, None if rollout else arrays["action_mask"])
+        return logits, values, masks, forced
 
     def _graph_inputs(self, policy: DCBFActorCriticPolicy, adjacency: th.Tensor) -> dict[str, th.Tensor]:
-        """The dense kernel's inputs of every map (:meth:`GATFeaturesExtractor.node_embeddings`),
-        parameter-free: computed on all ``K * B`` adjacencies ``(K * B, N, N)`` at once, and reused
-        while they are unchanged."""
+        """The dense kernel's inputs of the adjacencies ``(K * B, N, N)``
+        (:meth:`GATFeaturesExtractor.node_embeddings`), reused while they are unchanged."""
         cached = self._graph_cache
         if cached is None or cached[0].shape != adjacency.shape or not th.equal(cached[0], adjacency):
             extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
@@ -334,20 +320,22 @@ class TeamForward:
             inputs["encoding"] = cached[1]
         return inputs
 
-    def _mapped(self, params: dict[str, th.Tensor], stage: str, pre: dict[str, th.Tensor], *args: Any) -> Any:
-        """:meth:`_Calls.forward` of every policy on its own rows of ``pre`` (``(K * B, ...)`` per
-        key, and of a tensor among ``args``), with its own parameters ``params`` (``(K, ...)``
-        each): ``(K, B, ...)`` outputs."""
+    def _mapped(
+        self, params: dict[str, th.Tensor], stage: str, pre: dict[str, th.Tensor], *args: th.Tensor
+    ) -> Any:
+        """:meth:`_Calls.forward` of every policy on its own rows of ``pre`` and ``args``
+        (``(K * B, ...)`` each), with its own parameters ``params`` (``(K, ...)`` each):
+        ``(K, B, ...)`` outputs."""
         calls = self._calls
         assert calls is not None
         k = next(iter(params.values())).shape[0]  # every stage reads parameters
         split = {key: value.reshape(k, -1, *value.shape[1:]) for key, value in pre.items()}
-        tensors = tuple(a.reshape(k, -1, *a.shape[1:]) for a in args if isinstance(a, th.Tensor))
-        flags = tuple(a for a in args if not isinstance(a, th.Tensor))
+        tensors = tuple(a.reshape(k, -1, *a.shape[1:]) for a in args)
 
         def one(p: dict[str, th.Tensor], maps: dict[str, th.Tensor], *rest: th.Tensor) -> Any:
-            # Buffers are the observation space's highs, the same in every policy (_signature).
-            return functional_call(calls, p, (stage, maps, *rest, *flags), tie_weights=False, strict=False)
+            # Only the parameters are swapped: the buffers are the observation space's highs, the
+            # same in every policy (_signature).
+            return functional_call(calls, p, (stage, maps, *rest), tie_weights=False, strict=False)
 
         return vmap(one)(params, split, *tensors)
 
@@ -370,7 +358,6 @@ def _stage_sources(calls: _Calls, policies: Sequence[Any]) -> dict[str, list[tup
     if policy.estimator is not None:
         outputs.append(policy.estimator.net[-1])
     apart = {id(p) for module in outputs for p in module.parameters()}  # run policy by policy
-    copied = [id(p) for p in calls.parameters()]
     owned = [list(p.parameters()) for p in policies]  # the same order as the copy's (one architecture)
     actor = {id(p) for p in policy.actor_body.parameters()}
     sources: dict[str, list[tuple[str, list[th.Tensor]]]] = {"embed": [], "actor": []}
@@ -379,14 +366,12 @@ def _stage_sources(calls: _Calls, policies: Sequence[Any]) -> dict[str, list[tup
             continue
         stage = "actor" if id(parameter) in actor else "embed"
         sources[stage].append((name, [tensors[index] for tensors in owned]))
-    assert len(copied) == len(owned[0])
     return sources
 
 
 def _groups(k: int, rows: int) -> list[slice]:
     """Each of ``k`` policies' rows among ``rows`` (its ``B`` maps, in order)."""
-    size = rows // k
-    return [slice(i * size, (i + 1) * size) for i in range(k)]
+    return [slice(i * (rows // k), (i + 1) * (rows // k)) for i in range(k)]
 
 
 def _shape_problem(policy: DCBFActorCriticPolicy, adjacency: th.Tensor, maps: int) -> str | None:

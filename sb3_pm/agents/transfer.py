@@ -31,8 +31,8 @@ import numpy as np
 import torch as th
 
 from sb3_pm.agents.deployment_rule import DeploymentRule
-from sb3_pm.agents.team_forward import TeamForward
 from sb3_pm.agents.saved_teams import check_same_graph
+from sb3_pm.agents.team_forward import TeamForward
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, GraphSpec, resolve_graph
 from sb3_pm.policies.dcbf import SITE_BOUND
