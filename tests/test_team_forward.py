@@ -263,6 +263,8 @@ def test_what_cannot_act_together_says_why_and_runs_one_pass_per_agent() -> None
     assert "allowed" in str(team_problem([make_team(actor_nodes="allowed").models["agent_0"].policy]))
     assert "derived" in str(team_problem([make_team(derived_features=True).models["agent_0"].policy]))
     assert "extra_attention" in str(team_problem([make_team(extra_attention=True).models["agent_0"].policy]))
+    no_hidden = make_team(net_arch={"pi": [], "vf": [32]}).models["agent_0"].policy
+    assert "hidden layer" in str(team_problem([no_hidden]))
     mixed = [
         make_team(hidden_dim=32).models["agent_0"].policy,
         make_team(hidden_dim=64).models["agent_0"].policy,

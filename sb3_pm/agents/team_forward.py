@@ -12,9 +12,9 @@ once per list of policies (``torch.func.stack_module_state`` walks the module tr
 which cost as much as the arithmetic) and their values stacked anew on every call.
 
 What has no parameters runs on the ``K * B`` maps at once, through the policy's own functions:
-SB3's preprocessing, the positional encodings and attention masks, and the DCBF filter (each map
-with its own learner's territory). Sampled actions are drawn learner by learner, in the team's
-order, each from its own row at its own temperature, as one pass per agent draws them.
+SB3's preprocessing, the encodings and attention masks, and the DCBF filter (each map with its
+own learner's territory). Sampled actions are drawn learner by learner, in the team's order, each
+from its own row at its own temperature, as one pass per agent draws them.
 
 **Bit for bit.** A batched product over the learners rounds as each learner's own product except
 where that one runs as a matrix-vector kernel: products with one output unit (the estimator's
@@ -26,12 +26,12 @@ runs it. So the logits, values and masks are one pass per agent's, bit for bit, 
 training run ends with the same parameters (``tests/test_team_forward.py``,
 ``tests/test_rollout_batching.py``).
 
-The pass returns ``None`` (the caller then runs one pass per agent) for policies of other classes,
-policies that differ in more than their parameters and DCBF territory, ``actor_nodes: allowed``,
-``derived_features``, ``extra_attention`` or ``gat_backend: sparse`` (:func:`team_problem`), and for
-steps whose one-pass-per-agent kernels take data-dependent branches (the sparse or chunked
-attention kernels, the estimator's row gathering) or whose activations would round otherwise
-(:attr:`TeamForward.refusal` says why).
+It returns ``None`` (the caller then runs one pass per agent) for policies of other classes or
+off the CPU, policies that differ in more than their parameters and DCBF territory,
+``actor_nodes: allowed``, ``derived_features``, ``extra_attention`` or ``gat_backend: sparse``
+(:func:`team_problem`), and for steps whose per-agent kernels take data-dependent branches (the
+sparse or chunked attention, the estimator's row gathering) or whose activations would round
+otherwise (:attr:`TeamForward.refusal` says why).
 """
 
 from __future__ import annotations
@@ -59,13 +59,8 @@ _ONE_THREAD_ELEMENTS = 32_768
 #: Activations that round the same wherever an element falls in the loop.
 _EXACT = (nn.ReLU, nn.LeakyReLU, nn.Identity)
 #: Constructor parameters that do not change what a policy computes when it acts.
-_NOT_ARCHITECTURE = (
-    "lr_schedule",
-    "optimizer_class",
-    "optimizer_kwargs",
-    "estimator_lr",
-    "neglect_territory",
-)
+_NOT_ARCHITECTURE = {"lr_schedule", "optimizer_class", "optimizer_kwargs", "estimator_lr"}
+_NOT_ARCHITECTURE |= {"neglect_territory"}  # a filter setting, applied per learner
 
 
 class RolloutHeads(NamedTuple):
@@ -83,8 +78,12 @@ def team_problem(policies: Sequence[Any]) -> str | None:
         return "no policies"
     if any(type(p) is not DCBFActorCriticPolicy for p in policies):
         return "not every policy is a DCBFActorCriticPolicy"
+    if any(p.device.type != "cpu" for p in policies):
+        return "the team pass is checked bit for bit on the CPU only"  # a GPU's kernels were not
     first = policies[0]
     extractor: GATFeaturesExtractor = first.features_extractor
+    if not len(first.actor_body) or not isinstance(first.actor_body[0], nn.Linear):
+        return "an actor without a hidden layer has no own-node product to run apart"
     if first.actor_nodes != "all":
         return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
     if extractor.backend == "sparse":
@@ -418,12 +417,8 @@ def _filtered_masks(
     policies: Sequence[Any], pre: dict[str, th.Tensor], u_hat: th.Tensor, given: th.Tensor | None
 ) -> tuple[th.Tensor, th.Tensor | None]:
     """Every policy's DCBF masks ``(K * B, N)`` bool on its own ``B`` maps, and rule 8's decisions
-    ``(K * B,)`` bool (``None`` when rule 8 is off).
-
-    The filter has no parameters and decides each map alone, and the policies' filters differ at
-    most in the territory their neglect bounds cover (:func:`team_problem`): one call on all the
-    maps, each map with its own policy's territory.
-    """
+    ``(K * B,)`` bool (``None`` when rule 8 is off): the filter has no parameters and decides each
+    map alone, and the policies' filters differ at most in their territories (:meth:`TeamForward.problem`)."""
     first = policies[0]
     config = first.dcbf_config
     if config.neglect_bound is not None and config.neglect_scope == "territory":

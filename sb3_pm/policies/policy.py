@@ -463,16 +463,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
 
     def _value(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
         """The critic on ``[mean_m embeddings_m, own]``: ``(B, N, d)``, ``(B, h)`` -> ``(B, 1)``."""
-        return self.value_net(self._critic_hidden(embeddings, own))
-
-    def _critic_hidden(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
-        """The critic body's output ``(B, vf_out)``, before the one-unit ``value_net``.
-
-        :meth:`_value` and :meth:`_actor_output` keep their one-unit output layers apart because
-        those run as matrix-vector products, whose rounding a team's pass over stacked parameters
-        (:mod:`sb3_pm.agents.team_forward`) keeps only by running them policy by policy.
-        """
-        return self.critic_body(th.cat((embeddings.mean(1), own), dim=-1))
+        return self.value_net(self.critic_body(th.cat((embeddings.mean(1), own), dim=-1)))
 
     def _logits(self, pre: dict[str, th.Tensor], u_hat: th.Tensor, masks: th.Tensor) -> th.Tensor:
         """Per-node logits ``(B, N)`` alone: acting needs no critic."""
@@ -506,7 +497,9 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         return logits.index_put((rows, cols), allowed)
 
     def _actor_output(self, hidden: th.Tensor) -> th.Tensor:
-        """The one-unit output layer on the actor body's ``(B, N, pi_out)``: logits ``(B, N)``."""
+        """The one-unit output layer on the actor body's ``(B, N, pi_out)``: logits ``(B, N)``. A
+        matrix-vector product: a team's pass over stacked parameters
+        (:mod:`sb3_pm.agents.team_forward`) runs it policy by policy, to round as alone."""
         return self.action_net(hidden).squeeze(-1)  # type: ignore[no-any-return]
 
     def _actor_own_term(self, own: th.Tensor) -> th.Tensor:
