@@ -390,3 +390,42 @@ def test_the_default_team_evaluates_to_the_same_episodes_either_way(
     for serial, joint in zip(*results, strict=True):
         assert serial.metrics == joint.metrics
         assert np.array_equal(serial.trace, joint.trace)
+
+
+def test_most_likely_actions_from_the_allowed_nodes_are_one_pass_per_agents() -> None:
+    """On 100 nodes or more a most likely step is decided from the allowed nodes' logits where the
+    best leads by more than the margin: the same actions as one pass per agent on every step of an
+    episode; with the logits spread apart (as a trained team's are) nearly every step is decided
+    so, and an untrained team's (all within about 1e-4) compute every logit."""
+    graph = erdos_renyi(100, 0.06, n_targets=8, seed=2)
+    for spread in (True, False):
+        team = IndependentPPO(
+            graph,
+            n_agents=3,
+            seed=0,
+            env_kwargs={"max_cycles": 40},
+            hyperparams={**TINY, "policy_kwargs": {"hidden_dim": 32, "dcbf_barrier": False}},
+        )
+        if spread:
+            generator = th.Generator().manual_seed(5)
+            with th.no_grad():
+                for agent in team.agents:
+                    weight = team.models[agent].policy.action_net.weight
+                    weight.copy_(th.randn(weight.shape, generator=generator))
+        env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=3, max_cycles=40)
+        observations, _ = env.reset(seed=1)
+        team.reset(env, seed=1)
+        steps = 0
+        while env.agents:
+            team.stacked_inference = False
+            serial = team.predict(observations, deterministic=True)
+            team.stacked_inference = True
+            assert team.predict(observations, deterministic=True) == serial
+            observations, *_ = env.step(serial)
+            steps += 1
+        counts = team._team_forward.counts
+        assert steps == 40 and sum(counts.values()) == steps  # every step took the team's pass
+        if spread:
+            assert counts["allowed"] >= 0.9 * steps
+        else:
+            assert counts["all"] == steps

@@ -21,17 +21,19 @@ where that one runs as a matrix-vector kernel: products with one output unit (th
 output layer, ``action_net``, ``value_net``) or with one row per map (the actor's product with
 the own node's embedding, the critic). Those run learner by learner, on each policy's own modules
 and methods; so do the few elementwise steps between them. An elementwise activation rounds alike
-where each learner's part fills whole blocks of its vector loop (:data:`TAIL_FREE`) and one thread
-runs it. So the logits, values and masks are one pass per agent's, bit for bit, and a seeded
-training run ends with the same parameters (``tests/test_team_forward.py``,
-``tests/test_rollout_batching.py``).
+where each learner's part fills whole blocks of its vector loop and one thread runs it
+(:mod:`sb3_pm.agents.team_checks`). So the logits, values and masks are one pass per agent's, bit
+for bit, and a seeded training run ends with the same parameters (``tests/test_team_forward.py``,
+``tests/test_rollout_batching.py``). On large graphs the most likely actions are decided from the
+allowed nodes' logits alone where that gives the same actions (:mod:`sb3_pm.agents.allowed_nodes`:
+the policy's own actor on those nodes' rows of its inputs).
 
-It returns ``None`` (the caller then runs one pass per agent) for policies of other classes or
-off the CPU, policies that differ in more than their parameters and DCBF territory,
-``actor_nodes: allowed``, ``derived_features``, ``extra_attention`` or ``gat_backend: sparse``
-(:func:`team_problem`), and for steps whose per-agent kernels take data-dependent branches (the
-sparse or chunked attention, the estimator's row gathering) or whose activations would round
-otherwise (:attr:`TeamForward.refusal` says why).
+It returns ``None`` (the caller then runs one pass per agent) for policies that
+:func:`~sb3_pm.agents.team_checks.team_problem` refuses (other classes, off the CPU, differing in
+more than their parameters and territory, ``actor_nodes: allowed``, ``derived_features``,
+``extra_attention``, ``gat_backend: sparse``), and for steps whose per-agent kernels take
+data-dependent branches or whose activations would round otherwise (:attr:`TeamForward.refusal`
+says why).
 """
 
 from __future__ import annotations
@@ -45,22 +47,22 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, vmap
 
-from sb3_pm.policies.attention import attention_bias, use_chunked, use_dense
+from sb3_pm.agents.allowed_nodes import allowed_actions, applies
+from sb3_pm.agents.team_checks import shape_problem, team_problem
+from sb3_pm.policies.attention import attention_bias
 from sb3_pm.policies.dcbf import territory_mask
-from sb3_pm.policies.estimator import GATHER_MIN_ROWS
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
 
-#: Elements (a multiple of) that keep every element of an activation in its vectorized loop's
-#: body: two vectors of the widest instruction set torch uses (2 x 16 floats), with a margin of 2.
-TAIL_FREE = 64
-#: Below this many elements torch runs an elementwise operation on one thread (its grain size).
-_ONE_THREAD_ELEMENTS = 32_768
-#: Activations that round the same wherever an element falls in the loop.
-_EXACT = (nn.ReLU, nn.LeakyReLU, nn.Identity)
-#: Constructor parameters that do not change what a policy computes when it acts.
-_NOT_ARCHITECTURE = {"lr_schedule", "optimizer_class", "optimizer_kwargs", "estimator_lr"}
-_NOT_ARCHITECTURE |= {"neglect_territory"}  # a filter setting, applied per learner
+
+class _Pass(NamedTuple):
+    """What :meth:`TeamForward._run` computed, ``K * B`` maps in all."""
+
+    logits: th.Tensor | None  #: ``(K * B, N)`` (``None``: ``actions`` decided from fewer)
+    values: th.Tensor | None  #: ``(K * B, 1)``, rollouts only
+    masks: th.Tensor  #: ``(K * B, N)`` bool, the DCBF masks
+    forced: th.Tensor | None  #: ``(K * B,)`` bool, rule 8's decisions (``None``: rule 8 off)
+    actions: np.ndarray | None  #: ``(K,)`` the most likely actions, if decided from allowed nodes
 
 
 class RolloutHeads(NamedTuple):
@@ -70,49 +72,6 @@ class RolloutHeads(NamedTuple):
     values: th.Tensor  #: ``(B, 1)``
     masks: th.Tensor  #: ``(B, N)`` bool, the DCBF masks
     forced: th.Tensor | None  #: ``(B,)`` bool, where rule 8 forced the mask (``None``: rule 8 off)
-
-
-def team_problem(policies: Sequence[Any]) -> str | None:
-    """Why ``policies`` cannot act as one team pass whatever their maps, or ``None`` if they can."""
-    if not policies:
-        return "no policies"
-    if any(type(p) is not DCBFActorCriticPolicy for p in policies):
-        return "not every policy is a DCBFActorCriticPolicy"
-    if any(p.device.type != "cpu" for p in policies):
-        return "the team pass is checked bit for bit on the CPU only"  # a GPU's kernels were not
-    first = policies[0]
-    extractor: GATFeaturesExtractor = first.features_extractor
-    if not len(first.actor_body) or not isinstance(first.actor_body[0], nn.Linear):
-        return "an actor without a hidden layer has no own-node product to run apart"
-    if first.actor_nodes != "all":
-        return "actor_nodes: allowed picks nodes by the mask (data-dependent)"
-    if extractor.backend == "sparse":
-        return "gat_backend: sparse runs the sparse kernel on every map"
-    if extractor.derived_features:
-        return "derived_features search hop distances per map (data-dependent)"
-    if extractor.extra_gat is not None:
-        return "extra_attention is not mapped over learners"
-    signature = _signature(first)
-    if any(_signature(p) != signature for p in policies[1:]):
-        return "the policies differ in more than their parameters"
-    return None
-
-
-def _signature(policy: DCBFActorCriticPolicy) -> tuple[Any, ...]:
-    """Everything but the parameters (and the DCBF territory) that decides what ``policy``
-    computes when it acts."""
-    data = policy._get_constructor_parameters()
-    kept = sorted((key, repr(value)) for key, value in data.items() if key not in _NOT_ARCHITECTURE)
-    config = policy.dcbf_config
-    return (
-        repr(policy),
-        kept,
-        replace(config, territory=()),
-        policy.device,
-        tuple((name, tuple(t.shape), t.dtype) for name, t in policy.named_parameters()),
-        # every map is scaled by the first policy's buffers (the observation space's highs)
-        tuple((name, t.detach().cpu().numpy().tobytes()) for name, t in policy.named_buffers()),
-    )
 
 
 class _Calls(nn.Module):
@@ -160,6 +119,11 @@ class TeamForward:
         self._graph_cache: tuple[th.Tensor, th.Tensor | None, th.Tensor] | None = None
         #: why the last call returned ``None`` (``None``: it did not)
         self.refusal: str | None = None
+        #: decide most likely actions from the allowed nodes' logits where that gives the same
+        #: actions (:mod:`sb3_pm.agents.allowed_nodes`); ``False``: always every node's logit
+        self.allowed_only = True
+        #: most likely steps decided from the allowed nodes' logits, and from every node's
+        self.counts = {"allowed": 0, "all": 0}
 
     # ------------------------------------------------------------ entry points
     def actions(
@@ -170,10 +134,15 @@ class TeamForward:
         deterministic, action_masks=obs["action_mask"])`` gives it one policy after another
         (sampled ones drawn in that order); counts rule 8's decisions. ``None``: this step must run
         one pass per policy."""
-        result = self.logits(policies, observations)
+        first = policies[0] if policies else None
+        allowed_only = deterministic and self.allowed_only and first is not None and applies(first)
+        result = self._acting_pass(policies, observations, allowed_only)
         if result is None:
             return None
-        logits, masks = result
+        if result.actions is not None:
+            return result.actions
+        logits, masks = result.logits, result.masks
+        assert logits is not None
         if deterministic:
             return masked_mode(logits, masks).cpu().numpy()
         actions = np.empty(len(policies), dtype=np.int64)
@@ -188,14 +157,18 @@ class TeamForward:
         """What :meth:`actions` decides from: every policy's logits ``(K, N)`` on its own
         observation and its DCBF mask ``(K, N)`` bool (the observation's ``action_mask``
         intersected with the filter's), counting rule 8's decisions; ``None`` as :meth:`actions`."""
-        result = self._run(policies, observations, None)
-        if result is None:
-            return None
-        logits, _, masks, forced = result
-        if forced is not None:
+        result = self._acting_pass(policies, observations, False)
+        return None if result is None or result.logits is None else (result.logits, result.masks)
+
+    def _acting_pass(
+        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]], allowed_only: bool
+    ) -> _Pass | None:
+        """:meth:`_run` for ``predict``, counting rule 8's decisions."""
+        result = self._run(policies, observations, None, allowed_only)
+        if result is not None and result.forced is not None:
             for k, policy in enumerate(policies):
-                policy.count_forced(forced[k : k + 1])
-        return logits, masks
+                policy.count_forced(result.forced[k : k + 1])
+        return result
 
     def rollout_heads(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]]
@@ -211,8 +184,8 @@ class TeamForward:
         result = self._run(policies, observations, int(np.shape(observations[0]["nodes"])[0]))
         if result is None:
             return None
-        logits, values, masks, forced = result
-        assert values is not None
+        logits, values, masks, forced, _ = result
+        assert logits is not None and values is not None
         return [
             RolloutHeads(logits[rows], values[rows], masks[rows], None if forced is None else forced[rows])
             for rows in _groups(len(policies), masks.shape[0])
@@ -235,14 +208,17 @@ class TeamForward:
 
     # ------------------------------------------------------------------ the pass
     def _run(
-        self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]], maps: int | None
-    ) -> tuple[th.Tensor, th.Tensor | None, th.Tensor, th.Tensor | None] | None:
-        """Every policy's logits ``(K * B, N)``, values ``(K * B, 1)`` (rollouts only, else
-        ``None``), DCBF masks ``(K * B, N)`` bool and rule 8's decisions ``(K * B,)`` bool
-        (``None`` when rule 8 is off), policy ``k``'s ``B`` maps in rows ``k * B`` to
-        ``(k + 1) * B - 1``: for ``predict`` (``maps=None``: one map each, the observation's
+        self,
+        policies: Sequence[Any],
+        observations: Sequence[Mapping[str, Any]],
+        maps: int | None,
+        allowed_only: bool = False,
+    ) -> _Pass | None:
+        """The pass (:class:`_Pass`; policy ``k``'s ``B`` maps in rows ``k * B`` to
+        ``(k + 1) * B - 1``) for ``predict`` (``maps=None``: one map each, the observation's
         ``action_mask`` intersected with the filter's) or a rollout step (``maps`` each, the
-        filter's masks alone). ``None``: refused (:attr:`refusal` says why)."""
+        filter's masks alone); ``allowed_only``: the most likely actions from the allowed nodes'
+        logits where they decide them. ``None``: refused (:attr:`refusal` says why)."""
         self.refusal = None
         if len(policies) != len(observations):
             self.refusal = "not one observation per policy"
@@ -263,7 +239,7 @@ class TeamForward:
                 return None  # one pass per policy raises SB3's error for it
             stacked = np.concatenate([v.reshape(batch, *shape) for v in given])
             arrays[key] = th.as_tensor(stacked).to(first.device)
-        self.refusal = _shape_problem(first, arrays["adjacency"], batch)
+        self.refusal = shape_problem(first, arrays["adjacency"], batch)
         if self.refusal is not None:
             return None
         for policy in policies:
@@ -296,6 +272,17 @@ class TeamForward:
                     part.append(tensor)
             u_hats, per_nodes, owns, own_terms = (th.cat(part) for part in parts[:4])
             values = th.cat(parts[4]) if rollout else None
+            masks, forced = _filtered_masks(policies, pre, u_hats, None if rollout else arrays["action_mask"])
+            if allowed_only:
+                actor = params["actor"]  # the actor stage on other rows of the heads' inputs
+
+                def body(rows: th.Tensor) -> th.Tensor:
+                    return self._mapped(actor, "actor", {}, rows, owns, own_terms)[:, 0]  # type: ignore[no-any-return]
+
+                chosen = allowed_actions(body, policies, per_nodes, masks)
+                self.counts["allowed" if chosen is not None else "all"] += 1
+                if chosen is not None:
+                    return _Pass(None, None, masks, forced, chosen)
             hidden = self._mapped(params["actor"], "actor", {}, per_nodes, owns, own_terms)
             logits = th.cat(
                 [
@@ -303,8 +290,7 @@ class TeamForward:
                     for k, (policy, maps_k) in enumerate(zip(policies, own_maps))
                 ]
             )
-            masks, forced = _filtered_masks(policies, pre, u_hats, None if rollout else arrays["action_mask"])
-        return logits, values, masks, forced
+        return _Pass(logits, values, masks, forced, None)
 
     def _graph_inputs(self, policy: DCBFActorCriticPolicy, adjacency: th.Tensor) -> dict[str, th.Tensor]:
         """The dense kernel's inputs of the adjacencies ``(K * B, N, N)``
@@ -333,7 +319,7 @@ class TeamForward:
 
         def one(p: dict[str, th.Tensor], maps: dict[str, th.Tensor], *rest: th.Tensor) -> Any:
             # Only the parameters are swapped: the buffers are the observation space's highs, the
-            # same in every policy (_signature).
+            # same in every policy (team_checks._signature).
             return functional_call(calls, p, (stage, maps, *rest), tie_weights=False, strict=False)
 
         return vmap(one)(params, split, *tensors)
@@ -371,46 +357,6 @@ def _stage_sources(calls: _Calls, policies: Sequence[Any]) -> dict[str, list[tup
 def _groups(k: int, rows: int) -> list[slice]:
     """Each of ``k`` policies' rows among ``rows`` (its ``B`` maps, in order)."""
     return [slice(i * (rows // k), (i + 1) * (rows // k)) for i in range(k)]
-
-
-def _shape_problem(policy: DCBFActorCriticPolicy, adjacency: th.Tensor, maps: int) -> str | None:
-    """Why ``maps`` maps per policy (adjacencies ``(K * maps, N, N)``) cannot be mapped over the
-    learners: one pass per policy would take a kernel with data-dependent branches, or the
-    batched pass would round otherwise."""
-    extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
-    n = adjacency.shape[-1]
-    if any(use_chunked(maps, int(layer.heads), n, adjacency.device.type == "cpu") for layer in extractor.gat):
-        return f"{maps} maps of {n} nodes take the chunked attention kernel"
-    if policy.estimator is not None and maps * n >= GATHER_MIN_ROWS:
-        return f"{maps} maps of {n} nodes take the estimator's row gathering"
-    for start in range(0, adjacency.shape[0], maps):
-        if not use_dense(adjacency[start : start + maps], extractor.backend):
-            return "a policy's maps would take the sparse attention kernel"
-    k = adjacency.shape[0] // maps
-    for size in _activation_sizes(policy, maps):
-        # A vectorized elementwise loop computes its last elements with scalar code, which rounds
-        # transcendental functions otherwise; on the K learners' tensor at once those elements
-        # fall elsewhere, unless each learner's part is whole blocks and one thread runs it all.
-        if size % TAIL_FREE or (th.get_num_threads() > 1 and k * size >= _ONE_THREAD_ELEMENTS):
-            return f"{maps} maps of {n} nodes leave an activation's elements outside its vector loop"
-    return None
-
-
-def _activation_sizes(policy: DCBFActorCriticPolicy, maps: int) -> list[int]:
-    """The elements of each tensor the mapped part of a policy's pass on ``maps`` maps applies a
-    transcendental activation to (the GAT's and the actor's)."""
-    extractor: GATFeaturesExtractor = policy.features_extractor  # type: ignore[assignment]
-    n = policy.n_nodes
-    sizes: list[int] = []
-    if not isinstance(extractor.activation, _EXACT):
-        sizes += [maps * n * int(layer.out_channels) for layer in extractor.gat]
-    width = 0
-    for layer in policy.actor_body:
-        if isinstance(layer, nn.Linear):
-            width = layer.out_features
-        elif not isinstance(layer, _EXACT):
-            sizes.append(maps * n * width)
-    return sizes
 
 
 def _filtered_masks(
