@@ -134,9 +134,7 @@ class TeamForward:
         deterministic, action_masks=obs["action_mask"])`` gives it one policy after another
         (sampled ones drawn in that order); counts rule 8's decisions. ``None``: this step must run
         one pass per policy."""
-        first = policies[0] if policies else None
-        allowed_only = deterministic and self.allowed_only and first is not None and applies(first)
-        result = self._acting_pass(policies, observations, allowed_only)
+        result = self._acting_pass(policies, observations, deterministic and self.allowed_only)
         if result is None:
             return None
         if result.actions is not None:
@@ -273,7 +271,7 @@ class TeamForward:
             u_hats, per_nodes, owns, own_terms = (th.cat(part) for part in parts[:4])
             values = th.cat(parts[4]) if rollout else None
             masks, forced = _filtered_masks(policies, pre, u_hats, None if rollout else arrays["action_mask"])
-            if allowed_only:
+            if allowed_only and applies(first):
                 actor = params["actor"]  # the actor stage on other rows of the heads' inputs
 
                 def body(rows: th.Tensor) -> th.Tensor:
