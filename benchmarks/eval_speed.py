@@ -2,7 +2,7 @@
 
     python benchmarks/eval_speed.py [--graphs paper-50 paper-200] [--episodes 2] [--steps 500]
                                     [--config ippo] [--threads 1 2] [--repeats 3] [--gif-frames 500]
-                                    [--inference serial full stacked] [--team DIR]
+                                    [--inference serial stacked] [--team DIR]
                                     [--devices cpu cuda]
 
 For each graph, builds a 4-agent team from the config (untrained: its forward passes cost what a
@@ -10,16 +10,11 @@ trained team's do) and times ``evaluate`` with each torch thread count, in episo
 ``--steps`` steps, with one warm-up episode not timed; each figure is the median of ``--repeats``
 timed runs (the development machine is a shared VM, and single runs varied by 20%).
 ``--inference`` times the team
-acting one forward pass per agent (``serial``, the earlier releases' path), one stacked pass for the
-whole team computing every node's logit (``full``, :mod:`sb3_pm.agents.deployment.stacked_inference`), and
-that pass deciding from the allowed nodes' logits where the margin allows (``stacked``, the default,
-:mod:`sb3_pm.agents.deployment.pruned_inference`; the same actions, bit for bit; a team that samples its
-actions, at its ``deploy_temperature``, takes the full stacked pass under ``stacked`` too, since
-only most-likely actions are pruned), and prints their ratios to ``serial`` with the share of steps
-the pruned pass decided. An untrained team's logits are all within about 1e-4 of each other, below
-the pruned pass's margin, so its steps fall back to the full pass: ``--team DIR`` times a trained
-team instead (on each graph of ``--graphs``; one trained elsewhere is deployed there if it
-transfers, with its own team size). Then renders and writes a GIF
+acting one forward pass per agent (``serial``) and one forward pass for the whole team
+(``stacked``, the default, :mod:`sb3_pm.agents.deployment.team_forward`; the same actions, bit for bit), and
+prints their ratios to ``serial``. ``--team DIR`` times a trained team instead of an untrained one
+(on each graph of ``--graphs``; one trained elsewhere is deployed there if it transfers, with its
+own team size). Then renders and writes a GIF
 of ``--gif-frames`` frames on the first graph (drawing and writing timed separately). ``--devices`` runs
 the team's forward passes on each torch device listed (``cpu``, ``cuda``); the environment and the
 baselines stay on the CPU. The load
@@ -49,10 +44,10 @@ def evaluation_speed(
     inference: str = "stacked",
     team_path: str | None = None,
     device: str = "cpu",
-) -> tuple[float, float | None]:
+) -> float:
     """Episodes per second of a learned team on ``graph`` with ``threads`` torch threads (the
     median of ``repeats`` timed runs): a 4-agent team built from ``config``, or the saved team
-    ``team_path``. Also the share of steps the pruned pass decided (``None`` for other passes)."""
+    ``team_path``."""
     import statistics
 
     from sb3_pm.agents.training.team import IndependentPPO
@@ -69,12 +64,9 @@ def evaluation_speed(
         team = IndependentPPO.from_config(entry, graph, seed=0, device=device)
         env_kwargs = {}
     team.stacked_inference = inference != "serial"  # type: ignore[attr-defined]
-    team.pruned_inference = inference == "stacked"  # type: ignore[attr-defined]
     n_agents = team.n_agents  # type: ignore[attr-defined]
     run = dict(n_agents=n_agents, max_cycles=steps, threads=threads, env_kwargs=env_kwargs)
     evaluate(team, graph, episodes=1, **run)  # warm-up
-    stacker = team._stacker  # type: ignore[attr-defined]
-    stacker.counts = {"pruned": 0, "full": 0}
     rates = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -83,9 +75,7 @@ def evaluation_speed(
     close = getattr(team, "close", None)
     if close is not None:
         close()
-    decided = sum(stacker.counts.values())
-    share = stacker.counts["pruned"] / decided if inference == "stacked" and decided else None
-    return statistics.median(rates), share
+    return statistics.median(rates)
 
 
 def gif_speed(graph: str, frames: int) -> tuple[float, float]:
@@ -121,7 +111,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--gif-frames", type=int, default=500)
     parser.add_argument(
-        "--inference", nargs="+", choices=["serial", "full", "stacked"], default=["serial", "full", "stacked"]
+        "--inference", nargs="+", choices=["serial", "stacked"], default=["serial", "stacked"]
     )
     parser.add_argument("--team", default=None, help="time this saved team instead of an untrained one")
     parser.add_argument("--devices", nargs="+", default=["cpu"], help="torch devices (default cpu)")
@@ -136,14 +126,14 @@ def main() -> None:
     print(f"{team}, {args.episodes} episodes of {args.steps} steps per timed run")
     print(
         "| graph | device | inference | torch threads | episodes/s | seconds per episode "
-        "| × serial | steps decided pruned |"
+        "| × serial |"
     )
-    print("|---|---|---|---:|---:|---:|---:|---:|")
+    print("|---|---|---|---:|---:|---:|---:|")
     for graph in args.graphs:
         for device, threads in itertools.product(args.devices, args.threads):
             serial = None
             for inference in args.inference:
-                rate, share = evaluation_speed(
+                rate = evaluation_speed(
                     graph,
                     args.config,
                     args.episodes,
@@ -156,10 +146,9 @@ def main() -> None:
                 )
                 serial = rate if inference == "serial" else serial
                 ratio = f"{rate / serial:.2f}" if serial else "—"
-                pruned = f"{share:.1%}" if share is not None else "—"
                 row = f"| {graph} | {device} | {inference} | {threads} | {rate:.3f}"
                 row += f" | {1 / rate:.2f}"
-                print(f"{row} | {ratio} | {pruned} |", flush=True)
+                print(f"{row} | {ratio} |", flush=True)
     if args.gif_frames > 0:
         draw, write = gif_speed(args.graphs[0], args.gif_frames)
         print(

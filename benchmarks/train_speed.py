@@ -22,7 +22,7 @@ runs (the CPU may be shared; the load average is printed).
 ``serial`` (one after another); both give the same parameters, so listing both measures the gain.
 
 ``--rollouts`` picks how the learners' rollout passes run: ``stacked`` (the default,
-``IndependentPPO.batched_rollouts``: one stacked pass per joint step for all learners,
+``IndependentPPO.batched_rollouts``: one team pass per joint step for all learners,
 :mod:`sb3_pm.agents.training.rollout_batching`) and/or ``serial`` (each learner its own pass); both give the
 same parameters, so listing both measures the gain.
 

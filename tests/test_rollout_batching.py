@@ -1,4 +1,6 @@
-"""A team's rollout passes stacked into one per joint step train the same parameters, bit for bit."""
+"""A team's rollout passes run as one team pass per joint step (the learners' own policy code
+mapped over their stacked parameters) train the same parameters as one pass per learner, bit for
+bit."""
 
 from __future__ import annotations
 
@@ -32,7 +34,9 @@ def make_team(
 ) -> IndependentPPO:
     hyperparams: dict[str, Any] = dict(TINY)
     if algo is None:
-        hyperparams["policy_kwargs"] = {"hidden_dim": 8, **policy_kwargs}
+        # 32 units: 14 nodes x 32 fill whole blocks of the activations' vector loops (with fewer,
+        # the team pass is refused and every learner runs its own pass; see below)
+        hyperparams["policy_kwargs"] = {"hidden_dim": 32, **policy_kwargs}
     return IndependentPPO(
         graph,
         n_agents=3,
@@ -97,7 +101,7 @@ FAMILY = ErdosRenyiFamily(n_nodes_range=(8, 14), edge_prob=(0.25, 0.4), name="sm
         {},
         {"gat_heads": 2},
         {"use_estimator": False},
-        {"hidden_dim": 32, "gat_layers": 3},
+        {"hidden_dim": 64, "gat_layers": 3},
         {"dcbf_barrier": True, "freeze_steps": 10},
         {"neglect_bound": 12},
         {"n_envs": 1},
@@ -164,19 +168,16 @@ def test_an_observation_other_than_the_published_one_gets_its_own_pass() -> None
     assert batcher.heads(1, team.hub.published[1]) is not None
 
 
-def test_a_stack_that_would_round_differently_leaves_every_pass_serial(
+def test_a_team_pass_that_would_round_otherwise_leaves_every_pass_to_its_learner(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from sb3_pm.agents.deployment.stacked_inference import StackedInference
-
-    monkeypatch.setattr(
-        StackedInference, "_rounds_as_serial", lambda self, stack, maps=1, values=False: False
-    )
+    """14 nodes x 8 units leave an ELU's last elements to its scalar loop: every step is refused,
+    each learner runs its own pass, and the parameters are those of one pass per learner."""
     recorded = Recorded(monkeypatch)
-    serial, batched = train_both_ways(steps=32)
+    serial, batched = train_both_ways(steps=32, hidden_dim=8)
     assert_same_parameters(serial, batched)
     (batcher,) = recorded.batchers
-    assert "round" in str(batcher.refusal)
+    assert "vector loop" in str(batcher.refusal)
     assert batcher.counts["stacked"] == 0 and batcher.counts["serial"] > 0
 
 

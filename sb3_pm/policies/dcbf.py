@@ -249,7 +249,9 @@ def dcbf_filter_from_map(
 
     Shapes:
         - observations: ``nodes`` ``(B, N, 5)``, ``adjacency`` ``(B, N, N)``, ``position``
-          ``(B, N)``, ``dwell`` ``(B, 1)``, ``action_mask`` ``(B, N)``; u_hat: ``(B, N)``
+          ``(B, N)``, ``dwell`` ``(B, 1)``, ``action_mask`` ``(B, N)``, optionally
+          ``neglect_territory`` ``(B, N)`` bool (each map's territory, in place of
+          ``config.territory``); u_hat: ``(B, N)``
         - output: the mask ``(B, N)`` bool and ``forced`` ``(B,)`` bool (rule 8 chose the mask;
           all false when rule 8 is off)
     """
@@ -264,7 +266,10 @@ def dcbf_filter_from_map(
     deadline = None
     if config.neglect_bound is not None:
         if config.neglect_scope == "territory":
-            bounded = territory_mask(config.territory, nodes.shape[0], nodes.shape[1], nodes.device)
+            # Several learners' maps filtered in one call carry each map's own territory.
+            bounded = observations.get("neglect_territory")
+            if bounded is None:
+                bounded = territory_mask(config.territory, nodes.shape[0], nodes.shape[1], nodes.device)
         else:
             bounded = nodes[..., TARGET] > 0.5
         if config.neglect_scope == "unserved":

@@ -19,6 +19,7 @@ next step, ``û`` (the u channel of ``M_k``). Design decisions (docs/METHOD.md l
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import islice
 
 import numpy as np
 import torch as th
@@ -68,15 +69,37 @@ class StateEstimator(nn.Module):
         """
         target = nodes[..., TARGET]
         if target.numel() < GATHER_MIN_ROWS:  # a rollout step: indexing would cost more than it saves
-            return self.net(nodes * self.inv_high).squeeze(-1) * target
+            return self.normalized_from_hidden(self.last_hidden(nodes), nodes)
         rows = target.reshape(-1).nonzero().squeeze(-1)  # (R,) known-target rows of the flattened batch
         flat = nodes.reshape(-1, nodes.shape[-1])[rows]  # (R, F)
         inv_high = self.inv_high.expand(*nodes.shape[:-2], *self.inv_high.shape).reshape(-1, nodes.shape[-1])
         out = self.net(flat * inv_high[rows]).squeeze(-1) * target.reshape(-1)[rows]
         return target.new_zeros(target.numel()).index_copy(0, rows, out).view(target.shape)
 
+    def last_hidden(self, nodes: th.Tensor) -> th.Tensor:
+        """The MLP's last hidden layer on every node's normalized row: ``(B, N, F) -> (B, N, w)``.
+
+        :meth:`forward_normalized` on a small batch is :meth:`normalized_from_hidden` of this. The
+        two halves are apart because the output layer (one unit) runs as a matrix-vector product,
+        whose rounding a team's pass over stacked parameters (:mod:`sb3_pm.agents.team_forward`)
+        keeps only by running it estimator by estimator.
+        """
+        x = nodes * self.inv_high
+        for layer in islice(self.net, len(self.net) - 1):  # Sequential.forward's loop, less the output
+            x = layer(x)
+        return x
+
+    def normalized_from_hidden(self, hidden: th.Tensor, nodes: th.Tensor) -> th.Tensor:
+        """``û / u_max`` before clamping from :meth:`last_hidden`'s ``(B, N, w)`` and the maps ``nodes``
+        ``(B, N, F)`` (only known targets are predicted): ``(B, N)``."""
+        return self.net[-1](hidden).squeeze(-1) * nodes[..., TARGET]
+
+    def scaled(self, normalized: th.Tensor) -> th.Tensor:
+        """``û`` in units of ``u`` from ``û / u_max`` ``(B, N)``, clamped to ``[0, u_max]``."""
+        return normalized.clamp(0.0, 1.0) * self.u_max
+
     def forward(self, nodes: th.Tensor) -> th.Tensor:
-        return self.forward_normalized(nodes).clamp(0.0, 1.0) * self.u_max
+        return self.scaled(self.forward_normalized(nodes))
 
     def loss(self, previous: th.Tensor, current: th.Tensor) -> th.Tensor:
         """MSE (in ``u / u_max`` units) between ``û(M_{k-1})`` and the u channel of ``M_k``.

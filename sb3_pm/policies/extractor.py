@@ -130,13 +130,27 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         return encoding, bias
 
     def node_embeddings(self, observations: dict[str, th.Tensor]) -> th.Tensor:
-        """Per-node embeddings ``H``, ``(B, N, hidden_dim)``."""
+        """Per-node embeddings ``H``, ``(B, N, hidden_dim)``.
+
+        ``observations`` may carry each map's dense-kernel inputs, computed by the caller:
+        ``attention_bias`` ``(B, 1, N, N)`` (:func:`~sb3_pm.policies.attention.attention_bias`) and,
+        unless ``laplacian="none"``, ``encoding`` ``(B, N, E)`` (:meth:`encoding`). The dense kernel
+        then runs on them, with no decision or search that depends on the values (a team's acting
+        pass maps this method over its learners' parameters with ``torch.func.vmap``,
+        :mod:`sb3_pm.agents.team_forward`, where such branches cannot run).
+        """
         adjacency = observations["adjacency"]
-        dense = use_dense(adjacency, self.backend)  # one decision for all layers of this batch
         x = self.node_features(observations)
-        # Everything that depends only on the adjacency is computed once per distinct adjacency.
-        graphs, index = unique_graphs(adjacency)
-        encoding_u, bias_u = self._graph_inputs(graphs, dense)
+        if "attention_bias" in observations:
+            dense = True
+            index = th.arange(adjacency.shape[0], device=adjacency.device)
+            encoding_u, bias_u = observations.get("encoding"), observations["attention_bias"]
+            graphs = adjacency
+        else:
+            dense = use_dense(adjacency, self.backend)  # one decision for all layers of this batch
+            # Everything that depends only on the adjacency is computed once per distinct adjacency.
+            graphs, index = unique_graphs(adjacency)
+            encoding_u, bias_u = self._graph_inputs(graphs, dense)
         encoding = None if encoding_u is None else (encoding_u, index)
         bias = None if bias_u is None else (bias_u, index)  # shared by every GAT layer
         for i, layer in enumerate(self.gat):

@@ -145,9 +145,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         flags, which is the env's ``advice_input`` (the territory rule's next move; the team
         refuses the option without it). ``0`` (default): no prior. With ``b > 0`` an untrained
         actor already takes the rule's move with probability ``e^b / (e^b + d)`` among ``d + 1``
-        allowed nodes, and learning changes the actor only where leaving the rule pays. The
-        stacked pass adds it as this policy does; the pruned pass refuses it (it lifts one logit
-        past the bound that pass decides by).
+        allowed nodes, and learning changes the actor only where leaving the rule pays.
     """
 
     def __init__(
@@ -448,9 +446,25 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
 
     def _actor_logits(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
         """One logit per node: ``(B, N, d)``, ``(B, h)`` -> ``(B, N)``."""
-        return self.action_net(self._actor_hidden(embeddings, own)).squeeze(-1)
+        return self._actor_output(self._actor_hidden(embeddings, own))
 
-    def _actor_hidden(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
+    def _actor_output(self, hidden: th.Tensor) -> th.Tensor:
+        """The one-unit output layer on the actor body's ``(B, N, pi_out)``: logits ``(B, N)``. A
+        matrix-vector product: a team's pass over stacked parameters
+        (:mod:`sb3_pm.agents.deployment.team_forward`) runs it policy by policy, to round as alone."""
+        return self.action_net(hidden).squeeze(-1)  # type: ignore[no-any-return]
+
+    def _actor_own_term(self, own: th.Tensor) -> th.Tensor:
+        """The actor's first-layer product with the own node's embedding, ``(B, h) -> (B, w)``
+        (:meth:`_actor_hidden`), with one row per map it runs as a matrix-vector product: a team's
+        pass over stacked parameters (:mod:`sb3_pm.agents.deployment.team_forward`) computes it
+        policy by policy, to round as this policy does alone."""
+        first: nn.Linear = self.actor_body[0]  # type: ignore[assignment]
+        return nn.functional.linear(own, first.weight[:, first.weight.shape[1] - own.shape[-1] :])
+
+    def _actor_hidden(
+        self, embeddings: th.Tensor, own: th.Tensor, own_term: th.Tensor | None = None
+    ) -> th.Tensor:
         """The actor body on ``[embeddings_m, own]`` for every node ``m`` given.
 
         The first layer's product with ``own`` is the same for every node of a map, so it is computed
@@ -458,7 +472,8 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         as ``actor_body(cat(embeddings, own expanded))``; a third of the actor's first-layer work).
 
         Shapes:
-            - embeddings: ``(B, N, d)``; own: ``(B, h)``
+            - embeddings: ``(B, N, d)``; own: ``(B, h)``; own_term: :meth:`_actor_own_term`
+              ``(B, w)`` if computed already
             - output: ``(B, N, pi_out)``
         """
         first = self.actor_body[0] if len(self.actor_body) else None
@@ -467,7 +482,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             return self.actor_body(th.cat((embeddings, own_per_node), dim=-1))
         width = embeddings.shape[-1]
         per_node = nn.functional.linear(embeddings, first.weight[:, :width], first.bias)  # (..., w)
-        per_map = nn.functional.linear(own, first.weight[:, width:])  # (B, w)
+        per_map = self._actor_own_term(own) if own_term is None else own_term  # (B, w)
         hidden = per_node + per_map.unsqueeze(1)
         # The remaining layers one by one: slicing the Sequential (actor_body[1:]) would build a new
         # module on every call, a tenth of a millisecond per rollout step.

@@ -44,12 +44,10 @@ class DeploymentRule(Team):
     graph: Any
     #: whether :meth:`_warn_if_site_bound_pending` has warned (once per team)
     _warned_pending: bool = False
-    #: Act for the whole team in one batched pass where the policies allow it
-    #: (:mod:`sb3_pm.agents.deployment.stacked_inference`); ``False`` runs one pass per agent.
+    #: Act for the whole team in one pass over the policies' stacked parameters where they allow
+    #: it (:mod:`sb3_pm.agents.deployment.team_forward`; the same actions, bit for bit);
+    #: ``False`` runs one pass per agent.
     stacked_inference: bool = True
-    #: Compute only the allowed nodes' logits where that decides the same action
-    #: (:mod:`sb3_pm.agents.deployment.pruned_inference`); ``False`` computes every node's logit.
-    pruned_inference: bool = True
     #: One network acts for every agent: its observations go through it as one batch.
     shares_one_network: bool = False
 
@@ -81,18 +79,18 @@ class DeploymentRule(Team):
         (:meth:`policy_for`). ``deterministic=None`` follows :attr:`deploy_temperature` (argmax
         unless the config set one); ``False`` samples at :attr:`sampling_temperature`.
 
-        Policies of one architecture act in one stacked pass for the whole team
-        (:mod:`sb3_pm.agents.deployment.stacked_inference`, the same actions as one pass per agent); sampled
-        actions are drawn agent by agent, in the team's order.
+        Policies of one architecture act in one pass for the whole team, their own forward mapped
+        over their stacked parameters (:mod:`sb3_pm.agents.deployment.team_forward`, the same
+        actions as one pass per agent, bit for bit); sampled actions are drawn agent by agent, in
+        the team's order.
         """
         deterministic = self.acts_deterministically(deterministic)
         agents = list(observations)
         if self.stacked_inference and not self.shares_one_network:
-            stacker = self._stacked_pass()
-            stacker.prune = self.pruned_inference
-            stacked = stacker.predict(observations, self.policy_for, deterministic)
-            if stacked is not None:
-                return stacked
+            policies = [self.policy_for(agent) for agent in agents]
+            together = self._team_forward.actions(policies, [observations[a] for a in agents], deterministic)
+            if together is not None:
+                return {agent: int(action) for agent, action in zip(agents, together)}
         groups = [agents] if self.shares_one_network else [[agent] for agent in agents]
         actions: dict[str, int] = {}
         for group in groups:
@@ -100,13 +98,16 @@ class DeploymentRule(Team):
             actions.update(zip(group, _policy_actions(self.policy_for(group[0]), batch, deterministic)))
         return actions
 
-    def _stacked_pass(self) -> Any:
-        stacker = self.__dict__.get("_stacker")
-        if stacker is None:
-            from sb3_pm.agents.deployment.pruned_inference import PrunedInference
+    @property
+    def _team_forward(self) -> Any:
+        """The team's forward pass (:class:`~sb3_pm.agents.deployment.team_forward.TeamForward`),
+        made on first use: it keeps the stacked parameters between steps."""
+        forward = self.__dict__.get("_forward")
+        if forward is None:
+            from sb3_pm.agents.deployment.team_forward import TeamForward
 
-            stacker = self.__dict__["_stacker"] = PrunedInference()
-        return stacker
+            forward = self.__dict__["_forward"] = TeamForward()
+        return forward
 
     def acting_record(self, deterministic: bool) -> dict[str, Any]:
         """The sampling temperature (when sampling) and the neglect bound the team acts under."""

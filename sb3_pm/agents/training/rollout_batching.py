@@ -1,18 +1,17 @@
-"""One stacked forward pass per rollout step for all of a team's learners.
+"""One forward pass per rollout step for all of a team's learners.
 
 While a team collects its rollouts, every learner runs its own policy's forward pass on its own
 observation, one learner after the other (:mod:`sb3_pm.agents.multiplexing.multiplexer`'s baton): ``K`` small
 passes per joint step, each a few hundred tensor operations on ``n_envs`` maps, where the time goes
 to per-operation overhead rather than arithmetic. Every learner's observation for the next step is
 known as soon as the joint step is published, so the first learner to act can compute all ``K``
-passes as one :class:`~sb3_pm.agents.deployment.stacked_inference.StackedInference` pass (each policy with
+passes as one :class:`~sb3_pm.agents.deployment.team_forward.TeamForward` pass (each policy's own code with
 its own parameters, on its own maps) and leave the others their results.
 
 Nothing is shared but the arithmetic, and nothing changes in what is computed:
 
-* the stacked pass gives each policy's logits, values and DCBF masks equal to its own
-  ``rollout_heads`` bit for bit, and checks that it does where it runs (else every step runs
-  serially, as before);
+* the team pass gives each policy's logits, values and DCBF masks equal to its own
+  ``rollout_heads`` bit for bit (``tests/test_team_forward.py``);
 * each learner still draws its action from torch's generator itself, in its own turn, so every
   draw comes from its own random stream, in the order it always did, and rule 8's decisions are
   counted in a learner's ``filter_counts`` when it takes its result, as its own pass counts them;
@@ -34,15 +33,15 @@ from typing import Any
 
 import torch as th
 
-from sb3_pm.agents.deployment.stacked_inference import RolloutHeads, StackedInference
 from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
+from sb3_pm.agents.deployment.team_forward import RolloutHeads, TeamForward
 
 Heads = tuple[th.Tensor, th.Tensor, th.Tensor]
 
 
 class RolloutBatcher:
     """Serves each learner of a team its rollout step's ``(logits, values, masks)`` from one
-    stacked pass per joint step.
+    team pass per joint step.
 
     :param hub: the team's multiplexer (its :attr:`~ParallelEnvMultiplexer.published`
         observations are the passes' inputs).
@@ -55,15 +54,15 @@ class RolloutBatcher:
             raise ValueError(f"{len(models)} learners for a hub of {hub.n_agents} agents")
         self.hub = hub
         self.models = list(models)
-        self.stacker = StackedInference()
+        self.team_forward = TeamForward()
         # Each learner's parameter objects, found once: their version counters tell whether a
-        # policy changed between the stacked pass and the learner's turn.
+        # policy changed between the team pass and the learner's turn.
         self._parameters = [list(model.policy.parameters()) for model in self.models]
         self._inputs: list[dict[str, Any]] | None = None  # the observation objects of the last step
         self._outputs: list[RolloutHeads] | None = None  # its results (None: it was refused)
         self._versions: list[tuple[int, ...]] = []
         self._configs: list[Any] = []
-        #: joint steps served by one stacked pass, and learner passes left to their own forward
+        #: joint steps served by one team pass, and learner passes left to their own forward
         self.counts = {"stacked": 0, "serial": 0}
         #: why the last step that was not stacked was not (``None``: every step so far was)
         self.refusal: str | None = None
@@ -107,7 +106,7 @@ class RolloutBatcher:
         return served.logits, served.values, served.masks
 
     def _compute(self, index: int, observation: Any) -> None:
-        """One stacked pass on every learner's published observation (learner ``index`` must be
+        """One team pass on every learner's published observation (learner ``index`` must be
         acting on its own), or a refusal remembered for this step."""
         published = [obs for obs in self.hub.published if isinstance(obs, dict)]  # Dict spaces only
         if len(published) != len(self.models) or published[index] is not observation:
@@ -118,14 +117,11 @@ class RolloutBatcher:
         self._versions = [_versions(parameters) for parameters in self._parameters]
         self._configs = [policy.dcbf_config for policy in policies]
         self._inputs = published
-        self._outputs = self.stacker.rollout_heads(policies, published)
+        self._outputs = self.team_forward.rollout_heads(policies, published)
         if self._outputs is not None:
             self.counts["stacked"] += 1
         else:  # the learners of this step run their own passes; nobody computes it again
-            maps = len(published[0]["nodes"])
-            self.refusal = self.stacker.problem(policies, maps, True) or (
-                "this step's maps take another kernel (or are not the observation space's shape)"
-            )
+            self.refusal = self.team_forward.refusal
 
 
 def _versions(parameters: Sequence[th.Tensor]) -> tuple[int, ...]:
