@@ -15,15 +15,15 @@ import pytest
 import torch as th
 from pettingzoo.test import parallel_api_test
 
-from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.agents.deployment.team_forward import TeamForward, team_problem
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.envs.mental_map import FEATURES
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
-from sb3_pm.evaluation.teams import load_trained_team, team_env_kwargs
+from sb3_pm.evaluation.teams import load_trained_team
 from sb3_pm.graphs import erdos_renyi
 
 th.set_num_threads(1)
@@ -221,9 +221,9 @@ def test_a_saved_team_keeps_the_option_and_acts_legally_on_other_graphs(tmp_path
     team.close()
     for graph in ("karate", erdos_renyi(25, 0.2, n_targets=7, seed=5)):
         loaded = load_trained_team(tmp_path / "team", graph)
-        kwargs = team_env_kwargs(loaded)
+        kwargs = loaded.env_settings()
         assert kwargs["advice_input"] is True
-        result = evaluate(loaded, graph, n_agents=3, episodes=1, seed=0, env_kwargs=kwargs)
+        result = evaluate(loaded, graph, n_agents=3, episodes=1, seed=0)  # the team's own settings
         assert result.config["env_kwargs"]["advice_input"] is True
         env = make_env(graph, 3, max_cycles=20, territory_input=True)
         observations, _ = env.reset(seed=0)

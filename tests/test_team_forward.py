@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.agents.deployment.team_forward import TeamForward, team_problem
+from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import erdos_renyi
 

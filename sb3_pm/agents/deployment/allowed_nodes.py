@@ -3,9 +3,10 @@
 An agent may move only to the nodes its DCBF mask allows (its own node and a few neighbours), yet
 the most likely action, sb3-contrib's masked mode (:func:`~sb3_pm.policies.policy.masked_mode`),
 normalizes by a log-sum-exp over *every* node's logit. On large graphs the actor's work on the other
-nodes is a large part of a deployed team's step, so :class:`~sb3_pm.agents.deployment.team_forward.TeamForward`
-runs the policy's own actor on the allowed nodes' inputs only and decides here, when that gives the
-same action; otherwise it computes every logit.
+nodes is a large part of a deployed team's step, so
+:class:`~sb3_pm.agents.deployment.team_forward.TeamForward` runs the policy's own actor on the
+allowed nodes' inputs only and decides here, when that gives the same action; otherwise it
+computes every logit.
 
 **Same actions.** Every step of the masked mode is monotone in each logit up to rounding
 (subtracting a common constant, masking, the softmax), so it returns the best allowed node unless

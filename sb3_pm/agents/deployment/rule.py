@@ -50,6 +50,8 @@ class DeploymentRule(Team):
     stacked_inference: bool = True
     #: One network acts for every agent: its observations go through it as one batch.
     shares_one_network: bool = False
+    #: the team's forward pass, made on first use (:meth:`_forward_pass`)
+    _team_forward: Any = None
 
     # ------------------------------------------------------------ the env
     def env_settings(self) -> dict[str, Any]:
@@ -88,7 +90,8 @@ class DeploymentRule(Team):
         agents = list(observations)
         if self.stacked_inference and not self.shares_one_network:
             policies = [self.policy_for(agent) for agent in agents]
-            together = self._team_forward.actions(policies, [observations[a] for a in agents], deterministic)
+            batch = [observations[agent] for agent in agents]
+            together = self._forward_pass().actions(policies, batch, deterministic)
             if together is not None:
                 return {agent: int(action) for agent, action in zip(agents, together)}
         groups = [agents] if self.shares_one_network else [[agent] for agent in agents]
@@ -98,16 +101,14 @@ class DeploymentRule(Team):
             actions.update(zip(group, _policy_actions(self.policy_for(group[0]), batch, deterministic)))
         return actions
 
-    @property
-    def _team_forward(self) -> Any:
+    def _forward_pass(self) -> Any:
         """The team's forward pass (:class:`~sb3_pm.agents.deployment.team_forward.TeamForward`),
         made on first use: it keeps the stacked parameters between steps."""
-        forward = self.__dict__.get("_forward")
-        if forward is None:
+        if self._team_forward is None:
             from sb3_pm.agents.deployment.team_forward import TeamForward
 
-            forward = self.__dict__["_forward"] = TeamForward()
-        return forward
+            self._team_forward = TeamForward()
+        return self._team_forward
 
     def acting_record(self, deterministic: bool) -> dict[str, Any]:
         """The sampling temperature (when sampling) and the neglect bound the team acts under."""

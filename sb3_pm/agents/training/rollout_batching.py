@@ -33,8 +33,8 @@ from typing import Any
 
 import torch as th
 
-from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
 from sb3_pm.agents.deployment.team_forward import RolloutHeads, TeamForward
+from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
 
 Heads = tuple[th.Tensor, th.Tensor, th.Tensor]
 
