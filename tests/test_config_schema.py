@@ -6,6 +6,7 @@ from __future__ import annotations
 import inspect
 import subprocess
 import sys
+from dataclasses import fields as dataclass_fields
 from pathlib import Path
 
 import pytest
@@ -170,19 +171,25 @@ def test_the_schema_lists_what_the_environment_and_the_policy_take() -> None:
     from sb3_pm.envs.rewards import REWARD_PRESETS, TERMS
     from sb3_pm.policies.dcbf import NEGLECT_SCOPES, DCBFConfig
     from sb3_pm.policies.policy import DCBFActorCriticPolicy
+    from sb3_pm.policies.settings import EncoderSettings, EstimatorSettings, FilterSettings, PolicySettings
     from sb3_pm.zoo.schema import REWARD_PRESETS as SCHEMA_PRESETS
+
+    PARTS = ("encoder", "estimator", "filter")
 
     env = inspect.signature(PersistentMonitoringEnv.__init__).parameters
     env_defaults = {name: p.default for name, p in env.items() if name not in ("self", "graph", "n_agents")}
     assert {name: key.default for name, key in KEYS["env"].items()} == env_defaults
     assert tuple(KEYS["reward"]) == TERMS
     assert SCHEMA_PRESETS == tuple(REWARD_PRESETS) and KEYS["env"]["reward"].default in SCHEMA_PRESETS
+    # SB3's own arguments from the signature, the rest from the settings objects they fill
     policy = inspect.signature(DCBFActorCriticPolicy.__init__).parameters
-    spaces = ("self", "observation_space", "action_space", "lr_schedule")
-    taken = {name for name in policy if name not in spaces}
-    assert set(POLICY_KEYS) == taken
+    spaces = ("self", "observation_space", "action_space", "lr_schedule", "settings")
+    taken = {name: p.default for name, p in policy.items() if name not in spaces}
+    for part in (EncoderSettings, EstimatorSettings, FilterSettings, PolicySettings):
+        taken.update({f.name: f.default for f in dataclass_fields(part) if f.name not in PARTS})
+    assert set(POLICY_KEYS) == set(taken)
     for name, key in POLICY_KEYS.items():
-        default = policy[name].default
+        default = taken[name]
         if isinstance(default, type):
             assert key.default == default.__name__, name
         elif name not in ("net_arch",):  # None in the signature: the documented pi/vf sizes apply

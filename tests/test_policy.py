@@ -307,7 +307,7 @@ class TestPolicy:
 
     def test_masked_mode_equals_the_distribution_mode(self, env: SingleAgentMonitoringEnv) -> None:
         """The deterministic shortcut picks what sb3-contrib's distribution would, ties included."""
-        from sb3_pm.policies.policy import masked_mode
+        from sb3_pm.policies.heads import masked_mode
 
         policy = make_policy(env)
         generator = th.Generator().manual_seed(0)

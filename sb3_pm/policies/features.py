@@ -32,4 +32,3 @@ def hop_distances(adjacency: th.Tensor, start: th.Tensor) -> th.Tensor:
         reached = reached | step
         frontier = step.float().unsqueeze(1)
     return distance
-

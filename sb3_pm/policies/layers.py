@@ -155,4 +155,3 @@ class GraphAttention(nn.Module):
             f"{name}({self.in_channels}, {self.out_channels}, heads={self.heads}, "
             f"backend={self.backend!r}{kernel})"
         )
-

@@ -23,9 +23,8 @@ exactly like training; a mask given by the caller is intersected with it.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from functools import partial
-from itertools import islice
 from typing import Any
 
 import numpy as np
@@ -36,12 +35,14 @@ from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_pm.envs.mental_map import FEATURES, U
+from sb3_pm.envs.mental_map import U
 from sb3_pm.errors import InputError
-from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap, dcbf_filter_from_map
+from sb3_pm.policies.dcbf import check_bound_below_cap, dcbf_filter_from_map
 from sb3_pm.policies.estimator import StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
+from sb3_pm.policies.heads import ActorCriticHeads, masked_mode
 from sb3_pm.policies.sampling import check_temperature, tempered_logits
+from sb3_pm.policies.settings import FilterSettings, PolicySettings, check_advice_prior
 
 MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
 #: Logit given to masked-out actions, sb3-contrib's ``MaskableCategorical`` value.
@@ -56,56 +57,7 @@ def _mlp(in_dim: int, hidden: list[int], activation: type[nn.Module]) -> tuple[n
     return nn.Sequential(*layers), in_dim
 
 
-def check_advice_prior(value: Any, observation_space: spaces.Dict) -> float:
-    """``advice_prior`` as a float: finite, ``>= 0``, and positive only with a node column after the
-    map's own (the env's ``advice_input``, which the team checks is on)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-        raise InputError(f"advice_prior must be a finite number >= 0, got {value!r}")
-    columns = observation_space["nodes"].shape
-    if value > 0 and (columns is None or columns[-1] <= len(FEATURES)):
-        raise InputError(
-            "advice_prior adds to the node the env's advice_input flags: it needs advice_input: true"
-        )
-    return float(value)
-
-
-def check_advice_source(policies: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
-    """Refuse a policy's ``advice_prior`` unless the env appends the advice column: the policy
-    adds it to the map's *last* column, which without ``advice_input`` is another feature (the
-    territory's, with ``territory_input``). ``policies``: name -> policy (or anything else)."""
-    if env_kwargs.get("advice_input") is True:
-        return
-    with_prior = [name for name, policy in policies.items() if getattr(policy, "advice_prior", 0.0)]
-    if with_prior:
-        raise InputError(
-            f"advice_prior (set for {with_prior}) needs env_kwargs advice_input: true, "
-            "whose column it adds to the logits"
-        )
-
-
-def own_positions(pre: dict[str, th.Tensor]) -> th.Tensor:
-    """``(B,)`` each preprocessed map's own node (its index, or the argmax of its one-hot)."""
-    return pre["position_index"] if "position_index" in pre else pre["position"].argmax(-1)
-
-
-def masked_mode(logits: th.Tensor, masks: th.Tensor) -> th.Tensor:
-    """The mode of sb3-contrib's masked categorical distribution, computed the way it computes it.
-
-    ``MaskableCategorical`` normalizes the logits, sets masked entries to -1e8, normalizes again,
-    takes the softmax and its argmax. Doing exactly those operations keeps every tie and rounding
-    identical (``tests/test_policy.py`` compares the two).
-
-    Shapes:
-        - logits: ``(B, N)`` float; masks: ``(B, N)`` bool, no row all False
-        - output: ``(B,)`` long
-    """
-    normalized = logits - logits.logsumexp(dim=-1, keepdim=True)
-    masked = th.where(masks, normalized, th.tensor(-1e8, dtype=logits.dtype, device=logits.device))
-    masked = masked - masked.logsumexp(dim=-1, keepdim=True)
-    return th.argmax(th.softmax(masked, dim=-1), dim=1)
-
-
-class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
+class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
     """Masked actor-critic over a mental map, with a GAT encoder, a state estimator and a DCBF filter.
 
     :param observation_space: the map observation ``Dict`` of :mod:`sb3_pm.envs.persistent_monitoring`.
@@ -117,35 +69,15 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
     :param ortho_init: orthogonal initialization of the heads (the GAT keeps PyG's glorot init).
     :param features_extractor_class: the graph encoder (default :class:`GATFeaturesExtractor`).
     :param features_extractor_kwargs: extra encoder kwargs; the explicit kwargs below win.
-    :param use_dcbf: apply the DCBF filter (off: the mask is the reachable set).
-    :param use_estimator: build the state estimator (off: no ``û`` input to the heads, and the
-        filter uses the map's last observed ``u``).
-    :param avoid_collisions: DCBF rule 6.
-    :param freeze_steps: DCBF rule 5 (0 disables the freeze).
-    :param eta: DCBF margin ``η``.
-    :param gamma_threshold: DCBF activation threshold ``γ``.
-    :param dcbf_barrier: DCBF rules 2-4 (off: the filter keeps only feasibility, the freeze and
-        rule 6; see :mod:`sb3_pm.policies.dcbf`).
-    :param neglect_bound: the DCBF's neglect bound ``B`` (rule 8, :mod:`sb3_pm.policies.neglect_bound`):
-        a known target whose worst-case uncertainty could pass ``B`` before the agent arrives
-        forces the next hop towards it. ``None`` (default) turns it off; it needs ``use_dcbf``.
-    :param neglect_scope: which targets the bound covers, ``"known"``, ``"unserved"`` or
-        ``"territory"`` (:class:`~sb3_pm.policies.dcbf.DCBFConfig`).
-    :param neglect_territory: the agent's own targets, for ``neglect_scope="territory"``.
-    :param laplacian: ``"rows"`` or ``"none"``.
-    :param gat_heads: heads per GAT layer.
-    :param hidden_dim: node embedding size ``h``.
-    :param gat_layers: number of multi-head GAT layers.
-    :param gat_backend: ``"auto"``, ``"dense"`` or ``"sparse"``.
-    :param estimator_hidden: hidden sizes of the estimator MLP.
-    :param estimator_lr: Adam learning rate of the estimator.
-    :param estimator_epochs: passes over each rollout's pairs when fitting the estimator.
-    :param estimator_batch_size: minibatch size (pairs) when fitting the estimator.
-    :param advice_prior: a fixed number added to the logit of the node the map's last column
-        flags, which is the env's ``advice_input`` (the territory rule's next move; the team
-        refuses the option without it). ``0`` (default): no prior. With ``b > 0`` an untrained
-        actor already takes the rule's move with probability ``e^b / (e^b + d)`` among ``d + 1``
-        allowed nodes, and learning changes the actor only where leaving the rule pays.
+    :param settings: everything else, as flat keyword arguments (a config's ``policy_kwargs``),
+        gathered into a :class:`~sb3_pm.policies.settings.PolicySettings`: the graph encoder's
+        (``laplacian``, ``gat_heads``, ``hidden_dim``, ``gat_layers``, ``gat_backend``), the state
+        estimator's (``use_estimator``, ``estimator_hidden``, ``estimator_lr``,
+        ``estimator_epochs``, ``estimator_batch_size``), the DCBF filter's (``use_dcbf``,
+        ``avoid_collisions``, ``freeze_steps``, ``eta``, ``gamma_threshold``, ``dcbf_barrier``,
+        ``neglect_bound``, ``neglect_scope``, ``neglect_territory``; :mod:`sb3_pm.policies.dcbf`)
+        and ``advice_prior`` (a fixed number added to the logit of the territory rule's next move,
+        the env's ``advice_input``). ``docs/CONFIG.md`` gives each its default and range.
     """
 
     def __init__(
@@ -162,26 +94,7 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         normalize_images: bool = True,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
-        use_dcbf: bool = True,
-        use_estimator: bool = True,
-        avoid_collisions: bool = False,
-        freeze_steps: int = 10,
-        eta: float = 0.1,
-        gamma_threshold: float = 0.0,
-        dcbf_barrier: bool = True,
-        neglect_bound: float | None = None,
-        neglect_scope: str = "known",
-        neglect_territory: Sequence[int] = (),
-        laplacian: str = "rows",
-        gat_heads: int = 4,
-        hidden_dim: int = 32,
-        gat_layers: int = 2,
-        gat_backend: str = "auto",
-        estimator_hidden: list[int] | tuple[int, ...] = (64, 64),
-        estimator_lr: float = 1e-3,
-        estimator_epochs: int = 5,
-        estimator_batch_size: int = 256,
-        advice_prior: float = 0.0,
+        **settings: Any,
     ) -> None:
         if not isinstance(observation_space, spaces.Dict) or any(
             k not in observation_space.spaces for k in MAP_KEYS
@@ -195,21 +108,12 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
             raise InputError("DCBFActorCriticPolicy shares its graph encoder between actor and critic")
         # Plain attributes are set before nn.Module.__init__ (allowed for non-tensors) because the
         # parent constructor calls our _build, which reads them.
-        self.use_dcbf, self.use_estimator = bool(use_dcbf), bool(use_estimator)
-        self.avoid_collisions = bool(avoid_collisions)
-        self.advice_prior = check_advice_prior(advice_prior, observation_space)
-        if neglect_bound is not None and not use_dcbf:
-            raise InputError("neglect_bound is rule 8 of the DCBF filter: it needs use_dcbf=True")
-        self.dcbf_config = DCBFConfig(
-            eta,
-            int(freeze_steps),
-            bool(avoid_collisions),
-            float(gamma_threshold),
-            bool(dcbf_barrier),
-            None if neglect_bound is None else float(neglect_bound),
-            str(neglect_scope),
-            tuple(int(node) for node in neglect_territory),
-        )
+        self.settings = PolicySettings.from_kwargs(settings)
+        self.use_dcbf = self.settings.filter.use_dcbf
+        self.use_estimator = self.settings.estimator.use_estimator
+        self.avoid_collisions = self.settings.filter.avoid_collisions
+        self.advice_prior = check_advice_prior(self.settings.advice_prior, observation_space)
+        self.dcbf_config = self.settings.filter.dcbf_config()
         #: The filter as built from the constructor: a deployed team acts under it with its own
         #: settings on top (``DeploymentRule.set_filter``), and ``reset_filter`` restores it.
         self.trained_dcbf_config = self.dcbf_config
@@ -218,16 +122,11 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         #: as a tensor, so counting costs no device synchronisation per forward pass.
         self.filter_counts: dict[str, Any] = {"masks": 0, "forced": 0}
         self._sampling_temperature = 1.0
-        self.estimator_hidden = [int(w) for w in estimator_hidden]
-        self.estimator_lr, self.estimator_epochs = float(estimator_lr), int(estimator_epochs)
-        self.estimator_batch_size = int(estimator_batch_size)
-        self._encoder_kwargs = dict(
-            laplacian=laplacian,
-            gat_heads=gat_heads,
-            hidden_dim=hidden_dim,
-            gat_layers=gat_layers,
-            backend=gat_backend,
-        )
+        estimator = self.settings.estimator
+        self.estimator_hidden = list(estimator.estimator_hidden)
+        self.estimator_lr, self.estimator_epochs = estimator.estimator_lr, estimator.estimator_epochs
+        self.estimator_batch_size = estimator.estimator_batch_size
+        self._encoder_kwargs = self.settings.encoder.extractor_kwargs()
         # The encoder's settings are this policy's own arguments. The same key in
         # features_extractor_kwargs with another value used to be overwritten without a word
         # (hidden_dim: 64 there gave 32); now it is an error that names the argument to use.
@@ -308,29 +207,10 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         return [p for p in self.parameters() if id(p) not in excluded]
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
+        """SB3's constructor arguments, with the settings flat and the filter as it acts now."""
         data = super()._get_constructor_parameters()
-        data.update(
-            use_dcbf=self.use_dcbf,
-            use_estimator=self.use_estimator,
-            avoid_collisions=self.avoid_collisions,
-            freeze_steps=self.dcbf_config.freeze_steps,
-            eta=self.dcbf_config.eta,
-            gamma_threshold=self.dcbf_config.gamma_threshold,
-            dcbf_barrier=self.dcbf_config.barrier,
-            neglect_bound=self.dcbf_config.neglect_bound,
-            neglect_scope=self.dcbf_config.neglect_scope,
-            neglect_territory=list(self.dcbf_config.territory),
-            laplacian=self._encoder_kwargs["laplacian"],
-            gat_heads=self._encoder_kwargs["gat_heads"],
-            hidden_dim=self._encoder_kwargs["hidden_dim"],
-            gat_layers=self._encoder_kwargs["gat_layers"],
-            gat_backend=self._encoder_kwargs["backend"],
-            estimator_hidden=self.estimator_hidden,
-            estimator_lr=self.estimator_lr,
-            estimator_epochs=self.estimator_epochs,
-            estimator_batch_size=self.estimator_batch_size,
-            advice_prior=self.advice_prior,
-        )
+        acting = FilterSettings.of(self.use_dcbf, self.dcbf_config)
+        data.update(replace(self.settings, filter=acting, advice_prior=self.advice_prior).to_kwargs())
         return data
 
     # ------------------------------------------------------------- pieces
@@ -400,95 +280,6 @@ class DCBFActorCriticPolicy(MaskableActorCriticPolicy):
         pre = self._preprocess(obs)
         with th.no_grad():
             return self._masks(pre, self.uncertainty(pre), None)
-
-    def _node_inputs(self, pre: dict[str, th.Tensor], u_hat: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """The heads' inputs: per-node ``[H_m, û_m / u_max]`` ``(B, N, d)`` and the agent's own
-        node's embedding ``(B, h)``."""
-        extractor: GATFeaturesExtractor = self.features_extractor  # type: ignore[assignment]
-        return self._with_estimate(extractor.node_embeddings(pre), pre, u_hat)
-
-    def _with_estimate(
-        self, embeddings: th.Tensor, pre: dict[str, th.Tensor], u_hat: th.Tensor
-    ) -> tuple[th.Tensor, th.Tensor]:
-        """``[H_m, û_m / u_max]`` ``(B, N, d)`` and the own node's ``H_φ`` ``(B, h)`` from the
-        embeddings ``H`` ``(B, N, h)``."""
-        batch = embeddings.shape[0]
-        position = own_positions(pre)
-        own = embeddings[th.arange(batch, device=embeddings.device), position]  # (B, h)
-        if self.use_estimator:
-            embeddings = th.cat((embeddings, (u_hat / self.u_max).unsqueeze(-1)), dim=-1)
-        return embeddings, own
-
-    def _heads(
-        self, pre: dict[str, th.Tensor], u_hat: th.Tensor, masks: th.Tensor
-    ) -> tuple[th.Tensor, th.Tensor]:
-        """Per-node logits ``(B, N)`` (see :meth:`_actor_logits`) and values ``(B, 1)``."""
-        embeddings, own = self._node_inputs(pre, u_hat)
-        logits = self._with_advice(self._actor_logits(embeddings, own), pre)
-        return logits, self._value(embeddings, own)
-
-    def _value(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
-        """The critic on ``[mean_m embeddings_m, own]``: ``(B, N, d)``, ``(B, h)`` -> ``(B, 1)``."""
-        return self.value_net(self.critic_body(th.cat((embeddings.mean(1), own), dim=-1)))
-
-    def _logits(self, pre: dict[str, th.Tensor], u_hat: th.Tensor, masks: th.Tensor) -> th.Tensor:
-        """Per-node logits ``(B, N)`` alone: acting needs no critic."""
-        embeddings, own = self._node_inputs(pre, u_hat)
-        return self._with_advice(self._actor_logits(embeddings, own), pre)
-
-    def _with_advice(self, logits: th.Tensor, pre: dict[str, th.Tensor]) -> th.Tensor:
-        """The logits ``(B, N)`` plus ``advice_prior`` on the node the env's ``advice_input``
-        column (the map's last) flags: the territory rule's move starts out as the likely one, and
-        the actor learns where to leave it. A fixed input, not a parameter."""
-        if not self.advice_prior:
-            return logits
-        return logits + self.advice_prior * pre["nodes"][..., -1]
-
-    def _actor_logits(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
-        """One logit per node: ``(B, N, d)``, ``(B, h)`` -> ``(B, N)``."""
-        return self._actor_output(self._actor_hidden(embeddings, own))
-
-    def _actor_output(self, hidden: th.Tensor) -> th.Tensor:
-        """The one-unit output layer on the actor body's ``(B, N, pi_out)``: logits ``(B, N)``. A
-        matrix-vector product: a team's pass over stacked parameters
-        (:mod:`sb3_pm.agents.deployment.team_forward`) runs it policy by policy, to round as alone."""
-        return self.action_net(hidden).squeeze(-1)  # type: ignore[no-any-return]
-
-    def _actor_own_term(self, own: th.Tensor) -> th.Tensor:
-        """The actor's first-layer product with the own node's embedding, ``(B, h) -> (B, w)``
-        (:meth:`_actor_hidden`), with one row per map it runs as a matrix-vector product: a team's
-        pass over stacked parameters (:mod:`sb3_pm.agents.deployment.team_forward`) computes it
-        policy by policy, to round as this policy does alone."""
-        first: nn.Linear = self.actor_body[0]  # type: ignore[assignment]
-        return nn.functional.linear(own, first.weight[:, first.weight.shape[1] - own.shape[-1] :])
-
-    def _actor_hidden(
-        self, embeddings: th.Tensor, own: th.Tensor, own_term: th.Tensor | None = None
-    ) -> th.Tensor:
-        """The actor body on ``[embeddings_m, own]`` for every node ``m`` given.
-
-        The first layer's product with ``own`` is the same for every node of a map, so it is computed
-        once per map and broadcast instead of multiplying ``N`` copies (same function and parameters
-        as ``actor_body(cat(embeddings, own expanded))``; a third of the actor's first-layer work).
-
-        Shapes:
-            - embeddings: ``(B, N, d)``; own: ``(B, h)``; own_term: :meth:`_actor_own_term`
-              ``(B, w)`` if computed already
-            - output: ``(B, N, pi_out)``
-        """
-        first = self.actor_body[0] if len(self.actor_body) else None
-        if not isinstance(first, nn.Linear):  # no hidden layer: plain concatenation
-            own_per_node = own.unsqueeze(1).expand(-1, embeddings.shape[1], -1)
-            return self.actor_body(th.cat((embeddings, own_per_node), dim=-1))
-        width = embeddings.shape[-1]
-        per_node = nn.functional.linear(embeddings, first.weight[:, :width], first.bias)  # (..., w)
-        per_map = self._actor_own_term(own) if own_term is None else own_term  # (B, w)
-        hidden = per_node + per_map.unsqueeze(1)
-        # The remaining layers one by one: slicing the Sequential (actor_body[1:]) would build a new
-        # module on every call, a tenth of a millisecond per rollout step.
-        for layer in islice(self.actor_body, 1, None):
-            hidden = layer(hidden)
-        return hidden
 
     def _distribution(self, logits: th.Tensor, masks: th.Tensor) -> MaskableDistribution:
         distribution = self.action_dist.proba_distribution(action_logits=logits)

@@ -27,7 +27,7 @@ from sb3_pm.agents.training.learner_callbacks import close_loggers, with_episode
 from sb3_pm.agents.training.learners import learn_seed, resolve_hyperparams
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec
-from sb3_pm.policies.policy import check_advice_source
+from sb3_pm.policies.settings import check_advice_source
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
 
 MANIFEST_FORMAT = "sb3_pm.centralized/1"

@@ -1,7 +1,7 @@
 """Most likely actions from the allowed nodes' logits alone, where they decide the same action.
 
 An agent may move only to the nodes its DCBF mask allows (its own node and a few neighbours), yet
-the most likely action, sb3-contrib's masked mode (:func:`~sb3_pm.policies.policy.masked_mode`),
+the most likely action, sb3-contrib's masked mode (:func:`~sb3_pm.policies.heads.masked_mode`),
 normalizes by a log-sum-exp over *every* node's logit. On large graphs the actor's work on the other
 nodes is a large part of a deployed team's step, so
 :class:`~sb3_pm.agents.deployment.team_forward.TeamForward` runs the policy's own actor on the

@@ -51,7 +51,8 @@ from sb3_pm.agents.deployment.team_checks import shape_problem, team_problem
 from sb3_pm.policies.attention import attention_bias
 from sb3_pm.policies.dcbf import territory_mask
 from sb3_pm.policies.extractor import GATFeaturesExtractor
-from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy, masked_mode
+from sb3_pm.policies.heads import masked_mode
+from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy
 
 
 class _Pass(NamedTuple):

@@ -227,6 +227,20 @@ def latest_checkpoint(folder: Path) -> tuple[Path, dict[str, Any]]:
     raise CheckpointError(f"no checkpoint in {folder}")
 
 
+def find_checkpoint(path: str | Path) -> Path:
+    """The checkpoint at ``path``: a checkpoint folder (its files checked against their checksums),
+    or the newest intact one in a ``checkpoints/`` folder or a run folder holding one.
+
+    :raises CheckpointError: if there is no intact checkpoint there.
+    """
+    folder = Path(path)
+    if (folder / RECORD).is_file():
+        read_record(folder)  # checks every file against its checksum
+        return folder
+    parent = folder / CHECKPOINTS if (folder / CHECKPOINTS).is_dir() else folder
+    return latest_checkpoint(parent)[0]
+
+
 def restore_state(team: IndependentPPO, checkpoint: Path) -> None:
     """Put a checkpoint's env copies, counters and random streams into a team loaded from it."""
     try:

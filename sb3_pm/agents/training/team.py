@@ -28,22 +28,16 @@ from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.utils import get_device, set_random_seed
+from stable_baselines3.common.utils import get_device
 
 from sb3_pm.agents.deployment.saved_teams import MANIFEST, load_model_file
 from sb3_pm.agents.deployment.transfer import on_graph, transfer_problem
-from sb3_pm.agents.multiplexing.learner_threads import learn_concurrently, raise_first_error
 from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
-from sb3_pm.agents.multiplexing.streams import StreamState, capture_stream, learner_streams, load_stream
-from sb3_pm.agents.multiplexing.update_slots import UpdateSlots, default_update_slots
+from sb3_pm.agents.multiplexing.streams import StreamState
 from sb3_pm.agents.training.checkpoints import (
-    CHECKPOINTS,
-    RECORD,
     CheckpointSchedule,
     TrainingInterrupted,
-    checkpoint_at_barrier,
-    latest_checkpoint,
-    read_record,
+    find_checkpoint,
     restore_state,
 )
 from sb3_pm.agents.training.learned_team import LearnedTeam
@@ -51,14 +45,13 @@ from sb3_pm.agents.training.learner_callbacks import (
     CallbackArg,
     EpisodeMetricsCallback,
     close_loggers,
-    learner_callbacks,
-    per_agent_callbacks,
 )
-from sb3_pm.agents.training.learners import agent_seed, check_same, learn_seed, learner_kwargs
+from sb3_pm.agents.training.learners import agent_seed, check_same, learner_kwargs
 from sb3_pm.agents.training.rollout_batching import RolloutBatcher
+from sb3_pm.agents.training.team_learning import run_team_learning
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike
-from sb3_pm.policies.policy import check_advice_source
+from sb3_pm.policies.settings import check_advice_source
 from sb3_pm.team_interface import Team
 
 logger = logging.getLogger(__name__)
@@ -93,8 +86,7 @@ class IndependentPPO(LearnedTeam):
         the callbacks' ``on_rollout_start``/``on_training_end``) run side by side, each in its own
         thread, where every random draw of an update can be made before it starts (DCBF-PPO learners
         on CPU without ``target_kl``). The parameters are the same, bit for bit, as with ``False``;
-        on 2 cores the update phases take about half the time. Callbacks that share state between
-        learners must then be thread-safe.
+        Callbacks that share state between learners must then be thread-safe.
     :param deploy_temperature: how the trained team acts by default (:attr:`deploy_temperature`):
         ``None`` by the argmax, a positive number by sampling at that temperature. Saved with the
         team; training never reads it.
@@ -104,10 +96,9 @@ class IndependentPPO(LearnedTeam):
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
         or for an update slot (:attr:`update_slots`), before training stops with
         :class:`~sb3_pm.agents.multiplexing.multiplexer.TeamTimeout`, naming it;
-        ``None`` waits for ever. The default, 30 minutes, is far above any wait measured (about two
-        minutes at a rollout's end for 16 learners on the 200-node graph, two updating at a time).
-        Only the time the process runs counts: a sweep suspended (``SIGSTOP``) for longer goes on
-        when it is resumed (:class:`~sb3_pm.agents.multiplexing.awake_deadline.AwakeDeadline`).
+        ``None`` waits for ever (default: 30 minutes). Only the time the process runs counts: a
+        sweep suspended (``SIGSTOP``) for longer goes on when it is resumed
+        (:class:`~sb3_pm.agents.multiplexing.awake_deadline.AwakeDeadline`).
     """
 
     name = "ippo"
@@ -276,7 +267,8 @@ class IndependentPPO(LearnedTeam):
         self._validate_learners(reset_num_timesteps)
         self._training_filter()  # the deploy filter is for acting: off while the learners train
         try:
-            return self._learn_unfiltered(
+            return run_team_learning(
+                self,
                 total_timesteps,
                 callback,
                 progress_bar,
@@ -288,92 +280,6 @@ class IndependentPPO(LearnedTeam):
             )
         finally:
             self._apply_deploy_filter()  # on again, whether training ended or failed
-
-    def _learn_unfiltered(
-        self,
-        total_timesteps: int,
-        callback: CallbackArg,
-        progress_bar: bool,
-        reset_num_timesteps: bool,
-        log_interval: int,
-        tb_log_name: str | None,
-        checkpoints: CheckpointSchedule | None,
-        on_interrupt: Callable[[], None] | None,
-    ) -> IndependentPPO:
-        """:meth:`learn`'s body, run with the deploy filter off."""
-        # Read at every learn() (torch's thread count may have changed since construction), and
-        # before anything changes, so that a bad count changes nothing.
-        count = self.update_slots if self.update_slots is not None else default_update_slots()
-        slots: UpdateSlots | None = UpdateSlots(count)  # checks the count even without side by side
-        if not self.hub.concurrent_updates:
-            slots = None
-        if not reset_num_timesteps and any(m._last_obs is None for m in self.models.values()):
-            # All learners must reset together (the multiplexer steps them as one).
-            for model in self.models.values():
-                model._last_obs = None
-        # Whatever ran since construction (another team, an evaluation) must not leak into this
-        # run: with the baton, each learner draws from its own stream, seeded here, so the run is a
-        # function of (seed, num_timesteps, parameters) alone. Without it, a shared reseed.
-        caller_stream = capture_stream()
-        if self.hub.strict_order:
-            resume = None if reset_num_timesteps else self._resume_streams
-            self.hub.set_streams(resume or learner_streams(self.seed, self.num_timesteps, self.n_agents))
-            self._resume_streams = None
-        else:
-            self.hub.set_streams(None)
-            set_random_seed(learn_seed(self.seed, self.num_timesteps))
-        user_callbacks = per_agent_callbacks(callback, self.agents)
-        learn_kwargs = []
-        for agent, user in zip(self.agents, user_callbacks):
-            learn_kwargs.append(
-                {
-                    "total_timesteps": int(total_timesteps),
-                    "callback": learner_callbacks(self.models[agent], user),
-                    "log_interval": log_interval,
-                    "tb_log_name": f"{tb_log_name or ''}{agent}",
-                    "reset_num_timesteps": reset_num_timesteps,
-                    "progress_bar": False,
-                }
-            )
-        bar = None
-        if progress_bar:
-            from sb3_pm.progress import progress_bar as make_progress
-
-            rollout = self.models[self.agents[0]].n_steps * self.n_envs
-            rollouts = -(-int(total_timesteps) // rollout)
-            bar = make_progress(
-                rollouts * rollout * self.n_agents, f"{self.algo} x{self.n_agents}", unit="agent-step"
-            )
-            self.hub.on_round = bar.update
-        self.hub.on_sync = lambda: checkpoint_at_barrier(self, checkpoints)
-        batcher = self._rollout_batcher()
-        if batcher is not None:
-            batcher.attach()
-        self.hub.update_slots = slots
-        try:
-            errors = learn_concurrently(
-                [self.models[a] for a in self.agents],
-                self.hub,
-                learn_kwargs,
-                graceful_interrupt=checkpoints is not None,
-                on_interrupt=on_interrupt,
-            )
-        except KeyboardInterrupt:
-            if checkpoints is not None and self.hub.stopped is not None and checkpoints.last is not None:
-                raise TrainingInterrupted(checkpoints.last) from None
-            raise
-        finally:
-            if batcher is not None:
-                batcher.detach()
-            self.hub.on_round = None
-            self.hub.on_sync = None
-            load_stream(caller_stream)
-            if bar is not None:
-                bar.close()
-        raise_first_error(errors)
-        if self.hub.aborted is not None:
-            logger.warning("team training ended early: %s", self.hub.aborted)
-        return self
 
     def _rollout_batcher(self) -> RolloutBatcher | None:
         """A batcher for this run's rollout passes, or ``None`` (switched off, learners without the
@@ -504,13 +410,7 @@ class IndependentPPO(LearnedTeam):
         :param options: further :meth:`load` arguments (``concurrent_updates``, ``wait_timeout``).
         :raises CheckpointError: if there is no intact checkpoint there.
         """
-        folder = Path(path)
-        if (folder / RECORD).is_file():
-            read_record(folder)  # checks every file against its checksum
-            checkpoint = folder
-        else:
-            parent = folder / CHECKPOINTS if (folder / CHECKPOINTS).is_dir() else folder
-            checkpoint, _ = latest_checkpoint(parent)
+        checkpoint = find_checkpoint(path)
         team = cls.load(
             checkpoint,
             device=device,
