@@ -2,22 +2,14 @@
 
 Each agent is its own SB3 algorithm (``DCBFPPO`` by default, or sb3-contrib's ``MaskablePPO`` or
 plain ``PPO``) with its own parameters, buffers and optimizer. They are stepped together through a
-:class:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer`, each learner in its own thread, in a
-fixed turn order, each drawing from its own random stream, so a team run is reproducible from
-its seed and can be checkpointed and resumed bit for bit (:mod:`sb3_pm.agents.training.checkpoints`) on
-the CPU, with one torch thread (a GPU's scatter sums, with ``device`` or ``update_device``, vary
-in order between runs).
+:class:`~sb3_pm.agents.multiplexing.multiplexer.ParallelEnvMultiplexer`, each learner in its own
+thread, in a fixed turn order, each drawing from its own random stream, so a team run is
+reproducible from its seed and can be checkpointed and resumed bit for bit on the CPU with one
+torch thread (:mod:`sb3_pm.agents.training.checkpoints`). It acts as every trained team does
+(:class:`~sb3_pm.agents.deployment.rule.DeploymentRule`), so evaluation drives it as a baseline.
 
-The team implements the :class:`~sb3_pm.team_interface.Team` interface (through
-:class:`~sb3_pm.agents.training.learned_team.LearnedTeam`), so evaluation drives a learned team exactly as
-it drives a baseline.
-
-A saved team is a folder::
-
-    team/
-      manifest.json     graph name + fingerprint, n_agents, env kwargs, algo, versions
-      agent_0.zip ...   one SB3 zip per agent
-      graph.graphml     only for graphs that are not presets
+A saved team is a folder of one SB3 zip per agent and a manifest
+(:mod:`sb3_pm.agents.deployment.saved_teams`).
 """
 
 from __future__ import annotations
@@ -245,19 +237,17 @@ class IndependentPPO(LearnedTeam):
         with :meth:`from_checkpoint` continues bit for bit with
         ``learn(team.remaining_timesteps, reset_num_timesteps=False)``.
 
-        Each learner draws from its own random stream, seeded from the team seed, the step count and
-        its index (:mod:`sb3_pm.agents.multiplexing.streams`); the caller's process-wide generators are left
-        as they were.
+        Each learner draws from its own random stream (:mod:`sb3_pm.agents.multiplexing.streams`);
+        the caller's process-wide generators are left as they were
+        (:func:`~sb3_pm.agents.training.team_learning.run_team_learning`).
 
         :param callback: per-agent callbacks: a list, an ``{agent: callback}`` dict or a factory
             ``agent_name -> callback`` (a single callback object only for a one-agent team).
         :param progress_bar: report the team's agent-steps (a tqdm bar on a terminal, a plain line every
             30 s elsewhere; :mod:`sb3_pm.progress`).
         :param tb_log_name: TensorBoard run name prefix; each agent logs to ``<prefix><agent>``.
-        :param checkpoints: where and how often to write checkpoints (none by default). With
-            checkpoints, a first Ctrl-C lets the team run to the next rollout barrier, writes a
-            checkpoint there and raises :class:`~sb3_pm.agents.training.checkpoints.TrainingInterrupted`; a
-            second one stops at once (the last periodic checkpoint stays).
+        :param checkpoints: where and how often to write checkpoints (none by default); a first
+            Ctrl-C then checkpoints at the next rollout barrier and raises ``TrainingInterrupted``.
         :param on_interrupt: called on that first Ctrl-C (to tell the user what happens next).
         :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``.
         :raises Exception: the first error a learner raised (the others are stopped cleanly).
