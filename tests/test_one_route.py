@@ -78,6 +78,8 @@ def test_every_route_gives_the_sweep_cells_metrics(swept_team, tmp_path: Path, c
     )
     assert _metrics([r.to_dict() for r in python.episodes]) == expected
     assert python.config["neglect_bound"] == 12.0
+    own = evaluate(load_trained_team(team_folder), episodes=EPISODES, seed=EVAL_SEED, max_cycles=STEPS)
+    assert _metrics([r.to_dict() for r in own.episodes]) == expected  # its own graph and size
 
     compared = compare(
         {"team": lambda g: load_trained_team(team_folder, g)},
