@@ -135,6 +135,34 @@ class TestTeam:
         finally:
             loaded.close()
 
+    def test_a_team_saved_with_the_bound_in_its_policy_kwargs_still_trains_without_it(
+        self, tmp_path: Path
+    ) -> None:
+        """Teams saved before the manifest held ``filter_settings`` carried the deploy filter in
+        their learners' ``policy_kwargs``: loaded, they act under it and train without it."""
+        from sb3_pm.agents.training.team import IndependentPPO
+
+        team = tiny_team()
+        try:
+            for model in team.models.values():  # the earlier format: the bound in the kwargs
+                model.policy_kwargs = {**model.policy_kwargs, "neglect_bound": 15.0}
+            team.save(tmp_path / "t")
+        finally:
+            team.close()
+        manifest_path = tmp_path / "t" / "manifest.json"
+        manifest = json.loads(manifest_path.read_text())
+        del manifest["filter_settings"]
+        manifest_path.write_text(json.dumps(manifest))
+        loaded = IndependentPPO.load(tmp_path / "t")
+        try:
+            assert loaded.acting_filter() == TERRITORY_BOUND
+            seen = {a: BoundsSeen() for a in loaded.agents}
+            loaded.learn(10, callback=seen, reset_num_timesteps=False)
+            assert all(s.bounds == {None} for s in seen.values())
+            assert loaded.acting_filter() == TERRITORY_BOUND
+        finally:
+            loaded.close()
+
     def test_the_same_seed_trains_the_same_parameters_with_or_without_it(self) -> None:
         """Training never reads the deploy filter: the parameters match a team without one."""
         import torch as th

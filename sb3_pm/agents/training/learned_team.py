@@ -231,10 +231,19 @@ class LearnedTeam(DeploymentRule):
     def _training_filter(self) -> None:
         """Switch the :attr:`deploy_filter` off: every learner's bound as trained, that is none
         (a team with a deploy filter trains without a bound; nothing to do without one)."""
+        from dataclasses import replace
+
         if self._deploy_filter is None:
             return
         self.site_bound_pending = False
         self.reset_filter()
+        # A team saved before the manifest held filter_settings kept its bound in policy_kwargs, so
+        # its policies were built with it: off for training here too.
+        for policy in self.acting_policies().values():
+            if getattr(policy, "use_dcbf", False) and policy.dcbf_config.neglect_bound is not None:
+                policy.dcbf_config = replace(
+                    policy.dcbf_config, neglect_bound=None, neglect_scope="known", territory=()
+                )
 
     def _restore_acting_rule(self, manifest: Mapping[str, Any]) -> None:
         """A loaded team's acting rule from its manifest: the temperature, the filter settings it
