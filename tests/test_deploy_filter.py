@@ -49,6 +49,14 @@ class BoundsSeen(BaseCallback):
         return True
 
 
+def assert_trains_unbounded(loaded) -> None:
+    """A loaded team trains a few steps with no bound at any step, and acts under its territory
+    bound again afterwards."""
+    seen = {a: BoundsSeen() for a in loaded.agents}
+    loaded.learn(10, callback=seen, reset_num_timesteps=False)
+    assert all(s.bounds == {None} for s in seen.values())
+    assert loaded.acting_filter() == TERRITORY_BOUND
+
 class TestCheck:
     def test_a_bound_with_or_without_a_scope(self) -> None:
         assert check_deploy_filter(None) is None
@@ -128,10 +136,7 @@ class TestTeam:
             assert loaded.acting_filter() == TERRITORY_BOUND
             assert loaded.models["agent_0"].policy.dcbf_config.territory == (0, 1)
             # Further training is unbounded too, and the bound is back afterwards.
-            seen = {a: BoundsSeen() for a in loaded.agents}
-            loaded.learn(10, callback=seen, reset_num_timesteps=False)
-            assert all(s.bounds == {None} for s in seen.values())
-            assert loaded.acting_filter() == TERRITORY_BOUND
+            assert_trains_unbounded(loaded)
         finally:
             loaded.close()
 
@@ -156,10 +161,7 @@ class TestTeam:
         loaded = IndependentPPO.load(tmp_path / "t")
         try:
             assert loaded.acting_filter() == TERRITORY_BOUND
-            seen = {a: BoundsSeen() for a in loaded.agents}
-            loaded.learn(10, callback=seen, reset_num_timesteps=False)
-            assert all(s.bounds == {None} for s in seen.values())
-            assert loaded.acting_filter() == TERRITORY_BOUND
+            assert_trains_unbounded(loaded)
         finally:
             loaded.close()
 
