@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pathlib
 import textwrap
 
 import pytest
@@ -156,11 +157,44 @@ def test_registries() -> None:
     assert resolve_algo("maskable_ppo") is MaskablePPO
     with pytest.raises(RegistryError, match="unknown algo"):
         resolve_algo("dqn")
-    resolved = resolve_policy_kwargs(
-        {"activation_fn": "Tanh", "optimizer_class": "torch.optim:AdamW", "net_arch": [8]}
-    )
+    resolved = resolve_policy_kwargs({"activation_fn": "Tanh", "optimizer_class": "AdamW", "net_arch": [8]})
     assert resolved["activation_fn"] is th.nn.Tanh and resolved["optimizer_class"] is th.optim.AdamW
     assert resolved["net_arch"] == [8]
+
+
+def test_a_config_never_imports_a_module_it_names(
+    tmp_path: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A class key naming ``module:attr`` is refused in one line, and the module is not imported."""
+    import sys
+
+    module = tmp_path / "planted_module.py"
+    marker = tmp_path / "imported"
+    module.write_text(f"import pathlib\npathlib.Path({str(marker)!r}).touch()\nclass Act: pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for key in ("activation_fn", "optimizer_class", "features_extractor_class"):
+        refused = f"unknown {key} 'planted_module:Act'.*does not import"
+        with pytest.raises(RegistryError, match=refused) as error:
+            resolve_policy_kwargs({key: "planted_module:Act"})
+        assert "\n" not in str(error.value)
+    assert not marker.exists() and "planted_module" not in sys.modules
+
+
+def test_register_class_names_a_class_of_ones_own() -> None:
+    from sb3_pm.zoo import registry
+
+    class Softsign(th.nn.Softsign):
+        pass
+
+    try:
+        registry.register_class("activation_fn", "MySoftsign", Softsign)
+        assert resolve_policy_kwargs({"activation_fn": "MySoftsign"})["activation_fn"] is Softsign
+        with pytest.raises(RegistryError, match="already names another class"):
+            registry.register_class("activation_fn", "Tanh", Softsign)
+        with pytest.raises(RegistryError, match="not a class-valued key"):
+            registry.register_class("net_arch", "x", Softsign)
+    finally:
+        registry.ACTIVATIONS.pop("MySoftsign", None)
 
 
 def test_repository_config_is_valid() -> None:

@@ -1,10 +1,11 @@
 """Name -> class registries for configs: algorithms, activation functions, optimizers, extractors.
 
 A YAML config names classes by string (``algo: maskable_ppo``, ``activation_fn: ReLU``). They are
-resolved here, never with ``eval`` (which rl-zoo uses on strings). Entries are ``"module:attr"``
-strings imported on first use, so the registry costs nothing to import and ``dcbf_ppo`` does not
-drag in torch-geometric until it is asked for. Besides registered names, any class-valued key
-accepts an explicit ``"package.module:ClassName"`` import path.
+resolved here, never with ``eval`` and never by importing a path that a file names: a config is
+data, and reading one from elsewhere must not run code. The built-in entries are ``"module:attr"``
+strings of this package and its dependencies, imported on first use, so the registry costs nothing
+to import and ``dcbf_ppo`` does not drag in torch-geometric until it is asked for. A class of your
+own is made nameable in Python, by code you run, with :func:`register_class`.
 """
 
 from __future__ import annotations
@@ -28,21 +29,22 @@ DEFAULT_POLICIES: dict[str, str] = {
     "ppo": "MultiInputPolicy",
 }
 
-ACTIVATIONS: dict[str, str] = {
+ACTIVATIONS: dict[str, Any] = {
     name: f"torch.nn:{name}"
     for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Sigmoid", "Identity")
 }
 
-OPTIMIZERS: dict[str, str] = {name: f"torch.optim:{name}" for name in ("Adam", "AdamW", "RMSprop", "SGD")}
+OPTIMIZERS: dict[str, Any] = {name: f"torch.optim:{name}" for name in ("Adam", "AdamW", "RMSprop", "SGD")}
 
-FEATURES_EXTRACTORS: dict[str, str] = {
+FEATURES_EXTRACTORS: dict[str, Any] = {
     "CombinedExtractor": "stable_baselines3.common.torch_layers:CombinedExtractor",
     "FlattenExtractor": "stable_baselines3.common.torch_layers:FlattenExtractor",
     "GATFeaturesExtractor": "sb3_pm.policies.extractor:GATFeaturesExtractor",
 }
 
-#: Which ``policy_kwargs`` keys hold classes, and the registry that names them.
-CLASS_KEYS: dict[str, dict[str, str]] = {
+#: Which ``policy_kwargs`` keys hold classes, and the registry that names them (values: import paths
+#: of this package and its dependencies, or classes given to :func:`register_class`).
+CLASS_KEYS: dict[str, dict[str, Any]] = {
     "activation_fn": ACTIVATIONS,
     "optimizer_class": OPTIMIZERS,
     "features_extractor_class": FEATURES_EXTRACTORS,
@@ -65,15 +67,34 @@ def import_path(path: str) -> Any:
         raise RegistryError(f"module {module_name!r} has no attribute {attr!r}") from error
 
 
-def lookup(registry: dict[str, str], name: str, kind: str) -> Any:
-    """Resolve ``name`` through ``registry`` (or as an import path); ``kind`` names it in errors."""
-    if name in registry:
-        return import_path(registry[name])
-    if ":" in name:
-        return import_path(name)
-    raise RegistryError(
-        f"unknown {kind} {name!r}: use one of {', '.join(sorted(registry))} or 'package.module:Name'"
-    )
+def lookup(registry: dict[str, Any], name: str, kind: str) -> Any:
+    """Resolve ``name`` through ``registry``; ``kind`` names it in errors."""
+    if name not in registry:
+        hint = " (a config names classes, it does not import them)" if ":" in name else ""
+        raise RegistryError(
+            f"unknown {kind} {name!r}{hint}: use one of {', '.join(sorted(registry))}, "
+            f"or register your own class with sb3_pm.zoo.registry.register_class({kind!r}, name, cls)"
+        )
+    entry = registry[name]
+    return import_path(entry) if isinstance(entry, str) else entry
+
+
+def register_class(key: str, name: str, cls: type) -> None:
+    """Make ``name`` usable as the value of the class-valued config key ``key``
+    (``activation_fn``, ``optimizer_class`` or ``features_extractor_class``) in this process.
+
+    :raises RegistryError: for another key, a name already taken by another class, or a ``cls``
+        that is not a class.
+    """
+    if key not in CLASS_KEYS:
+        raise RegistryError(f"{key!r} is not a class-valued key: use one of {', '.join(sorted(CLASS_KEYS))}")
+    if not isinstance(cls, type):
+        raise RegistryError(f"register_class({key!r}, {name!r}, ...) needs a class, got {cls!r}")
+    registry = CLASS_KEYS[key]
+    taken = registry.get(name)
+    if taken is not None and (import_path(taken) if isinstance(taken, str) else taken) is not cls:
+        raise RegistryError(f"{key} {name!r} already names another class")
+    registry[name] = cls  # type: ignore[assignment]  # a class given by code, not a path
 
 
 def resolve_algo(name: str) -> type:
@@ -138,6 +159,7 @@ __all__ = [
     "default_algo",
     "import_path",
     "lookup",
+    "register_class",
     "resolve_algo",
     "resolve_policy_kwargs",
     "uses_masks",

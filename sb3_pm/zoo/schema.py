@@ -213,7 +213,7 @@ ENCODER = Section('encoder', '`DCBFPolicy`: the GAT encoder', 'policy_kwargs', p
     Key('gat_backend', 'str', 'auto', choices=('auto', 'dense', 'sparse'),
         help='the GAT kernel'),
     Key('features_extractor_class', 'str', 'GATFeaturesExtractor',
-        help='the encoder class, by registry name or `package.module:Name`'),
+        help='the encoder class, by registry name (`GATFeaturesExtractor`, ...)'),
     Key('features_extractor_kwargs', 'mapping', None, nullable=True,
         help='extra encoder arguments (the explicit keys above win)'),
 ))
@@ -237,12 +237,11 @@ ACTOR_CRITIC = Section('actor_critic', 'Actor and critic (every policy)', 'polic
     Key('net_arch', 'any', None, nullable=True, default_text='`{pi: [64, 64], vf: [64, 64]}`',
         help='hidden sizes of the actor and critic heads: `{pi: [...], vf: [...]}` or one list for both'),
     Key('activation_fn', 'str', 'Tanh',
-        help='activation of the heads, by registry name (`ReLU`, `Tanh`, `ELU`, ...) or '
-        '`package.module:Name`'),
+        help='activation of the heads, by registry name (`ReLU`, `Tanh`, `ELU`, ...)'),
     Key('ortho_init', 'bool', True,
         help='orthogonal initialisation of the heads'),
     Key('optimizer_class', 'str', 'Adam',
-        help='the actor-critic optimizer (`Adam`, `AdamW`, `RMSprop`, `SGD` or `package.module:Name`)'),
+        help='the actor-critic optimizer, by registry name (`Adam`, `AdamW`, `RMSprop`, `SGD`)'),
     Key('optimizer_kwargs', 'mapping', None, nullable=True,
         help='arguments of the optimizer'),
     Key('share_features_extractor', 'bool', True,
