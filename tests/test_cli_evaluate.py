@@ -160,6 +160,9 @@ class TestCompare:
             "results.json",
             "uncertainty.png",
             "table.png",
+            "runs.md",
+            "marl_eval.json",
+            "performance_profile.png",
         }
         assert "avg_uncertainty: F(1, 6)" in (out_dir / "anova.txt").read_text()
         # A second run refuses to overwrite, unless asked.

@@ -378,6 +378,9 @@ class TestCompareAndResolve:
             "results.json",
             "uncertainty.png",
             "table.png",
+            "runs.md",
+            "marl_eval.json",
+            "performance_profile.png",
         }
         payload = json.loads((tmp_path / "results.json").read_text())
         assert payload["table"]["random"]["avg_uncertainty"]["n"] == 4

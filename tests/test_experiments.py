@@ -27,6 +27,9 @@ EXPECTED_FILES = {
     "results.json",
     "uncertainty.png",
     "table.png",
+    "runs.md",
+    "marl_eval.json",
+    "performance_profile.png",
     "training.png",
     "estimator_loss.png",
     "experiment.yml",
@@ -63,6 +66,10 @@ def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
     assert trained and all((cell / "machine.yml").is_file() for cell in trained)  # who trained it
     assert "reproduce" in report and "--quick" in report  # the command that made it
     assert "sb3_pm " in report and "![" in report  # the code version and the figures
+    runs = (out / "runs.md").read_text()  # the aggregates over training runs, in the report first
+    assert "IQM" in runs and "95% CI" in runs and runs.strip() in report
+    assert report.index("## Across training runs") < report.index("One-way ANOVA")
+    assert "performance_profile.png" in report
     for cell in plan_cells(experiment, out):
         assert (Path(cell.folder) / "DONE").exists()
         if cell.variant["kind"] != "baseline":
@@ -1058,7 +1065,7 @@ def test_only_the_headline_acts_under_paper_50s_deploy_filter(tmp_path: Path, na
 def test_the_report_names_a_variants_own_training_budget(tmp_path: Path) -> None:
     from sb3_pm.experiments.report import write_report
 
-    for name in ("results.md", "anova.txt", "by_graph.md", "effects.md"):
+    for name in ("results.md", "anova.txt", "by_graph.md", "effects.md", "runs.md"):
         (tmp_path / name).write_text("x\n")
     (tmp_path / "command.txt").write_text("sb3-pm reproduce e\n")
     record = {

@@ -18,7 +18,8 @@ def register(subparsers: Any) -> None:
         help="compare policies over graphs x seeds x episodes",
         description=(
             "Evaluate every policy on every graph and seed, then write table.md/.csv/.tex, by_graph.md, "
-            "effects.md, anova.txt, results.json, uncertainty.png and table.png into --out."
+            "effects.md, anova.txt, runs.md (IQM and probability of improvement over training runs), "
+            "results.json, marl_eval.json, uncertainty.png, table.png and performance_profile.png into --out."
         ),
     )
     parser.add_argument(

@@ -23,6 +23,14 @@ from sb3_pm.evaluation.reports import (
     latex_table,
     markdown_table,
 )
+from sb3_pm.evaluation.run_statistics import (
+    RunStatistics,
+    marl_eval_record,
+    normalized_scores,
+    plot_performance_profile,
+    run_statistics,
+    run_statistics_markdown,
+)
 from sb3_pm.evaluation.statistics import (
     EXTRA_TABLE_METRICS,
     TABLE_METRICS,
@@ -97,15 +105,28 @@ class Comparison:
         reference = self.reference_policy
         return [] if reference is None else effects(self.results, reference)
 
+    def run_statistics(self) -> tuple[list[RunStatistics], str | None]:
+        """Every algorithm's aggregates over its training runs against :attr:`reference_policy`
+        (:mod:`sb3_pm.evaluation.run_statistics`), or why there are none."""
+        reference = self.reference_policy
+        if reference is None:
+            return [], "no results"
+        try:
+            return run_statistics(self.results, reference), None
+        except InputError as error:
+            return [], str(error)
+
     def write(self, out: str | Path) -> list[Path]:
         """Write ``table.md``, ``table.csv``, ``table.tex``, ``anova.txt``, ``by_graph.md``,
-        ``effects.md``, ``results.json``, ``uncertainty.png`` and ``table.png`` into ``out``
-        (created if needed)."""
+        ``effects.md``, ``runs.md``, ``results.json``, ``marl_eval.json``, ``uncertainty.png``,
+        ``table.png`` and ``performance_profile.png`` into ``out`` (created if needed)."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         table, effect_rows = self.table, self.effects
+        runs, missing = self.run_statistics()
         written = []
         for name, text in (
+            ("runs.md", f"No run statistics: {missing}\n" if missing else run_statistics_markdown(runs)),
             ("table.md", markdown_table(table)),
             ("table.csv", csv_table(table)),
             ("table.tex", latex_table(table, caption="Average uncertainty and neglect time")),
@@ -124,10 +145,17 @@ class Comparison:
                 for graph, results in self.anovas_by_graph.items()
             },
             "effects": [vars(e) for e in effect_rows],
+            "run_statistics": [vars(row) for row in runs],
             "results": {p: [r.to_dict() for r in rs] for p, rs in self.results.items()},
         }
         (out / "results.json").write_text(json.dumps(payload, indent=2, allow_nan=True))
         written.append(out / "results.json")
+        (out / "marl_eval.json").write_text(json.dumps(marl_eval_record(self.results), indent=1))
+        written.append(out / "marl_eval.json")
+        if missing is None and self.reference_policy is not None:
+            reference = self.reference_policy
+            scores = normalized_scores(self.results, reference, "avg_uncertainty")
+            written.append(plot_performance_profile(scores, reference, out / "performance_profile.png"))
         written.append(plot_uncertainty(self.results, out / "uncertainty.png"))
         written.append(plot_table(table, out / "table.png"))
         return written

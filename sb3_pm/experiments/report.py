@@ -1,8 +1,8 @@
 """``DIR/report.md``: one self-contained Markdown page per sweep, written by the runner.
 
-It gathers what the sweep's other files hold (command, protocol, pooled table, ANOVA, per-graph
-table, effects against the reference algorithm, figures) with the code version and the compute
-the cells took, so that a results document can quote it as it is.
+It gathers what the sweep's other files hold (command, protocol, the aggregates over training
+runs, pooled table, ANOVA, per-graph table, effects against the reference algorithm, figures)
+with the code version and the compute the cells took, so that a results document can quote it as it is.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Any
 from sb3_pm.version import __version__
 
 FIGURES = {
+    "performance_profile.png": "Performance profiles over training runs (normalized by the reference)",
     "uncertainty.png": "Summed target uncertainty over an evaluation episode (mean over episodes)",
     "training.png": "Training curves: episode avg_uncertainty per learner timestep",
     "estimator_loss.png": "Estimator loss during training",
@@ -96,11 +97,17 @@ def write_report(out: Path, record: dict[str, Any], cells: Sequence[Any], refere
         f"- compute: {seconds / 3600:.2f} h summed over {counted} cells (training + evaluation, "
         "as each cell recorded it)",
         "",
+        "## Across training runs",
+        "",
+        (out / "runs.md").read_text().strip(),
+        "",
         "## Table (every graph, seed and episode pooled)",
         "",
         (out / "results.md").read_text().strip(),
         "",
-        "One-way ANOVA across the algorithms:",
+        "One-way ANOVA across the algorithms, on pooled episodes (the paper's Table I test; episodes "
+        "of one trained team are not independent replicates of training, so the run statistics "
+        "above and the per-run p-values below are the ones to trust for training changes):",
         "",
         "```",
         (out / "anova.txt").read_text().strip(),

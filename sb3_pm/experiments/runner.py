@@ -16,8 +16,8 @@ Layout of the output folder::
                                 the cells (one job each) and deployed zero-shot on every graph
           DONE                  written last, with the checksum of the cell's files: a cell with
                                 a sound DONE is never run again, a damaged one runs again
-      results.md results.csv results.tex anova.txt by_graph.md effects.md results.json
-      uncertainty.png table.png training.png estimator_loss.png
+      results.md results.csv results.tex anova.txt by_graph.md effects.md runs.md results.json
+      marl_eval.json uncertainty.png table.png performance_profile.png training.png estimator_loss.png
       report.md                 all of the above on one page, with the code version and compute
 
 A cell is one job; jobs run on a local process pool or on Ray (:mod:`.backends`). An interrupted
