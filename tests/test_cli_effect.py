@@ -68,9 +68,15 @@ def test_paired_figures_match_scipy(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert f"p (episodes) {test.pvalue:.2g}" in out and f"p (runs) {runs.pvalue:.2g}" in out
     assert "paired by episode seed" in out
     assert f"p90 {np.percentile(a, 90):.1f}" in out and "at the cap 4/10" in out and "at the cap 0/10" in out
-    figures = json.loads(out_json.read_text())
+    payload = json.loads(out_json.read_text())
+    figures = payload["graphs"]
     assert figures[0]["effect"]["paired"] and figures[0]["policy"]["at_cap"] == 4
     assert figures[0]["policy"]["max_neglect"] == pytest.approx(2 * a.mean())
+    # Over runs: each run's mean divided by the reference's mean over its runs (two runs each).
+    scale = np.mean([np.mean(v) for v in theirs.values()])
+    run_means = sorted(np.mean(v) / scale for v in ours.values())
+    assert payload["runs"]["runs"] == 2 and payload["runs"]["iqm"] == pytest.approx(np.mean(run_means))
+    assert f"IQM {np.mean(run_means):.3f}" in out and "P(better than the reference)" in out
 
 
 def test_different_episodes_fall_back_to_welch(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -4,7 +4,9 @@ Reads evaluation records (``sb3-pm evaluate --json`` files, or sweep cells' ``ev
 and prints, per graph, the paired difference of a metric with its 95% interval, the p-values over
 episodes and over runs (:func:`~sb3_pm.evaluation.statistics.effect`, the test the sweep reports
 use), and each side's per-run means, 90th percentile, mean ``max_neglect`` and episodes that reached
-the cap. Episodes are paired by their env seed when both sides hold the same ones.
+the cap; then, over the runs of every shared graph, the policy's IQM relative to the reference and
+its probability of improvement (:mod:`sb3_pm.evaluation.run_statistics`). Episodes are paired by
+their env seed when both sides hold the same ones.
 """
 
 from __future__ import annotations
@@ -53,6 +55,33 @@ def _p(value: float) -> str:
     return "n/a" if math.isnan(value) else f"{value:.2g}"
 
 
+def _run_statistics(
+    policy: list[Any], reference: list[Any], graphs: list[str], metric: str, names: tuple[str, str]
+) -> dict[str, Any] | None:
+    """Print and return the policy's IQM and probability of improvement over the reference's runs
+    on the shared graphs (:mod:`sb3_pm.evaluation.run_statistics`), or say why there are none."""
+    from sb3_pm.errors import InputError
+    from sb3_pm.evaluation.run_statistics import run_statistics
+
+    label = names[0] if names[0] != names[1] else f"{names[0]} (policy)"
+    by_policy = {
+        label: [r for r in policy if r.graph in graphs],
+        names[1]: [r for r in reference if r.graph in graphs],
+    }
+    try:
+        row = run_statistics(by_policy, names[1], metric)[0]
+    except InputError as error:
+        print(f"over runs: none ({error})")
+        return None
+    print(
+        f"over runs ({row.runs} per graph, {row.graphs} graph(s), normalized by the reference): "
+        f"IQM {row.iqm:.3f} [{row.iqm_low:.3f}, {row.iqm_high:.3f}]  "
+        f"P(better than the reference) {row.improvement:.2f} "
+        f"[{row.improvement_low:.2f}, {row.improvement_high:.2f}]"
+    )
+    return asdict(row)
+
+
 def run(args: argparse.Namespace) -> int:
     from sb3_pm.errors import UsageError
     from sb3_pm.evaluation.records import load_record, tail
@@ -89,7 +118,9 @@ def run(args: argparse.Namespace) -> int:
         figures.append(
             {"graph": graph, "effect": asdict(e), "policy": asdict(ours), "reference": asdict(theirs)}
         )
+    runs = _run_statistics(policy, reference, graphs, args.metric, names)
     if args.json is not None:
-        args.json.write_text(json.dumps(figures, indent=1, default=float))
+        payload = {"graphs": figures, "runs": runs}
+        args.json.write_text(json.dumps(payload, indent=1, default=float))
         print(f"figures written to {args.json}", file=sys.stderr)
     return 0
