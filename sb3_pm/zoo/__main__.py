@@ -1,9 +1,7 @@
-"""``python -m sb3_pm.zoo``: rl-zoo's ``train`` with our algorithms registered (``dcbf_ppo``, ...).
+"""``python -m sb3_pm.zoo <command>``: rl-zoo's ``train``, ``enjoy``, ``record_video`` and
+``optimize`` with our algorithms, ids and configs, for example::
 
-Takes exactly rl-zoo's ``train`` arguments, for example::
-
-    python -m sb3_pm.zoo --algo dcbf_ppo --env sb3_pm/PersistentMonitoring-paper50-v0 \\
-        -conf zoo/dcbf_ppo.yml -n 2048
+    python -m sb3_pm.zoo train --algo dcbf_ppo --env sb3_pm/PersistentMonitoring-paper50-v0 -n 2048
 
 See :mod:`sb3_pm.zoo.rl_zoo`.
 """
