@@ -41,8 +41,8 @@ def launch(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
 def run_commands(folder: Path, algo: str, optimize: bool) -> None:
     """Every command for ``algo``, in ``folder`` (outside the repository), each exiting 0."""
     small = ["--hyperparams", "n_steps:250"] if algo != "dcbf_ppo" else []
-    steps = ["train", "--algo", algo, "--env", ENV_ID, "-n", "500", "-f", "logs", "--seed", "0", *small]
-    done = launch(folder, *steps)
+    steps = ["--algo", algo, "--env", ENV_ID, "-n", "500", "-f", "logs", "--seed", "0", *small]
+    done = launch(folder, "train", *steps)
     assert done.returncode == 0, done.stderr[-2000:]
     assert f"Loading hyperparameters from: {CONFIG_DIR / f'{algo}.yml'}" in done.stdout  # ours, no -conf
     acting = ["--algo", algo, "--env", ENV_ID, "-f", "logs"]
@@ -67,6 +67,15 @@ def test_every_command_of_dcbf_ppo_runs_outside_the_repository(tmp_path: Path) -
 @pytest.mark.parametrize("algo", ["ppo", "maskable_ppo", "dcbf_ppo"])
 def test_every_command_of_every_algorithm(tmp_path: Path, algo: str) -> None:
     run_commands(tmp_path, algo, optimize=True)
+
+
+def test_a_bad_command_or_config_is_one_line(tmp_path: Path) -> None:
+    for args, message in (
+        (["trian", "--algo", "ppo"], "unknown command 'trian'"),
+        (["train", "-conf", "nope"], "-conf 'nope'"),
+    ):
+        done = launch(tmp_path, *args)
+        assert done.returncode == 2 and message in done.stderr and len(done.stderr.strip().splitlines()) == 1
 
 
 def test_a_config_is_named_or_found_for_our_ids(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -147,13 +147,6 @@ def test_per_agent_overrides() -> None:
     assert team.models["agent_1"].lr_schedule(1.0) == pytest.approx(1e-4)
 
 
-def test_single_callback_object_rejected() -> None:
-    from stable_baselines3.common.callbacks import CheckpointCallback
-
-    with pytest.raises(TypeError, match="one callback object"):
-        make_team().learn(32, callback=CheckpointCallback(10, "/tmp/unused"))
-
-
 def test_predict_with_plain_ppo() -> None:
     team = make_team(algo="ppo")
     assert team.env_kwargs["illegal_action"] == "stay"

@@ -15,6 +15,8 @@ from typing import Any, ClassVar
 
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.logger import Logger, configure
+from stable_baselines3.common.utils import get_latest_run_id
 
 from sb3_pm.agents.deployment.rule import DeploymentRule
 from sb3_pm.agents.deployment.saved_teams import (
@@ -255,6 +257,51 @@ class LearnedTeam(DeploymentRule):
         if settings:
             self.set_filter(**settings)
         self._apply_deploy_filter()
+
+    # ---------------------------------------------------------- SB3-style access
+    #: the logger given to :meth:`set_logger`, if any
+    _custom_logger: Logger | None = None
+
+    def set_logger(self, logger: Logger) -> None:
+        """Log the team's own scalars and evaluations (the team callbacks of
+        :mod:`sb3_pm.agents.training.team_callbacks`) through ``logger``, an SB3 ``Logger``. Each
+        learner keeps its own logger, as SB3 gives each model one."""
+        self._custom_logger = logger
+
+    def team_logger(self, tb_log_name: str | None = None) -> Logger:
+        """The logger of the team's own scalars: :meth:`set_logger`'s, else a TensorBoard run
+        ``<tb_log_name>team_<i>`` beside the agents' runs when the team has a ``tensorboard_log``,
+        else one that writes nothing."""
+        if self._custom_logger is not None:
+            return self._custom_logger
+        folder = getattr(self, "tensorboard_log", None)
+        if folder is None:
+            return Logger(folder=None, output_formats=[])
+        name = f"{tb_log_name or ''}team"
+        run = Path(folder) / f"{name}_{get_latest_run_id(str(folder), name) + 1}"
+        return configure(str(run), ["tensorboard"])
+
+    def get_parameters(self) -> dict[str, dict[str, dict[str, th.Tensor]]]:
+        """``{model: its SB3 get_parameters()}``, one entry per model file (an agent's name for
+        ``IndependentPPO``)."""
+        return {
+            name.removesuffix(".zip"): model.get_parameters() for name, model in self.model_files().items()
+        }
+
+    def set_parameters(
+        self, parameters: Mapping[str, Mapping[str, Any]], exact_match: bool = True, device: str = "auto"
+    ) -> None:
+        """Load :meth:`get_parameters`'s output back, model by model (SB3's ``set_parameters``).
+
+        :raises InputError: for a model this team does not have, or (``exact_match``) one missing.
+        """
+        models = {name.removesuffix(".zip"): model for name, model in self.model_files().items()}
+        unknown = sorted(set(parameters) - set(models))
+        missing = sorted(set(models) - set(parameters))
+        if unknown or (exact_match and missing):
+            raise InputError(f"set_parameters: unknown models {unknown}, missing models {missing}")
+        for name, values in parameters.items():
+            models[name].set_parameters(dict(values), exact_match=exact_match, device=device)
 
     # ---------------------------------------------------------- save / load
     def model_files(self) -> dict[str, BaseAlgorithm]:

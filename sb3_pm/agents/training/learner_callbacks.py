@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 
@@ -81,20 +82,16 @@ CallbackArg = (
 
 def per_agent_callbacks(callback: CallbackArg, agents: Sequence[str]) -> list[BaseCallback | None]:
     """One callback (or None) per agent, in ``agents`` order, from a list, an ``{agent: callback}``
-    dict, a factory ``agent_name -> callback``, or a single callback for a one-agent team.
+    dict, a factory ``agent_name -> callback``, or one callback object: the first agent gets it
+    and every other agent a deep copy of it, as SB3 binds a callback to one model (each copy keeps
+    its own counters, and an ``EvalCallback`` copy its own evaluations).
 
-    :raises TypeError: for one callback object and several agents (it cannot serve them all).
     :raises InputError: for a list of the wrong length.
     """
     if callback is None:
         return [None] * len(agents)
     if isinstance(callback, BaseCallback):
-        if len(agents) == 1:
-            return [callback]
-        raise TypeError(
-            "one callback object cannot serve several learners; pass a list (one per agent), a "
-            "{agent: callback} dict or a factory agent_name -> callback"
-        )
+        return [callback] + [copy.deepcopy(callback) for _ in agents[1:]]
     if isinstance(callback, Mapping):
         return [callback.get(agent) for agent in agents]
     if callable(callback):

@@ -21,6 +21,7 @@ from sb3_pm.agents.multiplexing.update_slots import UpdateSlots, default_update_
 from sb3_pm.agents.training.checkpoints import CheckpointSchedule, TrainingInterrupted, checkpoint_at_barrier
 from sb3_pm.agents.training.learner_callbacks import CallbackArg, learner_callbacks, per_agent_callbacks
 from sb3_pm.agents.training.learners import learn_seed
+from sb3_pm.agents.training.team_callbacks import TeamScalars, split_team_callbacks
 
 logger = logging.getLogger(__name__)
 
@@ -60,7 +61,13 @@ def run_team_learning(
     else:
         team.hub.set_streams(None)
         set_random_seed(learn_seed(team.seed, team.num_timesteps))
-    user_callbacks = per_agent_callbacks(callback, team.agents)
+    learner_side, team_callbacks = split_team_callbacks(callback)
+    user_callbacks = per_agent_callbacks(learner_side, team.agents)
+    team_logger = team.team_logger(tb_log_name)
+    if team_logger.output_formats and not any(isinstance(c, TeamScalars) for c in team_callbacks):
+        team_callbacks = [TeamScalars(), *team_callbacks]  # the team's scalars beside the agents' runs
+    for team_callback in team_callbacks:
+        team_callback.init_callback(team, team_logger)
     learn_kwargs = []
     for agent, user in zip(team.agents, user_callbacks):
         learn_kwargs.append(
@@ -83,11 +90,18 @@ def run_team_learning(
             rollouts * rollout * team.n_agents, f"{team.algo} x{team.n_agents}", unit="agent-step"
         )
         team.hub.on_round = bar.update
-    team.hub.on_sync = lambda: checkpoint_at_barrier(team, checkpoints)
+    def on_sync() -> str | None:
+        reason = checkpoint_at_barrier(team, checkpoints)
+        for team_callback in team_callbacks:
+            team_callback.on_barrier()
+        return reason
+
+    team.hub.on_sync = on_sync
     batcher = team._rollout_batcher()
     if batcher is not None:
         batcher.attach()
     team.hub.update_slots = slots
+    errors: list[BaseException | None] = [KeyboardInterrupt()]  # until the learners return
     try:
         errors = learn_concurrently(
             [team.models[a] for a in team.agents],
@@ -108,6 +122,14 @@ def run_team_learning(
         load_stream(caller_stream)
         if bar is not None:
             bar.close()
+        failed = any(error is not None for error in errors)
+        if team_logger is not team._custom_logger and failed:  # else closed below, once written to
+            team_logger.close()
+    if not failed:
+        for team_callback in team_callbacks:
+            team_callback.on_training_end()
+        if team_logger is not team._custom_logger:
+            team_logger.close()
     raise_first_error(errors)
     if team.hub.aborted is not None:
         logger.warning("team training ended early: %s", team.hub.aborted)
