@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_pm.commands.options import check_writable
+from sb3_pm.files import write_atomic
 
 
 def register(subparsers: Any) -> None:
@@ -90,6 +91,6 @@ def run(args: argparse.Namespace) -> int:
             {"graph": graph, "effect": asdict(e), "policy": asdict(ours), "reference": asdict(theirs)}
         )
     if args.json is not None:
-        args.json.write_text(json.dumps(figures, indent=1, default=float))
+        write_atomic(args.json, json.dumps(figures, indent=1, default=float))
         print(f"figures written to {args.json}", file=sys.stderr)
     return 0

@@ -43,7 +43,7 @@ from sb3_pm.commands.run_folder import (
     locked_run_folder,
 )
 from sb3_pm.errors import InputError
-from sb3_pm.files import write_atomic
+from sb3_pm.files import append_atomic, write_atomic
 from sb3_pm.machine import write_machine_record
 
 
@@ -299,8 +299,7 @@ def resume(args: argparse.Namespace) -> int:
                 f"{time.strftime('%Y-%m-%dT%H:%M:%S')} resumed from {team.checkpoint} at step "
                 f"{team.num_timesteps}: {shlex.join(args.command_line)}\n"
             )
-            with (out / "resumed.txt").open("a") as handle:
-                handle.write(line)
+            append_atomic(out / "resumed.txt", line)
             print(
                 f"resuming {out} from {team.checkpoint}: {team.num_timesteps} steps per learner done, "
                 f"{team.remaining_timesteps} to go"

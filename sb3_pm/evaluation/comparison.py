@@ -35,6 +35,7 @@ from sb3_pm.evaluation.statistics import (
     summarize,
     summarize_by_graph,
 )
+from sb3_pm.files import write_atomic
 from sb3_pm.team_interface import Team
 
 SEED_STRIDE = 1000
@@ -113,7 +114,7 @@ class Comparison:
             ("by_graph.md", by_graph_markdown(self.by_graph)),
             ("effects.md", effects_markdown(effect_rows)),
         ):
-            (out / name).write_text(text)
+            write_atomic(out / name, text)
             written.append(out / name)
         payload = {
             "config": self.config,
@@ -126,7 +127,7 @@ class Comparison:
             "effects": [vars(e) for e in effect_rows],
             "results": {p: [r.to_dict() for r in rs] for p, rs in self.results.items()},
         }
-        (out / "results.json").write_text(json.dumps(payload, indent=2, allow_nan=True))
+        write_atomic(out / "results.json", json.dumps(payload, indent=2, allow_nan=True))
         written.append(out / "results.json")
         written.append(plot_uncertainty(self.results, out / "uncertainty.png"))
         written.append(plot_table(table, out / "table.png"))
