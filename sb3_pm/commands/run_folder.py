@@ -26,6 +26,7 @@ import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from sb3_pm.errors import Sb3PmError
 from sb3_pm.machine import MACHINE_RECORD
@@ -168,3 +169,53 @@ def locked_run_folder(folder: Path, overwrite: bool, resume: bool = False) -> It
         ]:  # --overwrite: the old run goes only once the lock is ours
             shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
         yield folder
+
+
+#: The staging folder of a run's final team save, renamed to ``team`` when whole.
+STAGING = ".team.tmp"
+
+
+def save_final_team(team: Any, out: Path) -> Path:
+    """Save a trained team to ``out/team``: into :data:`STAGING` first, renamed when whole, so a
+    run folder never holds half a team under the name ``team``.
+
+    A ``team/`` already there without its manifest is an earlier final save of this run that
+    failed; it is replaced (the caller holds the run's lock). When the save fails (a full disk),
+    the staging folder is removed, which frees the space that a checkpoint of the finished
+    training (:func:`keep_finished_training`) then needs, so that ``sb3-pm train --resume``
+    finishes the save without training again.
+
+    :raises RunFolderError: one line naming the folder, the reason and ``--resume``.
+    """
+    staging, final = out / STAGING, out / "team"
+    try:
+        if staging.exists():
+            shutil.rmtree(staging)  # a staging folder a crash left
+        team.save(staging)
+        if final.exists():
+            shutil.rmtree(final)
+        staging.rename(final)
+    except OSError as error:
+        shutil.rmtree(staging, ignore_errors=True)
+        reason = error.strerror or str(error)
+        kept = keep_finished_training(team, out)
+        raise RunFolderError(
+            f"saving the team to {final} failed ({reason}); {kept}: free space and finish the run "
+            f"with sb3-pm train --resume {out}"
+        ) from None
+    return final
+
+
+def keep_finished_training(team: Any, out: Path) -> str:
+    """Write a checkpoint of ``team`` as its training ended (``--resume`` then only saves it);
+    returns what was kept, for the error message. If that fails too, the last periodic checkpoint
+    is what ``--resume`` continues from (bit for bit: the same team, trained again from there)."""
+    from sb3_pm.agents.training.checkpoints import CHECKPOINTS, CheckpointSchedule, write_checkpoint
+
+    try:
+        folder = write_checkpoint(
+            team, CheckpointSchedule(out / CHECKPOINTS), team.num_timesteps // team.rollout_size
+        )
+    except OSError:  # the disk is still full: the error the caller raises says what is kept
+        return f"the run resumes from its last checkpoint in {out / CHECKPOINTS}"
+    return f"the finished training is kept as checkpoint {folder}"

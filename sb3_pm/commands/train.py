@@ -41,6 +41,7 @@ from sb3_pm.commands.run_folder import (
     in_use_message,
     lock_owner,
     locked_run_folder,
+    save_final_team,
 )
 from sb3_pm.errors import InputError
 from sb3_pm.files import append_atomic, write_atomic
@@ -347,7 +348,7 @@ def _learn_and_save(
             print(f"interrupted; the last checkpoint is {last}")
             print(f"continue with: sb3-pm train --resume {out}")
         return 130
-    folder = team.save(out / "team")
+    folder = save_final_team(team, out)  # a failed save keeps the training, for --resume
     print(f"team saved to {folder}")
     if graph.startswith("family:"):  # trained on no one graph: it is deployed on any
         graph = "paper-50"
