@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -60,6 +61,8 @@ def test_the_partial_episodes_equal_those_of_a_whole_run(monkeypatch) -> None:
     partial = stopped.value.result
     assert isinstance(stopped.value, KeyboardInterrupt) and stopped.value.exit_status == 130
     assert [r.metrics for r in partial.episodes] == [r.metrics for r in whole.episodes[:2]]
+    copy = pickle.loads(pickle.dumps(stopped.value))  # as a sweep's worker process sends it
+    assert isinstance(copy, EvaluationInterrupted) and len(copy.result.episodes) == 2
     restored = EvaluationResult.from_dict(partial.to_dict(traces=True))
     assert restored.partial and restored.episodes_requested == 3
     assert not whole.partial and "partial" not in whole.to_dict()

@@ -165,6 +165,11 @@ def run(args: argparse.Namespace) -> int:
         check_ray(args.ray_address)
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out} exists and is not a directory")
+    if args.update_device is not None:  # before the folder is created and hours of training start
+        from sb3_pm.experiments.runner import check_update_device_takers, plan_cells
+
+        cells = plan_cells(experiment, args.out, device=args.device, update_device=args.update_device)
+        check_update_device_takers(args.update_device, cells)
     check_sweep_folder(args.out, experiment)  # before the folder is created: a refusal leaves nothing
     args.out.mkdir(parents=True, exist_ok=True)
     # SIGTERM ends the sweep like Ctrl-C: the workers are terminated with it (a SIGKILLed parent's

@@ -164,11 +164,15 @@ class EvaluationInterrupted(KeyboardInterrupt):
     interrupt's own (130 for Ctrl-C unless the interrupt carried another, e.g. 143 for SIGTERM).
     """
 
-    def __init__(self, result: EvaluationResult, interrupt: BaseException) -> None:
+    def __init__(self, result: EvaluationResult, exit_status: int = 130) -> None:
         finished = len(result.episodes)
         super().__init__(f"interrupted after {finished} of {result.episodes_requested} episodes")
         self.result = result
-        self.exit_status = int(getattr(interrupt, "exit_status", 130))
+        self.exit_status = int(exit_status)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # as its arguments, not its message: a sweep's worker process sends it to the parent pickled
+        return type(self), (self.result, self.exit_status)
 
 
 def _defined_mean(values: np.ndarray) -> float:
@@ -278,7 +282,7 @@ def evaluate(
     except KeyboardInterrupt as interrupt:
         # The episodes that finished are whole results: kept, marked partial, for the caller to save.
         partial = _result(team, graph, policy_name, run, records, calibration, requested=episodes)
-        raise EvaluationInterrupted(partial, interrupt) from interrupt
+        raise EvaluationInterrupted(partial, getattr(interrupt, "exit_status", 130)) from interrupt
     except BaseException:
         if calibration is not None:  # e.g. a graph the team refuses: the bound is not its site's
             from sb3_pm.evaluation.neglect_calibration import unsettle_site_bound
