@@ -120,7 +120,9 @@ def sweep_folder_problem(folder: Path) -> str | None:
 
 
 def in_use_message(folder: Path, owner: str) -> str:
-    return f"run folder {folder} is in use by process {owner}; wait for it to end or choose another --out"
+    """One line: ``folder``'s lock is held by ``owner`` (``pid@host``, or a holder that wrote none)."""
+    who = f"process {owner}" if "@" in owner else owner
+    return f"run folder {folder} is in use by {who}; wait for it to end or choose another --out"
 
 
 @contextmanager
