@@ -283,12 +283,24 @@ def print_summary(result: Any, stream: Any = None) -> None:
     Console(file=stream, width=100).print(table)
 
 
+def record_run(result: Any, args: argparse.Namespace, team: Any, acting_filter: Any, calibration: Any) -> Any:
+    """Put the graph as given, how often the filter forced moves and a calibrated bound into the
+    result's config (evaluate() recorded the bound the team acted under, if any); returns the
+    filter activity, or None."""
+    result.config["graph"] = str(args.graph)
+    activity = team.filter_activity() if acting_filter is not None else None
+    if activity is not None:
+        result.config["filter_activity"] = activity
+    if calibration is not None:
+        result.config["neglect_calibration"] = calibration.to_dict()
+    return activity
+
+
 def keep_partial(args: argparse.Namespace, stop: Any) -> int:
     """Ctrl-C or SIGTERM during the episodes: print the finished ones' summary, write them to
     ``--json`` marked partial (``"partial": true``, ``"episodes_finished"``; a file that had none
     is left as it was), say so in one line, and return the interrupt's exit status (130, 143)."""
     result = stop.result
-    result.config["graph"] = str(args.graph)
     finished, requested = len(result.episodes), result.episodes_requested
     if finished:
         print_summary(result)
@@ -391,14 +403,9 @@ def run(args: argparse.Namespace) -> int:
                 settle_since=settle_since(args),
             )
     except EvaluationInterrupted as stop:
+        record_run(stop.result, args, team, acting_filter, calibration)
         return keep_partial(args, stop)
-    result.config["graph"] = str(args.graph)
-    # evaluate() recorded the bound the team acted under (neglect_bound, neglect_scope), if any
-    activity = team.filter_activity() if acting_filter is not None else None
-    if activity is not None:
-        result.config["filter_activity"] = activity
-    if calibration is not None:
-        result.config["neglect_calibration"] = calibration.to_dict()
+    activity = record_run(result, args, team, acting_filter, calibration)
     print_summary(result)
     if activity is not None:
         share = activity["forced"] / max(1, activity["masks"])
