@@ -12,6 +12,7 @@ import argparse
 import importlib
 import sys
 
+from sb3_pm.commands.interrupts import exit_status
 from sb3_pm.errors import Sb3PmError, UsageError
 from sb3_pm.version import __version__
 
@@ -54,9 +55,9 @@ def main(argv: list[str] | None = None) -> int:
             where = f" {error.filename}:" if error.filename else ""
             print(f"sb3-pm {args.command}: error:{where} {error.strerror}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:  # Ctrl-C: 130; SIGTERM where a command handles it: 143
         print(f"sb3-pm {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return exit_status(interrupt)
 
 
 if __name__ == "__main__":

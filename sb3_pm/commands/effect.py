@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_pm.commands.options import check_writable
+from sb3_pm.files import write_atomic
 
 
 def register(subparsers: Any) -> None:
@@ -121,6 +122,6 @@ def run(args: argparse.Namespace) -> int:
     runs = _run_statistics(policy, reference, graphs, args.metric, names)
     if args.json is not None:
         payload = {"graphs": figures, "runs": runs}
-        args.json.write_text(json.dumps(payload, indent=1, default=float))
+        write_atomic(args.json, json.dumps(payload, indent=1, default=float))
         print(f"figures written to {args.json}", file=sys.stderr)
     return 0

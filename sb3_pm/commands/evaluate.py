@@ -8,7 +8,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sb3_pm.commands.interrupts import sigterm_as_interrupt
 from sb3_pm.commands.options import add_compute_options, check_compute_options, check_writable
+from sb3_pm.files import write_atomic
 
 #: ``--settling`` given without SINCE. Not a string, which argparse would pass through ``type=int``,
 #: and not an int, so that ``--settling -1`` is refused like any other value out of range.
@@ -281,9 +283,41 @@ def print_summary(result: Any, stream: Any = None) -> None:
     Console(file=stream, width=100).print(table)
 
 
+def record_run(result: Any, args: argparse.Namespace, team: Any, acting_filter: Any, calibration: Any) -> Any:
+    """Put the graph as given, how often the filter forced moves and a calibrated bound into the
+    result's config (evaluate() recorded the bound the team acted under, if any); returns the
+    filter activity, or None."""
+    result.config["graph"] = str(args.graph)
+    activity = team.filter_activity() if acting_filter is not None else None
+    if activity is not None:
+        result.config["filter_activity"] = activity
+    if calibration is not None:
+        result.config["neglect_calibration"] = calibration.to_dict()
+    return activity
+
+
+def keep_partial(args: argparse.Namespace, stop: Any) -> int:
+    """Ctrl-C or SIGTERM during the episodes: print the finished ones' summary, write them to
+    ``--json`` marked partial (``"partial": true``, ``"episodes_finished"``; a file that had none
+    is left as it was), say so in one line, and return the interrupt's exit status (130, 143)."""
+    result = stop.result
+    finished, requested = len(result.episodes), result.episodes_requested
+    if finished:
+        print_summary(result)
+    if args.json is None:
+        kept = "no --json given to keep them" if finished else "nothing to keep"
+    elif not finished:
+        kept = f"{args.json} left as it was"
+    else:
+        write_atomic(args.json, json.dumps(result.to_dict(), indent=2))
+        kept = f"wrote them to {args.json}, marked partial"
+    print(f"sb3-pm evaluate: interrupted after {finished} of {requested} episodes; {kept}", file=sys.stderr)
+    return int(stop.exit_status)
+
+
 def run(args: argparse.Namespace) -> int:
     from sb3_pm.errors import InputError, UsageError
-    from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
+    from sb3_pm.evaluation import EvaluationInterrupted, evaluate, policy_label, record_gif, resolve_team
     from sb3_pm.graphs import resolve_graph
 
     check_counts(args)
@@ -352,27 +386,26 @@ def run(args: argparse.Namespace) -> int:
             "(--deterministic for the most likely action)",
             file=sys.stderr,
         )
-    result = evaluate(
-        team,
-        graph,
-        n_agents=args.agents,
-        episodes=args.episodes,
-        seed=args.seed,
-        max_cycles=args.steps,
-        env_kwargs=env_kwargs,
-        progress=None if long_run and not args.no_progress else False,
-        policy_name=label,
-        deterministic=deterministic,
-        threads=args.threads,
-        settle_since=settle_since(args),
-    )
-    result.config["graph"] = str(args.graph)
-    # evaluate() recorded the bound the team acted under (neglect_bound, neglect_scope), if any
-    activity = team.filter_activity() if acting_filter is not None else None
-    if activity is not None:
-        result.config["filter_activity"] = activity
-    if calibration is not None:
-        result.config["neglect_calibration"] = calibration.to_dict()
+    try:
+        with sigterm_as_interrupt():
+            result = evaluate(
+                team,
+                graph,
+                n_agents=args.agents,
+                episodes=args.episodes,
+                seed=args.seed,
+                max_cycles=args.steps,
+                env_kwargs=env_kwargs,
+                progress=None if long_run and not args.no_progress else False,
+                policy_name=label,
+                deterministic=deterministic,
+                threads=args.threads,
+                settle_since=settle_since(args),
+            )
+    except EvaluationInterrupted as stop:
+        record_run(stop.result, args, team, acting_filter, calibration)
+        return keep_partial(args, stop)
+    activity = record_run(result, args, team, acting_filter, calibration)
     print_summary(result)
     if activity is not None:
         share = activity["forced"] / max(1, activity["masks"])
@@ -388,21 +421,22 @@ def run(args: argparse.Namespace) -> int:
         )
         print(settling_table(result.episodes))
     if args.json is not None:
-        args.json.write_text(json.dumps(result.to_dict(), indent=2))
+        write_atomic(args.json, json.dumps(result.to_dict(), indent=2))
         print(f"wrote {args.json}", file=sys.stderr)
     if args.gif is not None:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
         apply_temperature(gif_team, args.temperature, args.stochastic)
-        record_gif(
-            gif_team,
-            graph,
-            args.gif,
-            n_agents=args.agents,
-            seed=args.seed,
-            max_cycles=args.steps,
-            env_kwargs=env_kwargs,
-            deterministic=deterministic,
-        )
+        with sigterm_as_interrupt():  # a stopped GIF leaves the previous file, and no temporary one
+            record_gif(
+                gif_team,
+                graph,
+                args.gif,
+                n_agents=args.agents,
+                seed=args.seed,
+                max_cycles=args.steps,
+                env_kwargs=env_kwargs,
+                deterministic=deterministic,
+            )
         print(f"wrote {args.gif}", file=sys.stderr)
     return 0

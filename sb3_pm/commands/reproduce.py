@@ -96,7 +96,40 @@ def _exit_on_sigterm(signum: int, frame: Any) -> None:
     raise SystemExit(128 + signum)
 
 
+def check_sweep_folder(out: Path, experiment: Any) -> None:
+    """``--out`` may take this sweep: no other process holds its lock, it is new, empty or a
+    sweep's folder (:func:`~sb3_pm.commands.run_folder.sweep_folder_problem`), and a sweep's
+    folder holds this very experiment (to resume it).
+
+    :raises UsageError: naming the folder and what to do.
+    """
+    import yaml
+
+    from sb3_pm.commands.run_folder import SWEEP_RECORD, in_use_message, lock_owner, sweep_folder_problem
+    from sb3_pm.errors import UsageError
+    from sb3_pm.experiments.runner import experiment_record
+
+    owner = lock_owner(out) if out.is_dir() else None
+    if owner is not None:
+        raise UsageError(in_use_message(out, owner))
+    problem = sweep_folder_problem(out)
+    if problem is not None:
+        raise UsageError(problem)
+    record = out / SWEEP_RECORD
+    if record.is_file():
+        try:
+            previous = yaml.safe_load(record.read_text())
+        except yaml.YAMLError as error:
+            raise UsageError(f"{record} is not valid YAML ({error}); choose another --out") from None
+        if previous != yaml.safe_load(yaml.safe_dump(experiment_record(experiment), sort_keys=False)):
+            raise UsageError(
+                f"{out} holds a different experiment ({record}); resume with the same file and flags, "
+                "or choose another --out"
+            )
+
+
 def run(args: argparse.Namespace) -> int:
+    from sb3_pm.commands.run_folder import RunFolderError, held_lock
     from sb3_pm.errors import UsageError
     from sb3_pm.experiments import load_experiment, reproduce
     from sb3_pm.graphs import resolve_graph
@@ -132,32 +165,32 @@ def run(args: argparse.Namespace) -> int:
         check_ray(args.ray_address)
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out} exists and is not a directory")
-    record = args.out / "experiment.yml"
-    if record.exists():
-        import yaml
+    if args.update_device is not None:  # before the folder is created and hours of training start
+        from sb3_pm.experiments.runner import check_update_device_takers, plan_cells
 
-        from sb3_pm.experiments.runner import experiment_record
-
-        previous = yaml.safe_load(record.read_text())
-        if previous != yaml.safe_load(yaml.safe_dump(experiment_record(experiment), sort_keys=False)):
-            raise FileExistsError(
-                f"{args.out} holds a different experiment ({record}); resume with the same file and flags, "
-                "or choose another --out"
-            )
+        cells = plan_cells(experiment, args.out, device=args.device, update_device=args.update_device)
+        check_update_device_takers(args.update_device, cells)
+    check_sweep_folder(args.out, experiment)  # before the folder is created: a refusal leaves nothing
+    args.out.mkdir(parents=True, exist_ok=True)
     # SIGTERM ends the sweep like Ctrl-C: the workers are terminated with it (a SIGKILLed parent's
     # workers notice on their own, see sb3_pm.experiments.backends.exit_with_parent).
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
-    comparison = reproduce(
-        experiment,
-        args.out,
-        backend=args.backend,
-        n_jobs=args.jobs,
-        ray_address=args.ray_address,
-        progress=not args.no_progress,
-        command=getattr(args, "command_line", None),
-        device=args.device,
-        update_device=args.update_device,
-    )
+    try:
+        with held_lock(args.out):  # the whole sweep: a second one on --out is refused, not run twice
+            check_sweep_folder(args.out, experiment)  # again, now that no other sweep can write it
+            comparison = reproduce(
+                experiment,
+                args.out,
+                backend=args.backend,
+                n_jobs=args.jobs,
+                ray_address=args.ray_address,
+                progress=not args.no_progress,
+                command=getattr(args, "command_line", None),
+                device=args.device,
+                update_device=args.update_device,
+            )
+    except RunFolderError as error:
+        raise UsageError(str(error)) from None
     from sb3_pm.evaluation import markdown_table
 
     print(markdown_table(comparison.table))

@@ -41,9 +41,10 @@ from sb3_pm.commands.run_folder import (
     in_use_message,
     lock_owner,
     locked_run_folder,
+    save_final_team,
 )
 from sb3_pm.errors import InputError
-from sb3_pm.files import write_atomic
+from sb3_pm.files import append_atomic, write_atomic
 from sb3_pm.machine import write_machine_record
 
 
@@ -299,8 +300,7 @@ def resume(args: argparse.Namespace) -> int:
                 f"{time.strftime('%Y-%m-%dT%H:%M:%S')} resumed from {team.checkpoint} at step "
                 f"{team.num_timesteps}: {shlex.join(args.command_line)}\n"
             )
-            with (out / "resumed.txt").open("a") as handle:
-                handle.write(line)
+            append_atomic(out / "resumed.txt", line)
             print(
                 f"resuming {out} from {team.checkpoint}: {team.num_timesteps} steps per learner done, "
                 f"{team.remaining_timesteps} to go"
@@ -348,7 +348,7 @@ def _learn_and_save(
             print(f"interrupted; the last checkpoint is {last}")
             print(f"continue with: sb3-pm train --resume {out}")
         return 130
-    folder = team.save(out / "team")
+    folder = save_final_team(team, out)  # a failed save keeps the training, for --resume
     print(f"team saved to {folder}")
     if graph.startswith("family:"):  # trained on no one graph: it is deployed on any
         graph = "paper-50"

@@ -6,7 +6,14 @@ of policies x graphs x seeds, and :class:`Comparison` writes its reports.
 
 from sb3_pm.evaluation.comparison import SEED_STRIDE, Comparison, compare
 from sb3_pm.evaluation.gif import record_gif
-from sb3_pm.evaluation.harness import EpisodeRecord, EvaluationResult, evaluate, run_episode, team_seed
+from sb3_pm.evaluation.harness import (
+    EpisodeRecord,
+    EvaluationInterrupted,
+    EvaluationResult,
+    evaluate,
+    run_episode,
+    team_seed,
+)
 from sb3_pm.evaluation.plots import plot_table, plot_uncertainty
 from sb3_pm.evaluation.reports import (
     anova_text,
@@ -37,6 +44,7 @@ __all__ = [
     "Comparison",
     "Effect",
     "EpisodeRecord",
+    "EvaluationInterrupted",
     "EvaluationResult",
     "PolicyError",
     "Summary",

@@ -43,6 +43,7 @@ from sb3_pm.evaluation.statistics import (
     summarize,
     summarize_by_graph,
 )
+from sb3_pm.files import write_atomic
 from sb3_pm.team_interface import Team
 
 SEED_STRIDE = 1000
@@ -134,7 +135,7 @@ class Comparison:
             ("by_graph.md", by_graph_markdown(self.by_graph)),
             ("effects.md", effects_markdown(effect_rows)),
         ):
-            (out / name).write_text(text)
+            write_atomic(out / name, text)
             written.append(out / name)
         payload = {
             "config": self.config,
@@ -148,9 +149,9 @@ class Comparison:
             "run_statistics": [vars(row) for row in runs],
             "results": {p: [r.to_dict() for r in rs] for p, rs in self.results.items()},
         }
-        (out / "results.json").write_text(json.dumps(payload, indent=2, allow_nan=True))
+        write_atomic(out / "results.json", json.dumps(payload, indent=2, allow_nan=True))
         written.append(out / "results.json")
-        (out / "marl_eval.json").write_text(json.dumps(marl_eval_record(self.results), indent=1))
+        write_atomic(out / "marl_eval.json", json.dumps(marl_eval_record(self.results), indent=1))
         written.append(out / "marl_eval.json")
         if missing is None and self.reference_policy is not None:
             reference = self.reference_policy

@@ -61,12 +61,21 @@ class EvaluationResult:
     :ivar policy: the team's name.
     :ivar graph: the graph's label (preset name or file stem).
     :ivar config: how the run was made (agents, steps, episodes, seed, env kwargs).
+    :ivar episodes_requested: for an evaluation stopped before its end (Ctrl-C, SIGTERM:
+        :class:`EvaluationInterrupted`), the number of episodes it was asked for; ``None`` for a
+        complete one. ``episodes`` then holds the finished episodes only.
     """
 
     policy: str
     graph: str
     config: dict[str, Any]
     episodes: list[EpisodeRecord]
+    episodes_requested: int | None = None
+
+    @property
+    def partial(self) -> bool:
+        """Whether this evaluation was stopped before all its episodes finished."""
+        return self.episodes_requested is not None and len(self.episodes) < self.episodes_requested
 
     @property
     def metric_names(self) -> list[str]:
@@ -98,6 +107,9 @@ class EvaluationResult:
     def to_dict(self, traces: bool = False) -> dict[str, Any]:
         """``{"episodes": [...], "mean": {...}, "std": {...}, "config": {...}}`` (the ``--json`` schema).
 
+        A :attr:`partial` result also says ``"partial": true``, ``"episodes_finished"`` and
+        ``"episodes_requested"`` (``config["episodes"]`` stays the number asked for).
+
         :param traces: also store each episode's uncertainty trace (``"traces"``), so that
             :meth:`from_dict` restores the result completely.
         """
@@ -107,6 +119,10 @@ class EvaluationResult:
             "std": self.std,
             "config": dict(self.config),
         }
+        if self.partial:
+            payload.update(
+                partial=True, episodes_finished=len(self.episodes), episodes_requested=self.episodes_requested
+            )
         if traces:
             payload["traces"] = [record.trace.tolist() for record in self.episodes]
         if any(record.settling is not None for record in self.episodes):
@@ -129,7 +145,34 @@ class EvaluationResult:
             record.settling = None if settled is None else Settling.from_dict(settled)
             records.append(record)
         config = payload["config"]
-        return cls(policy=config["policy"], graph=config["graph"], config=config, episodes=records)
+        requested = payload.get("episodes_requested") if payload.get("partial") else None
+        return cls(
+            policy=config["policy"],
+            graph=config["graph"],
+            config=config,
+            episodes=records,
+            episodes_requested=None if requested is None else int(requested),
+        )
+
+
+class EvaluationInterrupted(KeyboardInterrupt):
+    """:func:`evaluate` stopped by Ctrl-C (or a ``KeyboardInterrupt`` raised for SIGTERM): the
+    episodes it finished, as a :attr:`~EvaluationResult.partial` ``result``.
+
+    A ``KeyboardInterrupt`` still, so code that stops on Ctrl-C stops here too; code that keeps
+    what was finished (``sb3-pm evaluate --json``) catches this one. ``exit_status`` is the
+    interrupt's own (130 for Ctrl-C unless the interrupt carried another, e.g. 143 for SIGTERM).
+    """
+
+    def __init__(self, result: EvaluationResult, exit_status: int = 130) -> None:
+        finished = len(result.episodes)
+        super().__init__(f"interrupted after {finished} of {result.episodes_requested} episodes")
+        self.result = result
+        self.exit_status = int(exit_status)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # as its arguments, not its message: a sweep's worker process sends it to the parent pickled
+        return type(self), (self.result, self.exit_status)
 
 
 def _defined_mean(values: np.ndarray) -> float:
@@ -190,6 +233,8 @@ def evaluate(
         ``settle_since`` steps (each record's ``settling``; :mod:`sb3_pm.evaluation.settling`);
         ``None`` (default) records nothing.
     :raises ValueError: for ``episodes < 1``, ``threads < 1`` or bad environment arguments.
+    :raises EvaluationInterrupted: on Ctrl-C (a ``KeyboardInterrupt``) during the episodes, with the
+        episodes that finished before it as a partial result.
     """
 
     if episodes < 1:
@@ -213,6 +258,14 @@ def evaluate(
 
         calibration = settle_site_bound(team, spec, n_agents, kwargs, max_cycles)
     env = team.make_env(spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs)
+    run = {
+        "n_agents": n_agents,
+        "max_cycles": max_cycles,
+        "episodes": episodes,
+        "seed": seed,
+        "env_kwargs": kwargs,
+        "deterministic": deterministic,
+    }
     records: list[EpisodeRecord] = []
     bar = _progress_bar(
         episodes * max_cycles, progress, f"{policy_name or team.name} on {graph_label(graph)}"
@@ -226,6 +279,10 @@ def evaluate(
                     run_episode(team, env, env_seed, bar, deterministic=deterministic, recorder=recorder)
                 )
                 records[-1].episode = episode
+    except KeyboardInterrupt as interrupt:
+        # The episodes that finished are whole results: kept, marked partial, for the caller to save.
+        partial = _result(team, graph, policy_name, run, records, calibration, requested=episodes)
+        raise EvaluationInterrupted(partial, getattr(interrupt, "exit_status", 130)) from interrupt
     except BaseException:
         if calibration is not None:  # e.g. a graph the team refuses: the bound is not its site's
             from sb3_pm.evaluation.neglect_calibration import unsettle_site_bound
@@ -236,22 +293,27 @@ def evaluate(
         if bar is not None:
             bar.close()
         env.close()
+    return _result(team, graph, policy_name, run, records, calibration)
+
+
+def _result(
+    team: Team,
+    graph: GraphLike,
+    policy_name: str | None,
+    run: dict[str, Any],
+    records: list[EpisodeRecord],
+    calibration: Any,
+    requested: int | None = None,
+) -> EvaluationResult:
+    """The :class:`EvaluationResult` of ``records``, its config saying how the run was made
+    (``run``: sizes, seed, env settings, acting rule); ``requested``: see ``episodes_requested``."""
     label, graph_name = policy_name or team.name, graph_label(graph)
-    config: dict[str, Any] = {
-        "policy": label,
-        "graph": graph_name,
-        "n_agents": n_agents,
-        "max_cycles": max_cycles,
-        "episodes": episodes,
-        "seed": seed,
-        "env_kwargs": kwargs,
-        "deterministic": deterministic,
-    }
+    config: dict[str, Any] = {"policy": label, "graph": graph_name, **run}
     # what a learned team sampled at, and the neglect bound it acted under (rule 8)
-    config.update(team.acting_record(deterministic))
+    config.update(team.acting_record(run["deterministic"]))
     if calibration is not None:  # how its deploy_filter auto found that bound (or none) here
         config["neglect_calibration"] = calibration.to_dict()
-    return EvaluationResult(policy=label, graph=graph_name, config=config, episodes=records)
+    return EvaluationResult(label, graph_name, config, records, episodes_requested=requested)
 
 
 @contextmanager
@@ -278,11 +340,12 @@ def run_episode(
     env: Any,
     env_seed: int,
     bar: Any = None,
-    frames: list | None = None,
+    frames: Any = None,
     deterministic: bool = True,
     recorder: SettlingRecorder | None = None,
 ) -> EpisodeRecord:
-    """Play one episode of ``env`` with ``team``; append rendered frames to ``frames`` if given,
+    """Play one episode of ``env`` with ``team``; hand each rendered frame to ``frames.append`` if
+    given (a list, or a writer that streams them to disk: :class:`~sb3_pm.evaluation.gif.GifWriter`),
     and let ``recorder`` see the env after every step (the record's ``settling`` is its result)."""
     observations, _ = env.reset(seed=env_seed)
     t_seed = team_seed(env_seed)

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from sb3_pm.evaluation.harness import EvaluationResult
 from sb3_pm.evaluation.statistics import Summary, split_by_graph
+from sb3_pm.files import atomic_path
 
 
 def _pyplot():  # type: ignore[no-untyped-def]
@@ -18,6 +20,16 @@ def _pyplot():  # type: ignore[no-untyped-def]
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_figure(figure: Any, path: str | Path, **kwargs: Any) -> Path:
+    """``figure.savefig`` through a temporary file renamed over ``path``
+    (:func:`~sb3_pm.files.atomic_path`): a full disk leaves the previous picture, not half of one.
+    The format is the one ``path``'s suffix names (the temporary name has none of its own)."""
+    path = Path(path)
+    with atomic_path(path) as temporary:
+        figure.savefig(temporary, format=path.suffix.lstrip(".") or None, **kwargs)
+    return path
 
 
 #: Above this many lines a legend goes beside the axes instead of over the curves.
@@ -91,7 +103,7 @@ def plot_uncertainty(
         figure.suptitle(title or "Target uncertainty over an episode")
     figure.tight_layout()
     path = Path(path)
-    figure.savefig(path, bbox_inches="tight")
+    save_figure(figure, path, bbox_inches="tight")
     plt.close(figure)
     return path
 
@@ -113,6 +125,6 @@ def plot_table(table: Mapping[str, Mapping[str, Summary]], path: str | Path) -> 
         ax.grid(axis="y", alpha=0.3)
     figure.tight_layout()
     path = Path(path)
-    figure.savefig(path)
+    save_figure(figure, path)
     plt.close(figure)
     return path

@@ -227,6 +227,8 @@ def plot_performance_profile(scores: Mapping[str, np.ndarray], reference: str, p
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from sb3_pm.evaluation.plots import save_figure
+
     everything = np.concatenate([s.reshape(-1) for s in scores.values()])
     taus = np.linspace(max(0.0, float(everything.min()) * 0.9), float(everything.max()) * 1.1, 101)
     figure, axes = plt.subplots(figsize=(6, 4))
@@ -245,7 +247,7 @@ def plot_performance_profile(scores: Mapping[str, np.ndarray], reference: str, p
     axes.set_ylabel("fraction of runs with score ≤ τ")
     axes.legend(fontsize="small")
     figure.tight_layout()
-    figure.savefig(path, dpi=120)
+    save_figure(figure, path, dpi=120)
     plt.close(figure)
     return path
 

@@ -59,7 +59,7 @@ def plot_training_curves(cells: Sequence[Any], out: Path) -> list[Path]:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from sb3_pm.evaluation.plots import add_legend, line_colors
+    from sb3_pm.evaluation.plots import add_legend, line_colors, save_figure
     from sb3_pm.graphs import graph_label
 
     written = []
@@ -90,7 +90,7 @@ def plot_training_curves(cells: Sequence[Any], out: Path) -> list[Path]:
         add_legend(axes_row[0][-1], len(labels))
         figure.suptitle(f"{tag} during training (mean over seeds and agents)")
         figure.tight_layout()
-        figure.savefig(out / filename, dpi=100, bbox_inches="tight")
+        save_figure(figure, out / filename, dpi=100, bbox_inches="tight")
         plt.close(figure)
         written.append(out / filename)
     return written

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from sb3_pm.files import write_atomic
 from sb3_pm.version import __version__
 
 FIGURES = {
@@ -128,5 +129,5 @@ def write_report(out: Path, record: dict[str, Any], cells: Sequence[Any], refere
         if (out / name).exists():
             lines += [f"![{caption}]({name})", ""]
     path = out / "report.md"
-    path.write_text("\n".join(lines))
+    write_atomic(path, "\n".join(lines))
     return path

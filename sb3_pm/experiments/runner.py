@@ -47,7 +47,7 @@ from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.record import EVAL_SEED_OFFSET, experiment_record, team_rules
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant, variant_config
-from sb3_pm.files import move_aside
+from sb3_pm.files import move_aside, write_atomic
 from sb3_pm.graphs import graph_label
 from sb3_pm.machine import usable_cores, write_machine_record
 
@@ -353,7 +353,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         "seconds": time.time() - started,
         "code": code_version(),
     }
-    (folder / "evaluation.json").write_text(json.dumps(payload, indent=2))
+    write_atomic(folder / "evaluation.json", json.dumps(payload, indent=2))
     write_done(folder)
     return payload
 
@@ -380,8 +380,8 @@ def reproduce(
     if update_device is not None:  # before the folder is written and hours of training start
         check_update_device_takers(update_device, cells)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
-    (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
+    write_atomic(out / "experiment.yml", yaml.safe_dump(experiment_record(experiment), sort_keys=False))
+    write_atomic(out / "command.txt", shlex.join(command or sys.argv) + "\n")
     for cell in cells:
         damage = reopen_damaged_cell(Path(cell.folder)) if cell.done else None
         if damage is not None:

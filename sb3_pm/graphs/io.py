@@ -7,6 +7,7 @@ from pathlib import Path
 import networkx as nx
 import numpy as np
 
+from sb3_pm.files import atomic_path
 from sb3_pm.graphs.spec import GraphError, GraphSpec
 
 
@@ -84,5 +85,6 @@ def save_graphml(spec: GraphSpec, path: str | Path, overwrite: bool = False) -> 
     ids = spec.node_ids or tuple(str(i) for i in range(spec.n_nodes))
     graph = nx.relabel_nodes(spec.to_networkx(), dict(enumerate(ids)))
     path.parent.mkdir(parents=True, exist_ok=True)
-    nx.write_graphml(graph, path)
+    with atomic_path(path) as temporary:
+        nx.write_graphml(graph, temporary)
     return path

@@ -13,6 +13,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from sb3_pm.files import write_atomic
 from sb3_pm.zoo.schema import EXPERIMENT_SECTIONS, SECTIONS, Key, Section
 
 
@@ -68,7 +69,7 @@ def main(argv: list[str]) -> int:
     """Print the tables, or (``--write FILE``) refresh them in ``FILE``."""
     if argv[:1] == ["--write"] and len(argv) == 2:
         path = Path(argv[1])
-        path.write_text(render_doc(path.read_text()))
+        write_atomic(path, render_doc(path.read_text()))
         return 0
     for section in SECTIONS + EXPERIMENT_SECTIONS:
         print(f"### {section.title}\n\n{markdown_table(section)}\n")
