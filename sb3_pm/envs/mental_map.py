@@ -28,7 +28,8 @@ and age of a target are still only what the agent itself has observed.
 
 from __future__ import annotations
 
-from typing import cast
+import copy
+from typing import Any, cast
 
 import numpy as np
 
@@ -113,6 +114,34 @@ class MentalMaps:
         for cached in state.get("_adjacency_int8", []):
             if cached is not None:
                 cached.setflags(write=False)
+
+    #: What :meth:`state_dict` keeps: the maps, what they discovered, and the staging the next
+    #: update starts from (the int8 adjacency cache is derived, and rebuilt on demand).
+    _STATE = (
+        "channels",
+        "adjacency",
+        "explored",
+        "episode_uncertainty_sum",
+        "_folded_positions",
+        "_all_explored",
+        "_observed_values",
+        "_targets_staged",
+        "track_uncertainty_sum",
+    )
+
+    def state_dict(self) -> dict[str, Any]:
+        """The maps as plain values (a checkpoint's)."""
+        return {name: copy.deepcopy(getattr(self, name)) for name in self._STATE}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Put back a :meth:`state_dict` of maps of the same size."""
+        for name in self._STATE:
+            setattr(self, name, copy.deepcopy(state[name]))
+        if self.channels.shape != (len(FEATURES), self.n_agents, self.n_nodes):
+            raise InputError("the saved mental maps do not match the env (other team size or graph)")
+        self._folded_positions = [set(folded) for folded in self._folded_positions]
+        self._adjacency_int8 = [None] * self.n_agents
+        self._adjacency_cached = False
 
     def forget_edges(self) -> None:
         """Start the known adjacency over (a new agent lifetime); no-op in ``"known"`` mode."""
