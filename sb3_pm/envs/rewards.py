@@ -99,7 +99,9 @@ class RewardComputer:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Put back a :meth:`state_dict` of a computer for the same team."""
         self.momentum = np.asarray(state["momentum"], dtype=np.float64).copy()
-        self.history = [deque((float(v) for v in window), maxlen=CHANGE_WINDOW) for window in state["history"]]
+        self.history = [
+            deque((float(v) for v in window), maxlen=CHANGE_WINDOW) for window in state["history"]
+        ]
 
     def forget_history(self) -> None:
         """Forget past episodes (a new agent lifetime): ``change`` starts from no history again."""
