@@ -27,7 +27,6 @@ from sb3_pm.policies.estimator import transition_pairs
 if TYPE_CHECKING:
     from sb3_pm.policies.policy import DCBFActorCriticPolicy
 
-
 class EstimatorCallback(BaseCallback):
     """Fit the policy's state estimator on each rollout's ``(M_{k-1}, M_k)`` pairs; log ``estimator/loss``.
 

@@ -18,7 +18,9 @@ from pathlib import Path
 
 _PACKAGE_DIR = Path(__file__).resolve().parents[1]
 #: Where the shipped configs are: ``sb3_pm/configs`` in an installed wheel, else the checkout's ``zoo/``.
-CONFIG_DIR = _PACKAGE_DIR / "configs" if (_PACKAGE_DIR / "configs").is_dir() else _PACKAGE_DIR.parent / "zoo"
+CONFIG_DIR = (
+    _PACKAGE_DIR / "configs" if (_PACKAGE_DIR / "configs").is_dir() else _PACKAGE_DIR.parent / "zoo"
+)
 #: Where the shipped experiment files are.
 EXPERIMENT_DIR = CONFIG_DIR / "experiments"
 #: The training config used when none is named: the best measured configuration.
