@@ -12,6 +12,7 @@ model, for converting a team saved in the old format.
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -160,16 +161,31 @@ def check_plain_hyperparams(hyperparams: Any, where: str) -> dict[str, Any]:
     return checked
 
 
+def constructor_keys(cls: type) -> set[str]:
+    """The keyword arguments ``cls`` takes, following ``**kwargs`` up its bases (``DCBFPPO`` hands
+    them to ``MaskablePPO``)."""
+    keys: set[str] = set()
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(klass.__init__).parameters.values()
+        keys |= {p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+            break
+    return keys
+
+
 def model_hyperparams(model: Any, where: str) -> dict[str, Any]:
     """The constructor arguments a live SB3 PPO-style ``model`` was built with, in JSON form.
 
     :raises InputError: for a value that has no such form.
     """
+    accepted = constructor_keys(type(model))
     values: dict[str, Any] = {}
     for key in PPO_KEYS:
-        if hasattr(model, key):
+        if key in accepted and hasattr(model, key):
             values[key] = getattr(model, key)
-    if hasattr(model, "_stats_window_size"):
+    if "stats_window_size" in accepted and hasattr(model, "_stats_window_size"):
         values["stats_window_size"] = model._stats_window_size
     if values.get("clip_range_vf") is None:
         values.pop("clip_range_vf", None)
