@@ -24,7 +24,7 @@ from stable_baselines3.common.utils import set_random_seed
 from sb3_pm.agents.deployment.saved_teams import MANIFEST
 from sb3_pm.agents.training.learned_team import LearnedTeam
 from sb3_pm.agents.training.learner_callbacks import close_loggers, with_episode_metrics
-from sb3_pm.agents.training.learner_record import check_plain_hyperparams, plain_hyperparams
+from sb3_pm.agents.training.learner_record import saved_hyperparams
 from sb3_pm.agents.training.learners import learn_seed, resolve_hyperparams
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec
@@ -181,14 +181,6 @@ class CentralizedPPO(LearnedTeam):
         """The one shared model."""
         return {MODEL_FILE: self.model}
 
-    def manifest(self) -> dict[str, Any]:
-        """The common manifest fields and the hyperparameters in plain JSON, from which
-        :meth:`load` rebuilds the model."""
-        return {
-            **super().manifest(),
-            "hyperparams": plain_hyperparams(self.hyperparams, "the team's hyperparams"),
-        }
-
     @classmethod
     def load(cls, path: str | Path, graph: GraphLike | None = None, device: str = "cpu") -> CentralizedPPO:
         """Load a team written by :meth:`save`; nothing stored in the folder runs (the model is
@@ -207,9 +199,7 @@ class CentralizedPPO(LearnedTeam):
             policy=manifest["policy"],
             n_envs=int(manifest["n_envs"]),
             seed=int(manifest["seed"]),
-            hyperparams=check_plain_hyperparams(
-                manifest.get("hyperparams") or {}, f"{folder / MANIFEST} hyperparams"
-            ),
+            hyperparams=saved_hyperparams(folder / MANIFEST, manifest)[0],
             device=device,
             deploy_temperature=manifest.get("deploy_temperature"),
         )

@@ -29,6 +29,7 @@ from sb3_pm.agents.deployment.saved_teams import (
     team_manifest,
     write_manifest,
 )
+from sb3_pm.agents.training.learner_record import plain_hyperparams
 from sb3_pm.agents.training.learners import resolve_learner
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
@@ -287,8 +288,13 @@ class LearnedTeam(DeploymentRule):
                 model.update_device = parsed
 
     def manifest(self) -> dict[str, Any]:
-        """What :meth:`save` writes to ``manifest.json``."""
-        return team_manifest(self, self.MANIFEST_FORMAT)
+        """What :meth:`save` writes to ``manifest.json``: the common fields and the hyperparameters
+        in plain JSON (:mod:`.learner_record`), from which ``load`` rebuilds the learners.
+
+        :raises InputError: for a hyperparameter with no plain form (a Python function as a schedule).
+        """
+        hyperparams = plain_hyperparams(getattr(self, "hyperparams", {}), "the team's hyperparams")
+        return {**team_manifest(self, self.MANIFEST_FORMAT), "hyperparams": hyperparams}
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Save the team to the folder ``path`` (created if needed); the manifest is written last.

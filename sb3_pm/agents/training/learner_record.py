@@ -161,6 +161,21 @@ def check_plain_hyperparams(hyperparams: Any, where: str) -> dict[str, Any]:
     return checked
 
 
+def saved_hyperparams(where: Any, manifest: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A manifest's ``hyperparams`` and ``per_agent`` overrides, each checked by
+    :func:`check_plain_hyperparams` (``where`` names the manifest in errors).
+
+    :raises InputError: for anything but plain hyperparameters.
+    """
+    per_agent = manifest.get("per_agent") or {}
+    if not isinstance(per_agent, Mapping):
+        raise InputError(f"{where}: per_agent must be a mapping of agents to hyperparameters")
+    return (
+        check_plain_hyperparams(manifest.get("hyperparams") or {}, f"{where} hyperparams"),
+        {str(a): check_plain_hyperparams(v, f"{where} per_agent.{a}") for a, v in per_agent.items()},
+    )
+
+
 def constructor_keys(cls: type) -> set[str]:
     """The keyword arguments ``cls`` takes, following ``**kwargs`` up its bases (``DCBFPPO`` hands
     them to ``MaskablePPO``)."""
@@ -201,5 +216,6 @@ __all__ = [
     "class_name",
     "model_hyperparams",
     "plain_hyperparams",
+    "saved_hyperparams",
     "schedule_value",
 ]

@@ -38,7 +38,7 @@ from sb3_pm.agents.training.learner_callbacks import (
     EpisodeMetricsCallback,
     close_loggers,
 )
-from sb3_pm.agents.training.learner_record import check_plain_hyperparams, plain_hyperparams
+from sb3_pm.agents.training.learner_record import plain_hyperparams, saved_hyperparams
 from sb3_pm.agents.training.learners import agent_seed, check_same, learner_kwargs
 from sb3_pm.agents.training.rollout_batching import RolloutBatcher
 from sb3_pm.agents.training.team_learning import run_team_learning
@@ -314,20 +314,11 @@ class IndependentPPO(LearnedTeam):
     # ---------------------------------------------------------- save / load
     def manifest(self) -> dict[str, Any]:
         """What :meth:`save` writes to ``manifest.json``: the common fields, the agents' names and
-        the hyperparameters in plain JSON (:mod:`.learner_record`), from which :meth:`load` rebuilds
-        the learners.
-
-        :raises InputError: for a hyperparameter with no plain form (a Python function as a schedule).
-        """
-        return {
-            **super().manifest(),
-            "agents": self.agents,
-            "hyperparams": plain_hyperparams(self.hyperparams, "the team's hyperparams"),
-            "per_agent": {
-                agent: plain_hyperparams(values, f"the hyperparams of {agent}")
-                for agent, values in self.per_agent.items()
-            },
+        their overrides in plain JSON (:mod:`.learner_record`)."""
+        per_agent = {
+            agent: plain_hyperparams(v, f"the hyperparams of {agent}") for agent, v in self.per_agent.items()
         }
+        return {**super().manifest(), "agents": self.agents, "per_agent": per_agent}
 
     def model_files(self) -> dict[str, BaseAlgorithm]:
         """One zip per agent, named after it."""
@@ -365,10 +356,7 @@ class IndependentPPO(LearnedTeam):
         folder, manifest, spec = cls.open_saved(
             path, graph, lambda manifest: [f"{agent}.zip" for agent in manifest["agents"]]
         )
-        where = f"{folder / MANIFEST}"
-        per_agent = manifest.get("per_agent") or {}
-        if not isinstance(per_agent, Mapping):
-            raise InputError(f"{where}: per_agent must be a mapping of agents to hyperparameters")
+        hyperparams, per_agent = saved_hyperparams(folder / MANIFEST, manifest)
         team = cls(
             spec,
             n_agents=int(manifest["n_agents"]),
@@ -377,11 +365,8 @@ class IndependentPPO(LearnedTeam):
             policy=manifest["policy"],
             n_envs=int(n_envs or manifest["n_envs"]),
             seed=int(manifest["seed"]),
-            hyperparams=check_plain_hyperparams(manifest.get("hyperparams") or {}, f"{where} hyperparams"),
-            per_agent={
-                str(agent): check_plain_hyperparams(values, f"{where} per_agent.{agent}")
-                for agent, values in per_agent.items()
-            },
+            hyperparams=hyperparams,
+            per_agent=per_agent,
             tensorboard_log=tensorboard_log,
             verbose=0 if verbose is None else verbose,
             device=device,
