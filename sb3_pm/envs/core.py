@@ -95,8 +95,8 @@ class MonitoringCore:
         self._next_u = np.concatenate([np.minimum(levels + 1, self.u_max), np.maximum(levels - 1, 0)])
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (a checkpoint's env copy), rebuilding the lookup tables that cores pickled by
-        earlier versions lack."""
+        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict`),
+        rebuilding the lookup tables that cores pickled by earlier versions lack."""
         self.__dict__.update(state)
         if not _DERIVED_TABLES <= state.keys():
             self._build_tables()

@@ -212,8 +212,9 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
             self._renderer = None
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        """Unpickle, giving attributes added in later versions their defaults (a checkpoint's env
-        copies written before agent failures existed resume as envs without failures)."""
+        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict` instead),
+        giving attributes added in later versions their defaults (an env pickled before agent
+        failures existed goes on as an env without failures)."""
         self.__dict__.update(state)
         if "family" not in state:  # written before graph families existed
             self.family = None
