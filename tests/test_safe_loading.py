@@ -299,6 +299,9 @@ def test_a_schedule_with_no_plain_form_is_refused_before_anything_is_written(tmp
             team.save(tmp_path / "team")
         assert len(str(error.value).splitlines()) == 1
         assert not (tmp_path / "team").exists()
+        with pytest.raises(InputError, match="learning_rate is a function"):  # before any training
+            team.learn(32, checkpoints=CheckpointSchedule(tmp_path / "checkpoints"))
+        assert team.num_timesteps == 0
     finally:
         team.close()
 

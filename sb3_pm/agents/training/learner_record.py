@@ -163,17 +163,19 @@ def check_plain_hyperparams(hyperparams: Any, where: str) -> dict[str, Any]:
 
 def saved_hyperparams(where: Any, manifest: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """A manifest's ``hyperparams`` and ``per_agent`` overrides, each checked by
-    :func:`check_plain_hyperparams` (``where`` names the manifest in errors).
+    :func:`check_plain_hyperparams` (``where`` names the manifest in errors), without ``n_envs``.
 
     :raises InputError: for anything but plain hyperparameters.
     """
     per_agent = manifest.get("per_agent") or {}
     if not isinstance(per_agent, Mapping):
         raise InputError(f"{where}: per_agent must be a mapping of agents to hyperparameters")
-    return (
-        check_plain_hyperparams(manifest.get("hyperparams") or {}, f"{where} hyperparams"),
-        {str(a): check_plain_hyperparams(v, f"{where} per_agent.{a}") for a, v in per_agent.items()},
-    )
+    hyperparams = check_plain_hyperparams(manifest.get("hyperparams") or {}, f"{where} hyperparams")
+    overrides = {str(a): check_plain_hyperparams(v, f"{where} per_agent.{a}") for a, v in per_agent.items()}
+    # The manifest's own n_envs governs (a team may be loaded with another number of copies).
+    for values in (hyperparams, *overrides.values()):
+        values.pop("n_envs", None)
+    return hyperparams, overrides
 
 
 def constructor_keys(cls: type) -> set[str]:

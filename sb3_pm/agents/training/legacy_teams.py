@@ -21,7 +21,7 @@ from typing import Any
 
 import torch as th
 
-from sb3_pm.agents.deployment.saved_teams import MANIFEST, read_manifest
+from sb3_pm.agents.deployment.saved_teams import MANIFEST, graph_for_saved_team, read_manifest
 from sb3_pm.agents.training.learner_record import model_hyperparams
 from sb3_pm.errors import InputError
 
@@ -45,6 +45,11 @@ def load_old_team(path: str | Path, device: str = "cpu") -> Any:
 
     :raises InputError: if the folder does not hold a team in an old format.
     """
+    return _load_old(path, device)[0]
+
+
+def _load_old(path: str | Path, device: str) -> tuple[Any, dict[str, Any]]:
+    """:func:`load_old_team`, and the team's manifest."""
     from sb3_pm.agents.training.team import IndependentPPO
     from sb3_pm.sharing.centralized import CentralizedPPO
 
@@ -56,7 +61,7 @@ def load_old_team(path: str | Path, device: str = "cpu") -> Any:
     team_class: Any = next((c for c in (IndependentPPO, CentralizedPPO) if kind in c.OLD_FORMATS), None)
     if team_class is None:
         raise InputError(f"{folder} does not hold a team in an old format (its format is {kind!r})")
-    spec = _saved_graph(folder, manifest)
+    spec = graph_for_saved_team(folder, manifest, None)
     common = {
         "n_agents": int(manifest["n_agents"]),
         "env_kwargs": manifest["env_kwargs"],
@@ -69,22 +74,22 @@ def load_old_team(path: str | Path, device: str = "cpu") -> Any:
     }
     if team_class is CentralizedPPO:
         team = CentralizedPPO(spec, **common, _init_model=False)
-        team.model = _load_model_file(team.algo_class, folder / "shared.zip", env=team.venv, device=device)
     else:
         team = IndependentPPO(spec, **common, deploy_filter=manifest.get("deploy_filter"), _init_models=False)
-        for i, agent in enumerate(team.agents):
-            team.models[agent] = _load_model_file(
-                team.algo_class, folder / f"{agent}.zip", env=team.hub.vec_envs[i], device=device
-            )
-    team._restore_acting_rule(manifest)
-    team._old_manifest = manifest
-    return team
-
-
-def _saved_graph(folder: Path, manifest: dict[str, Any]) -> Any:
-    from sb3_pm.agents.deployment.saved_teams import graph_for_saved_team
-
-    return graph_for_saved_team(folder, manifest, None)
+    try:
+        if isinstance(team, CentralizedPPO):
+            shared = folder / "shared.zip"
+            team.model = _load_model_file(team.algo_class, shared, env=team.venv, device=device)
+        else:
+            for i, agent in enumerate(team.agents):
+                team.models[agent] = _load_model_file(
+                    team.algo_class, folder / f"{agent}.zip", env=team.hub.vec_envs[i], device=device
+                )
+        team._restore_acting_rule(manifest)
+    except BaseException:
+        team.close()
+        raise
+    return team, manifest
 
 
 def _learner_settings(team: Any, manifest: dict[str, Any]) -> None:
@@ -136,10 +141,10 @@ def convert_team(old: str | Path, new: str | Path, overwrite: bool = False, devi
         the current format cannot record.
     :raises FileExistsError: if ``new`` holds a team and ``overwrite`` is False.
     """
-    team = load_old_team(old, device=device)
+    team, manifest = _load_old(old, device)
     target = Path(new)
     try:
-        _learner_settings(team, team._old_manifest)
+        _learner_settings(team, manifest)
         saved = team.save(target, overwrite=overwrite)
         loaded = type(team).load(saved, device=device)
         try:

@@ -251,12 +251,15 @@ class IndependentPPO(LearnedTeam):
         :param checkpoints: where and how often to write checkpoints (none by default); a first
             Ctrl-C then checkpoints at the next rollout barrier and raises ``TrainingInterrupted``.
         :param on_interrupt: called on that first Ctrl-C (to tell the user what happens next).
-        :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``.
+        :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``, or, with ``checkpoints``,
+            a hyperparameter has no plain form for the saved team (a Python function as a schedule).
         :raises Exception: the first error a learner raised (the others are stopped cleanly).
         """
         if total_timesteps < 1:
             raise InputError(f"total_timesteps must be positive, got {total_timesteps}")
         self._validate_learners(reset_num_timesteps)
+        if checkpoints is not None:
+            self.manifest()  # settings with no plain form cannot be checkpointed: refused before training
         self._training_filter()  # the deploy filter is for acting: off while the learners train
         try:
             return run_team_learning(
