@@ -187,6 +187,22 @@ def test_payloads_in_a_saved_team_never_run(trained, tmp_path, capsys) -> None:
     assert not marker.exists()
 
 
+def test_a_pickle_in_place_of_the_tensors_is_refused_in_one_line(trained, tmp_path) -> None:
+    """``policy.pth`` is read with ``weights_only=True``: a payload there is refused, not run."""
+    folder = _copy(trained[0], tmp_path / "team")
+    marker = tmp_path / "MARKER"
+    with zipfile.ZipFile(folder / "agent_1.zip") as archive:
+        entries = {name: archive.read(name) for name in archive.namelist()}
+    entries["policy.pth"] = pickle.dumps(Payload(marker))
+    with zipfile.ZipFile(folder / "agent_1.zip", "w") as archive:
+        for name, content in entries.items():
+            archive.writestr(name, content)
+    with pytest.raises(InputError, match="agent_1.zip cannot be loaded") as error:
+        IndependentPPO.load(folder)
+    assert len(str(error.value).splitlines()) == 1
+    assert not marker.exists()
+
+
 def _graph_file(tmp_path: Path) -> Path:
     from sb3_pm.graphs import save_graphml
 
