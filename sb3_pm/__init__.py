@@ -22,6 +22,7 @@ _LAZY = {
     "DCBFPPO": "sb3_pm.ppo_dcbf",
     "DCBFPolicy": "sb3_pm.ppo_dcbf",
     "CentralizedPPO": "sb3_pm.sharing.centralized",
+    "convert_team": "sb3_pm.agents.training.legacy_teams",
 }
 
 
@@ -31,4 +32,4 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'sb3_pm' has no attribute {name!r}")
 
 
-__all__ = ["CentralizedPPO", "DCBFPPO", "DCBFPolicy", "IndependentPPO", "__version__"]
+__all__ = ["CentralizedPPO", "DCBFPPO", "DCBFPolicy", "IndependentPPO", "__version__", "convert_team"]

@@ -8,6 +8,7 @@ the env has.
 from __future__ import annotations
 
 import hashlib
+import json
 import pickle
 
 import numpy as np
@@ -152,9 +153,23 @@ def test_what_it_cannot_be_computed_for_is_refused_by_name(kwargs: dict, message
         make_env(**kwargs)
 
 
-def test_a_pickled_env_resumes_with_the_rules_goals() -> None:
-    """Random moves, so the kept goals matter: a copy pickled mid-episode goes on advising what
-    the baseline (which kept its goals) moves."""
+def _plain_copy(env):
+    """A copy through the env's plain state, as a checkpoint keeps it."""
+    from sb3_pm.plain_state import decode, encode
+
+    arrays: dict = {}
+    tree = json.loads(json.dumps(encode(env.state_dict(), arrays)))
+    copy = make_env()
+    copy.load_state_dict(decode(tree, arrays))
+    return copy
+
+
+@pytest.mark.parametrize(
+    "copied", [lambda env: pickle.loads(pickle.dumps(env)), _plain_copy], ids=["pickle", "state"]
+)
+def test_a_copied_env_resumes_with_the_rules_goals(copied) -> None:
+    """Random moves, so the kept goals matter: a copy made mid-episode (a pickle, or the plain state
+    a checkpoint keeps) goes on advising what the baseline (which kept its goals) moves."""
     env = make_env()
     rule = TerritoryPatrolTeam()
     rng = np.random.default_rng(1)
@@ -167,7 +182,7 @@ def test_a_pickled_env_resumes_with_the_rules_goals() -> None:
     for _ in range(15):
         rule.predict(observations)
         observations, *_ = env.step(random_moves(observations))
-    copy = pickle.loads(pickle.dumps(env))
+    copy = copied(env)
     for _ in range(40):
         moves = rule.predict(observations)
         assert {a: advised(o) for a, o in observations.items()} == moves

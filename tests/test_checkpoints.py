@@ -73,7 +73,7 @@ def test_the_newest_checkpoints_are_kept_and_a_damaged_one_is_skipped(tmp_path, 
     plain = _team("dcbf_ppo").learn(steps)
     _team("dcbf_ppo").learn(steps, checkpoints=CheckpointSchedule(tmp_path, every=2, keep=2))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rollout_000004", "rollout_000006"]
-    damaged = tmp_path / "rollout_000006" / "state.pkl"
+    damaged = tmp_path / "rollout_000006" / "state.npz"
     damaged.write_bytes(damaged.read_bytes()[:-10])
 
     resumed = IndependentPPO.from_checkpoint(tmp_path)

@@ -57,6 +57,7 @@ def assert_trains_unbounded(loaded) -> None:
     assert all(s.bounds == {None} for s in seen.values())
     assert loaded.acting_filter() == TERRITORY_BOUND
 
+
 class TestCheck:
     def test_a_bound_with_or_without_a_scope(self) -> None:
         assert check_deploy_filter(None) is None
@@ -140,11 +141,14 @@ class TestTeam:
         finally:
             loaded.close()
 
-    def test_a_team_saved_with_the_bound_in_its_policy_kwargs_still_trains_without_it(
+    def test_a_team_saved_with_the_bound_in_its_policy_kwargs_converts_and_trains_without_it(
         self, tmp_path: Path
     ) -> None:
         """Teams saved before the manifest held ``filter_settings`` carried the deploy filter in
-        their learners' ``policy_kwargs``: loaded, they act under it and train without it."""
+        their learners' ``policy_kwargs``, in the old format (``sb3_pm.team/1``), which loads only by
+        unpickling: refused, then converted (a trusted file), they act under it and train without it."""
+        from sb3_pm import convert_team
+        from sb3_pm.agents.deployment.saved_teams import OldTeamFormatError
         from sb3_pm.agents.training.team import IndependentPPO
 
         team = tiny_team()
@@ -156,11 +160,16 @@ class TestTeam:
             team.close()
         manifest_path = tmp_path / "t" / "manifest.json"
         manifest = json.loads(manifest_path.read_text())
-        del manifest["filter_settings"]
+        for key in ("filter_settings", "hyperparams", "per_agent"):  # none of them in that format
+            del manifest[key]
+        manifest["format"] = "sb3_pm.team/1"
         manifest_path.write_text(json.dumps(manifest))
-        loaded = IndependentPPO.load(tmp_path / "t")
+        with pytest.raises(OldTeamFormatError, match="convert-team"):
+            IndependentPPO.load(tmp_path / "t")
+        loaded = IndependentPPO.load(convert_team(tmp_path / "t", tmp_path / "converted"))
         try:
             assert loaded.acting_filter() == TERRITORY_BOUND
+            assert all("neglect_bound" not in m.policy_kwargs for m in loaded.models.values())
             assert_trains_unbounded(loaded)
         finally:
             loaded.close()

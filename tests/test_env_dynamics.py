@@ -111,7 +111,7 @@ class TestIllegalActions:
         ids=["legality-table", "set-and-update-tables"],
     )
     def test_a_core_pickled_before_its_tables_still_steps(self, missing: tuple[str, ...]) -> None:
-        # Checkpoints pickle the env copies; a core written by an earlier version lacks the tables.
+        # Checkpoints of earlier versions pickled the env copies; a core written then lacks the tables.
         import pickle
 
         env = make(path_graph(4, [3]), 1, [0])

@@ -211,7 +211,7 @@ def test_training_with_failures_is_refused() -> None:
 
 
 def test_an_env_pickled_before_failures_existed_still_resumes() -> None:
-    # Checkpoints pickle the env copies; one written by an earlier version lacks the failure state.
+    # Checkpoints of earlier versions pickled the env copies; one written then lacks the failure state.
     import pickle
 
     env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=4, max_cycles=10)

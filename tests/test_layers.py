@@ -20,7 +20,15 @@ ROOT = Path(__file__).resolve().parent.parent / PACKAGE
 #: The layers, bottom up. A module belongs to the layer of the longest entry that names it or one of
 #: its packages; a module may import from its own layer and from the layers below it.
 LAYERS: list[tuple[str, ...]] = [
-    ("sb3_pm.errors", "sb3_pm.files", "sb3_pm.machine", "sb3_pm.progress", "sb3_pm.version"),  # utilities
+    # utilities
+    (
+        "sb3_pm.errors",
+        "sb3_pm.files",
+        "sb3_pm.machine",
+        "sb3_pm.plain_state",
+        "sb3_pm.progress",
+        "sb3_pm.version",
+    ),
     ("sb3_pm.graphs",),
     ("sb3_pm.envs",),  # the environment, with the mental maps it maintains
     ("sb3_pm.team_interface",),

@@ -183,7 +183,7 @@ def test_skipping_folded_positions_discovers_the_same_edges(obs_radius: int) -> 
 
 
 def test_maps_pickled_before_the_folded_positions_still_discover_edges() -> None:
-    # Checkpoints pickle the env copies; maps written by an earlier version lack the new caches.
+    # Checkpoints of earlier versions pickled the env copies; maps written then lack the new caches.
     import pickle
 
     env, _ = env_on_path([0])
@@ -197,7 +197,7 @@ def test_maps_pickled_before_the_folded_positions_still_discover_edges() -> None
 
 
 def test_adjacency_observations_stay_read_only_through_a_pickle() -> None:
-    # Callers keep these arrays without copying; an unpickled map (a checkpoint) must not hand out
+    # Callers keep these arrays without copying; an unpickled map (a copy) must not hand out
     # arrays a caller could write into the map's cache through.
     import pickle
 

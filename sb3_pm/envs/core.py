@@ -95,11 +95,22 @@ class MonitoringCore:
         self._next_u = np.concatenate([np.minimum(levels + 1, self.u_max), np.maximum(levels - 1, 0)])
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (a checkpoint's env copy), rebuilding the lookup tables that cores pickled by
-        earlier versions lack."""
+        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict`),
+        rebuilding the lookup tables that cores pickled by earlier versions lack."""
         self.__dict__.update(state)
         if not _DERIVED_TABLES <= state.keys():
             self._build_tables()
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The true state (positions and uncertainties), as plain arrays (a checkpoint's)."""
+        return {"positions": self.positions.copy(), "uncertainty": self.uncertainty.copy()}
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Put back a :meth:`state_dict` of a core on the same graph."""
+        self.positions = np.asarray(state["positions"], dtype=np.int64).copy()
+        self.uncertainty = np.asarray(state["uncertainty"], dtype=np.int64).copy()
+        if self.positions.shape != (self.n_agents,) or self.uncertainty.shape != (self.n_nodes,):
+            raise InputError("the saved env state does not match the env (other team size or graph)")
 
     def reset(self, positions: np.ndarray, uncertainty: np.ndarray | None = None) -> None:
         """Place the agents and set the initial uncertainties (zeros by default; non-targets stay 0)."""

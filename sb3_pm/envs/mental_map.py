@@ -28,7 +28,8 @@ and age of a target are still only what the agent itself has observed.
 
 from __future__ import annotations
 
-from typing import cast
+import copy
+from typing import Any, cast
 
 import numpy as np
 
@@ -103,16 +104,45 @@ class MentalMaps:
             self._all_explored = True
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (a checkpoint's env copy). Maps pickled before the discovery caches existed get
-        empty ones (so the cache is rebuilt and every position is folded again), and, since NumPy
-        unpickles every array writeable, the cached int8 adjacencies are marked read-only again,
-        as :meth:`adjacency_observation` promises."""
+        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict`).
+        Maps pickled before the discovery caches existed get empty ones (so the cache is
+        rebuilt and every position is folded again), and, since NumPy unpickles every array
+        writeable, the cached int8 adjacencies are marked read-only again, as
+        :meth:`adjacency_observation` promises."""
         self.__dict__.update(state)
         self.__dict__.setdefault("_adjacency_cached", False)
         self.__dict__.setdefault("_folded_positions", [set() for _ in range(self.n_agents)])
         for cached in state.get("_adjacency_int8", []):
             if cached is not None:
                 cached.setflags(write=False)
+
+    #: What :meth:`state_dict` keeps: the maps, what they discovered, and the staging the next
+    #: update starts from (the int8 adjacency cache is derived, and rebuilt on demand).
+    _STATE = (
+        "channels",
+        "adjacency",
+        "explored",
+        "episode_uncertainty_sum",
+        "_folded_positions",
+        "_all_explored",
+        "_observed_values",
+        "_targets_staged",
+        "track_uncertainty_sum",
+    )
+
+    def state_dict(self) -> dict[str, Any]:
+        """The maps as plain values (a checkpoint's)."""
+        return {name: copy.deepcopy(getattr(self, name)) for name in self._STATE}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Put back a :meth:`state_dict` of maps of the same size."""
+        for name in self._STATE:
+            setattr(self, name, copy.deepcopy(state[name]))
+        if self.channels.shape != (len(FEATURES), self.n_agents, self.n_nodes):
+            raise InputError("the saved mental maps do not match the env (other team size or graph)")
+        self._folded_positions = [set(folded) for folded in self._folded_positions]
+        self._adjacency_int8 = [None] * self.n_agents
+        self._adjacency_cached = False
 
     def forget_edges(self) -> None:
         """Start the known adjacency over (a new agent lifetime); no-op in ``"known"`` mode."""

@@ -33,6 +33,9 @@ With agent failures configured (the env's ``failures`` / ``failure_rate``), four
 
 from __future__ import annotations
 
+import copy
+from typing import Any
+
 import numpy as np
 
 METRIC_NAMES = (
@@ -106,11 +109,35 @@ class EpisodeMetrics:
         self.saturated_steps += highest >= self.u_max
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (a checkpoint's env copy), filling counters added in later versions: an episode
-        recorded before them had every agent live on every step."""
+        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict`),
+        filling counters added in later versions: an episode recorded before them had every
+        agent live on every step."""
         self.__dict__.update(state)
         self.__dict__.setdefault("live_agent_steps", self.steps * self.n_agents)
         self.__dict__.setdefault("failure_steps", [])
+
+    #: What :meth:`state_dict` keeps: everything :meth:`reset` and :meth:`update` change.
+    _STATE = (
+        "steps",
+        "failure_steps",
+        "collisions",
+        "peak",
+        "saturated_steps",
+        "idle_agent_steps",
+        "live_agent_steps",
+        "_run",
+        "_longest",
+        "trace",
+    )
+
+    def state_dict(self) -> dict[str, Any]:
+        """The episode so far, as plain values (a checkpoint's)."""
+        return {name: copy.copy(getattr(self, name)) for name in self._STATE}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Put back a :meth:`state_dict` of metrics of the same problem."""
+        for name in self._STATE:
+            setattr(self, name, copy.copy(state[name]))
 
     def record_failure(self, n_failed: int) -> None:
         """``n_failed`` agents failed after the step just recorded."""

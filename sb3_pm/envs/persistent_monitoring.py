@@ -18,6 +18,7 @@ from pettingzoo.utils import wrappers
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from sb3_pm.envs.core import DEFAULT_U_MAX, MonitoringCore
+from sb3_pm.envs.env_state import EnvState
 from sb3_pm.envs.mental_map import MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.observations import EnvObservations
@@ -33,8 +34,12 @@ ILLEGAL_ACTION_MODES = ("raise", "stay")
 _FAMILY_POSITIONS = "initial_positions cannot be given with a graph family (each episode's graph differs)"
 
 
-class PersistentMonitoringEnv(EnvObservations, ParallelEnv):
-    """Agents patrol a graph to keep the uncertainty of its target nodes low."""
+class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
+    """Agents patrol a graph to keep the uncertainty of its target nodes low.
+
+    Its running state is saved and restored with ``state_dict()`` / ``load_state_dict()``
+    (:class:`~sb3_pm.envs.env_state.EnvState`).
+    """
 
     metadata = {
         "name": "persistent_monitoring_v0",
@@ -207,8 +212,9 @@ class PersistentMonitoringEnv(EnvObservations, ParallelEnv):
             self._renderer = None
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        """Unpickle, giving attributes added in later versions their defaults (a checkpoint's env
-        copies written before agent failures existed resume as envs without failures)."""
+        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict` instead),
+        giving attributes added in later versions their defaults (an env pickled before agent
+        failures existed goes on as an env without failures)."""
         self.__dict__.update(state)
         if "family" not in state:  # written before graph families existed
             self.family = None

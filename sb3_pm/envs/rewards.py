@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -90,6 +91,17 @@ class RewardComputer:
         self.u_max = u_max
         self.momentum = np.zeros(n_agents, dtype=np.float64)
         self.history: list[deque[float]] = [deque(maxlen=CHANGE_WINDOW) for _ in range(n_agents)]
+
+    def state_dict(self) -> dict[str, Any]:
+        """The running terms (momentum, the ``change`` history), as plain values (a checkpoint's)."""
+        return {"momentum": self.momentum.copy(), "history": [list(window) for window in self.history]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Put back a :meth:`state_dict` of a computer for the same team."""
+        self.momentum = np.asarray(state["momentum"], dtype=np.float64).copy()
+        self.history = [
+            deque((float(v) for v in window), maxlen=CHANGE_WINDOW) for window in state["history"]
+        ]
 
     def forget_history(self) -> None:
         """Forget past episodes (a new agent lifetime): ``change`` starts from no history again."""

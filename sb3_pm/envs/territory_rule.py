@@ -99,6 +99,14 @@ class TerritoryAdvice:
         """A new episode: no goal kept."""
         self.goals = [None] * len(self.own)
 
+    def state_dict(self) -> dict[str, list[int | None]]:
+        """The goals kept between steps (a checkpoint's)."""
+        return {"goals": list(self.goals)}
+
+    def load_state_dict(self, state: dict[str, list[int | None]]) -> None:
+        """Put back a :meth:`state_dict` of advice for the same territories."""
+        self.goals = [None if goal is None else int(goal) for goal in state["goals"]]
+
     def move(self, i: int, position: int, u: np.ndarray, age: np.ndarray) -> int:
         """Agent ``i``'s move by the rule (it must own a target), keeping its goal for the next
         step. ``u``, ``age``: ``(N,)`` its own map."""

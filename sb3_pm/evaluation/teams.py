@@ -50,6 +50,7 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
     try:
         from sb3_pm.agents.training.team import IndependentPPO
         from sb3_pm.sharing.centralized import MANIFEST_FORMAT as CENTRALIZED
+        from sb3_pm.sharing.centralized import OLD_FORMATS as OLD_CENTRALIZED
         from sb3_pm.sharing.centralized import CentralizedPPO
     except ImportError as error:
         raise PolicyError(
@@ -67,7 +68,8 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
                 message = f"cannot load the trained team in {path}: bad manifest.json ({error})"
                 raise PolicyError(message) from error
             break
-    team_class: Any = CentralizedPPO if manifest.get("format") == CENTRALIZED else IndependentPPO
+    centralized = manifest.get("format") in (CENTRALIZED, *OLD_CENTRALIZED)
+    team_class: Any = CentralizedPPO if centralized else IndependentPPO
     saved_graph = manifest.get("graph")
     trained_on = saved_graph.get("fingerprint") if isinstance(saved_graph, dict) else None
     other_graph = graph is not None and trained_on not in (None, resolve_graph(graph).fingerprint)

@@ -21,16 +21,19 @@ from typing import Any
 
 from stable_baselines3.common.utils import set_random_seed
 
-from sb3_pm.agents.deployment.saved_teams import load_model_file
+from sb3_pm.agents.deployment.saved_teams import MANIFEST
 from sb3_pm.agents.training.learned_team import LearnedTeam
 from sb3_pm.agents.training.learner_callbacks import close_loggers, with_episode_metrics
+from sb3_pm.agents.training.learner_record import saved_hyperparams
 from sb3_pm.agents.training.learners import learn_seed, resolve_hyperparams
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec
 from sb3_pm.policies.settings import check_advice_source
 from sb3_pm.sharing.supersuit_vec_env import make_parameter_sharing_vec_env
 
-MANIFEST_FORMAT = "sb3_pm.centralized/1"
+MANIFEST_FORMAT = "sb3_pm.centralized/2"
+#: The format before, loadable only by unpickling: refused (``sb3-pm convert-team`` converts it).
+OLD_FORMATS = ("sb3_pm.centralized/1",)
 MODEL_FILE = "shared.zip"
 
 
@@ -51,6 +54,7 @@ class CentralizedPPO(LearnedTeam):
 
     name = "centralized"
     MANIFEST_FORMAT = MANIFEST_FORMAT
+    OLD_FORMATS = OLD_FORMATS
     shares_one_network = True
     resizable = False
     accepts_deploy_filter = False  # its learn() trains through whatever filter it acts under
@@ -179,10 +183,12 @@ class CentralizedPPO(LearnedTeam):
 
     @classmethod
     def load(cls, path: str | Path, graph: GraphLike | None = None, device: str = "cpu") -> CentralizedPPO:
-        """Load a team written by :meth:`save`.
+        """Load a team written by :meth:`save`; nothing stored in the folder runs (the model is
+        built from the manifest, then given the zip's tensors and counters).
 
         :raises FileNotFoundError: for a missing folder, manifest or model.
-        :raises ValueError: if ``graph`` is not the graph the team was trained on.
+        :raises OldTeamFormatError: for a team in the old format (``sb3-pm convert-team`` converts it).
+        :raises InputError: if ``graph`` is not the graph the team was trained on.
         """
         folder, manifest, spec = cls.open_saved(path, graph, lambda manifest: [MODEL_FILE])
         team = cls(
@@ -193,12 +199,16 @@ class CentralizedPPO(LearnedTeam):
             policy=manifest["policy"],
             n_envs=int(manifest["n_envs"]),
             seed=int(manifest["seed"]),
+            hyperparams=saved_hyperparams(folder / MANIFEST, manifest)[0],
             device=device,
             deploy_temperature=manifest.get("deploy_temperature"),
-            _init_model=False,
         )
-        team.model = load_model_file(team.algo_class, folder / MODEL_FILE, env=team.venv, device=device)
-        team._restore_acting_rule(manifest)
+        try:
+            team._restore_models(folder, device)
+            team._restore_acting_rule(manifest)
+        except BaseException:
+            team.close()
+            raise
         return team
 
     def close(self) -> None:

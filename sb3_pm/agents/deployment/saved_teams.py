@@ -3,10 +3,18 @@
 A saved team is a folder::
 
     team/
-      manifest.json     format, graph name + fingerprint, n_agents, env kwargs, algo, versions
+      manifest.json     format, graph name + fingerprint, n_agents, env kwargs, algo, policy,
+                        hyperparameters (plain JSON, as a config writes them), versions
       <model>.zip ...   SB3 zips (one per agent for IndependentPPO, one shared for CentralizedPPO)
       graph.graphml     only for graphs that are not presets (a team trained on a graph family
                         records the family's parameters in the manifest instead)
+
+Loading runs nothing stored in the folder: the team is rebuilt through its constructor from the
+manifest, then each zip gives only its tensors (``torch.load(..., weights_only=True)``) and plain
+JSON counters (:mod:`sb3_pm.agents.deployment.model_files`); the zips' pickled entries are never
+read. Teams saved in the old formats (``sb3_pm.team/1``, ``sb3_pm.centralized/1``), which could
+only be loaded by unpickling, are refused with :class:`OldTeamFormatError`; ``sb3-pm convert-team``
+converts one that you trust (:mod:`sb3_pm.agents.training.legacy_teams`).
 
 Every file is written to a temporary name and renamed; the manifest goes last, so a folder with a
 manifest holds a whole team.
@@ -16,13 +24,9 @@ from __future__ import annotations
 
 import json
 import os
-import pickle
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
-
-from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sb3_pm.errors import InputError
 from sb3_pm.files import write_atomic
@@ -38,6 +42,19 @@ from sb3_pm.graphs import (
 from sb3_pm.machine import package_versions
 
 MANIFEST = "manifest.json"
+
+
+class OldTeamFormatError(InputError):
+    """A team saved in an old format, whose loading would unpickle (run) what its files hold."""
+
+
+def old_format_message(folder: Path, kind: str) -> str:
+    """The one line that refuses a team in the old format ``kind`` and says how to convert it."""
+    return (
+        f"{folder} holds a team in the old format {kind!r}, whose loading can run code stored in its "
+        f"files; if you trust them, convert it with 'sb3-pm convert-team {folder} NEW_FOLDER' "
+        "(or sb3_pm.convert_team) and load the new folder"
+    )
 
 
 def team_manifest(team: Any, manifest_format: str) -> dict[str, Any]:
@@ -95,23 +112,6 @@ def save_model_atomic(model: Any, path: Path) -> None:
     temporary = path.with_name(f".{path.stem}.tmp.zip")  # SB3 keeps a .zip suffix as given
     model.save(temporary)
     os.replace(temporary, path)
-
-
-def load_model_file(algo_class: type[BaseAlgorithm], path: Path, **kwargs: Any) -> Any:
-    """``algo_class.load(path, **kwargs)``, with a corrupt or foreign file as one ``ValueError``
-    that names it (a valid zip holding a damaged ``policy.pth`` raised torch's RuntimeError).
-
-    :raises ValueError: if the file cannot be read as a model of ``algo_class``.
-    """
-    try:
-        return algo_class.load(path, **kwargs)
-    except (RuntimeError, OSError, EOFError, KeyError, zipfile.BadZipFile, pickle.UnpicklingError) as error:
-        if isinstance(error, FileNotFoundError):
-            raise
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise InputError(
-            f"{path} cannot be loaded, the file is damaged or not a saved model ({reason})"
-        ) from error
 
 
 def write_manifest(folder: Path, manifest: Mapping[str, Any]) -> None:
@@ -183,7 +183,8 @@ __all__ = [
     "check_same_graph",
     "graph_for_saved_team",
     "graph_record",
-    "load_model_file",
+    "OldTeamFormatError",
+    "old_format_message",
     "read_manifest",
     "save_graph_copy",
     "save_model_atomic",

@@ -61,6 +61,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs
 
 from sb3_pm.agents.multiplexing.agent_vec_env import AgentVecEnv
 from sb3_pm.agents.multiplexing.awake_deadline import AwakeDeadline
+from sb3_pm.agents.multiplexing.hub_state import HubState
 from sb3_pm.agents.multiplexing.stream_turns import LearnerStreams
 from sb3_pm.agents.multiplexing.update_slots import UpdateSlots
 
@@ -80,7 +81,7 @@ class MultiplexerError(RuntimeError):
     """The agents disagreed about what to do next (e.g. some reset while others stepped)."""
 
 
-class ParallelEnvMultiplexer(LearnerStreams):
+class ParallelEnvMultiplexer(HubState, LearnerStreams):
     """Steps ``n_envs`` copies of a PettingZoo ``ParallelEnv`` for agents that act in separate threads.
 
     :param env_fns: one factory per env copy, each returning a fresh ``ParallelEnv`` whose

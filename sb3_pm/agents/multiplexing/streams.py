@@ -42,6 +42,30 @@ class StreamState:
     numpy: Any
     torch: th.Tensor
 
+    def state_dict(self) -> dict[str, Any]:
+        """The three states as plain values (tuples of ints, a ``uint32`` and a ``uint8`` array),
+        for a checkpoint (:mod:`sb3_pm.plain_state`)."""
+        return {"python": self.python, "numpy": self.numpy, "torch": self.torch.clone()}
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, Any]) -> StreamState:
+        """The stream a :meth:`state_dict` describes, checked by the generators themselves.
+
+        :raises InputError: if one of the states is malformed.
+        """
+        from sb3_pm.errors import InputError
+
+        try:
+            python = tuple(state["python"])
+            random.Random().setstate(python)
+            numpy = tuple(state["numpy"])
+            np.random.RandomState().set_state(numpy)
+            torch = th.as_tensor(state["torch"], dtype=th.uint8)
+            th.Generator().set_state(torch)
+        except (KeyError, TypeError, ValueError, RuntimeError) as error:
+            raise InputError(f"a malformed random stream state ({error})") from None
+        return cls(python=python, numpy=numpy, torch=torch)
+
 
 def seeded_stream(seed: int) -> StreamState:
     """The state the process-wide generators would have after ``set_random_seed(seed)`` (CPU)."""

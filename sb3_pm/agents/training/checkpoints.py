@@ -5,39 +5,45 @@ A checkpoint is taken at a rollout barrier
 ``train()`` and its estimator fit and none has started the next
 rollout. What the run still depends on at that point is saved:
 
-* the learners, as a saved team (SB3 zips: parameters, optimizer states, step counts, the last
-  observation of each env copy);
-* the env copies themselves (pickled: node uncertainties, positions, mental maps, their generators)
-  and the multiplexer's running episode returns and lengths;
-* every learner's random stream (:mod:`sb3_pm.agents.multiplexing.streams`).
+* the learners, as a saved team (SB3 zips: parameters, optimizer states, step counts; a manifest
+  with their settings);
+* the env copies (node uncertainties, positions, mental maps, their generators), the multiplexer's
+  running episode returns, lengths and last observations, and every learner's random stream
+  (:mod:`sb3_pm.agents.multiplexing.streams`) and rollout state (last observation, episode buffers):
+  :mod:`sb3_pm.agents.training.checkpoint_state`.
 
 Layout, inside a run folder::
 
     checkpoints/
       rollout_000010/       the barrier after 10 rollouts (counted from the run's start)
-        manifest.json ...   a saved team (see :mod:`sb3_pm.agents.training.team`)
-        state.pkl           env copies, multiplexer counters, random streams
+        manifest.json ...   a saved team (see :mod:`sb3_pm.agents.deployment.saved_teams`)
+        state.json          env copies, counters, random streams, learner rollout state (JSON) ...
+        state.npz           ... and their arrays
         checkpoint.json     written last: step counts and the SHA-256 of every file
+
+Nothing in a checkpoint is code: the team is rebuilt from its manifest and given the zips' tensors
+(``torch.load(..., weights_only=True)``), the state is JSON and arrays read with
+``allow_pickle=False``. The checksums catch damage (a truncated or edited file), not a forger, who
+can rewrite them too; resuming from a crafted checkpoint fails or trains from other numbers, and
+runs nothing.
 
 A checkpoint is written to a hidden temporary folder and renamed into place, so a crash leaves the
 previous checkpoints intact; the ``keep`` newest are kept. On resume, a checkpoint whose files no
-longer match their checksums is skipped with a warning, and the one before it is used.
-
-``state.pkl`` is a pickle, read back only by the same sb3_pm version (``checkpoint.json`` records
-it): load checkpoints you wrote yourself only.
+longer match their checksums is skipped with a warning, and the one before it is used. A
+checkpoint is resumed only by the sb3_pm version that wrote it (``checkpoint.json`` records it).
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import pickle
 import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sb3_pm.agents.training.checkpoint_state import read_team_state, write_team_state
 from sb3_pm.errors import InputError
 from sb3_pm.files import checksum_problem, move_aside, sha256_file, write_atomic
 from sb3_pm.version import __version__
@@ -51,8 +57,9 @@ logger = logging.getLogger(__name__)
 CHECKPOINTS = "checkpoints"
 #: The file a checkpoint writes last.
 RECORD = "checkpoint.json"
-STATE = "state.pkl"
-RECORD_FORMAT = "sb3_pm.checkpoint/1"
+RECORD_FORMAT = "sb3_pm.checkpoint/2"
+#: Checkpoints whose state was a pickle: refused (resume them with the version that wrote them).
+OLD_RECORD_FORMATS = ("sb3_pm.checkpoint/1",)
 
 
 class CheckpointError(InputError):
@@ -132,16 +139,7 @@ def write_checkpoint(team: IndependentPPO, schedule: CheckpointSchedule, rollout
     if temporary.exists():
         shutil.rmtree(temporary)  # a checkpoint a crash left half written
     team.save(temporary)
-    hub = team.hub
-    state = {
-        "envs": hub.envs,
-        "ep_returns": hub._ep_returns,
-        "ep_lengths": hub._ep_lengths,
-        "last_obs": hub._last_obs,
-        "streams": hub.streams,
-    }
-    with (temporary / STATE).open("wb") as handle:
-        pickle.dump(state, handle, protocol=pickle.HIGHEST_PROTOCOL)
+    write_team_state(team, temporary)
     model = team.models[team.agents[0]]
     record = {
         "format": RECORD_FORMAT,
@@ -193,6 +191,11 @@ def read_record(folder: Path) -> dict[str, Any]:
         raise CheckpointError(f"{folder} is not a finished checkpoint ({RECORD} is missing)") from None
     except ValueError as error:
         raise CheckpointError(f"{path} is not valid JSON ({error})") from None
+    if isinstance(record, dict) and record.get("format") in OLD_RECORD_FORMATS:
+        raise CheckpointError(
+            f"{folder} is a checkpoint in the old format {record['format']!r}, whose state is a pickle "
+            "(loading it can run code); resume it with the sb3_pm version that wrote it"
+        )
     if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
         raise CheckpointError(f"{path} is not an sb3_pm checkpoint record")
     if record.get("sb3_pm") != __version__:
@@ -242,28 +245,15 @@ def find_checkpoint(path: str | Path) -> Path:
 
 
 def restore_state(team: IndependentPPO, checkpoint: Path) -> None:
-    """Put a checkpoint's env copies, counters and random streams into a team loaded from it."""
+    """Put a checkpoint's env copies, counters, random streams and learner rollout state into a
+    team loaded from it (nothing in the files is unpickled).
+
+    :raises CheckpointError: if the state files are malformed or do not match the team.
+    """
     try:
-        with (checkpoint / STATE).open("rb") as handle:
-            state = pickle.load(handle)  # noqa: S301 - our own file, checked against its checksum
-    except (pickle.UnpicklingError, AttributeError, ImportError, EOFError, TypeError) as error:
-        raise CheckpointError(
-            f"{checkpoint / STATE} cannot be read with the installed packages "
-            f"({type(error).__name__}: {error})"
-        ) from None
-    hub = team.hub
-    if len(state["envs"]) != hub.n_envs or len(state["last_obs"]) != hub.n_agents:
-        raise CheckpointError(f"{checkpoint / STATE} does not match the team saved beside it")
-    for env in hub.envs:
-        env.close()
-    hub.envs[:] = state["envs"]
-    hub._ep_returns[:] = state["ep_returns"]
-    hub._ep_lengths[:] = state["ep_lengths"]
-    hub._last_obs = state["last_obs"]
-    # The env copies carry on from where they were: no seeded reset is pending.
-    hub._explicit_seed = None
-    hub._agent_seeds = [None] * hub.n_agents
-    team._resume_streams = state["streams"]
+        read_team_state(team, checkpoint)
+    except InputError as error:
+        raise CheckpointError(f"{checkpoint}: {error}") from None
 
 
 __all__ = [

@@ -21,14 +21,17 @@ from stable_baselines3.common.utils import get_latest_run_id
 from sb3_pm.agents.deployment.rule import DeploymentRule
 from sb3_pm.agents.deployment.saved_teams import (
     MANIFEST,
+    OldTeamFormatError,
     check_same_graph,
     graph_for_saved_team,
+    old_format_message,
     read_manifest,
     save_graph_copy,
     save_model_atomic,
     team_manifest,
     write_manifest,
 )
+from sb3_pm.agents.training.learner_record import plain_hyperparams
 from sb3_pm.agents.training.learners import resolve_learner
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
@@ -38,12 +41,14 @@ from sb3_pm.policies.dcbf import SITE_BOUND
 class LearnedTeam(DeploymentRule):
     """Base of the trained teams: the problem they were built for, the graph check, save and load.
 
-    Subclasses set :attr:`MANIFEST_FORMAT`, call :meth:`_set_problem` first in ``__init__``, and
-    provide :meth:`model_files` (which model goes in which zip).
+    Subclasses set :attr:`MANIFEST_FORMAT` and :attr:`OLD_FORMATS`, call :meth:`_set_problem`
+    first in ``__init__``, and provide :meth:`model_files` (which model goes in which zip).
     """
 
     #: The ``format`` field of this team kind's manifest.
     MANIFEST_FORMAT: ClassVar[str]
+    #: Earlier formats of this kind, loadable only by unpickling: refused, convertible.
+    OLD_FORMATS: ClassVar[tuple[str, ...]] = ()
     omniscient = False
 
     #: The graph the team was built for, or the family of graphs it trains on.
@@ -330,8 +335,13 @@ class LearnedTeam(DeploymentRule):
                 model.update_device = parsed
 
     def manifest(self) -> dict[str, Any]:
-        """What :meth:`save` writes to ``manifest.json``."""
-        return team_manifest(self, self.MANIFEST_FORMAT)
+        """What :meth:`save` writes to ``manifest.json``: the common fields and the hyperparameters
+        in plain JSON (:mod:`.learner_record`), from which ``load`` rebuilds the learners.
+
+        :raises InputError: for a hyperparameter with no plain form (a Python function as a schedule).
+        """
+        hyperparams = plain_hyperparams(getattr(self, "hyperparams", {}), "the team's hyperparams")
+        return {**team_manifest(self, self.MANIFEST_FORMAT), "hyperparams": hyperparams}
 
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Save the team to the folder ``path`` (created if needed); the manifest is written last.
@@ -343,12 +353,21 @@ class LearnedTeam(DeploymentRule):
             raise FileExistsError(f"{folder} exists and is not a folder")
         if folder.is_dir() and not overwrite and ((folder / MANIFEST).exists() or any(folder.glob("*.zip"))):
             raise FileExistsError(f"{folder} already holds a saved team; pass overwrite=True to replace it")
+        manifest = self.manifest()  # first: a team whose settings have no plain form writes nothing
         folder.mkdir(parents=True, exist_ok=True)
         for name, model in self.model_files().items():
             save_model_atomic(model, folder / name)
         save_graph_copy(self.graph, folder)
-        write_manifest(folder, self.manifest())  # last: a folder with a manifest holds a whole team
+        write_manifest(folder, manifest)  # last: a folder with a manifest holds a whole team
         return folder
+
+    def _restore_models(self, folder: Path, device: str) -> None:
+        """Load every model file's tensors and counters into the learners just built (nothing in
+        the zips is unpickled: :func:`~sb3_pm.agents.deployment.model_files.restore_model`)."""
+        from sb3_pm.agents.deployment.model_files import restore_model
+
+        for name, model in self.model_files().items():
+            restore_model(model, folder / name, device)
 
     @classmethod
     def open_saved(
@@ -360,6 +379,8 @@ class LearnedTeam(DeploymentRule):
         :param graph: the graph to run on (``None``: the saved one); it must be the trained problem.
         :param files: ``manifest -> [file names]``, the model files the team needs.
         :raises FileNotFoundError: if the folder, its manifest or a model file is missing.
+        :raises OldTeamFormatError: if the team is in one of :attr:`OLD_FORMATS` (one line: how to
+            convert it).
         :raises InputError: if the folder holds another kind of team, or ``graph`` is another problem.
         """
         folder = Path(path)
@@ -368,7 +389,9 @@ class LearnedTeam(DeploymentRule):
         if not folder.is_dir():
             raise FileNotFoundError(f"no saved team at {folder} (not a folder)")
         manifest = read_manifest(folder)
-        kind = manifest.get("format", cls.MANIFEST_FORMAT)
+        kind = manifest.get("format")
+        if kind in cls.OLD_FORMATS:
+            raise OldTeamFormatError(old_format_message(folder, str(kind)))
         if kind != cls.MANIFEST_FORMAT:
             raise InputError(f"{folder} holds a {kind!r} team, not a {cls.MANIFEST_FORMAT!r} one")
         spec = graph_for_saved_team(folder, manifest, graph)

@@ -9,7 +9,7 @@ torch thread (:mod:`sb3_pm.agents.training.checkpoints`). It acts as every train
 (:class:`~sb3_pm.agents.deployment.rule.DeploymentRule`), so evaluation drives it as a baseline.
 
 A saved team is a folder of one SB3 zip per agent and a manifest
-(:mod:`sb3_pm.agents.deployment.saved_teams`).
+(:mod:`sb3_pm.agents.deployment.saved_teams`); loading it runs nothing stored in it.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.utils import get_device
 
-from sb3_pm.agents.deployment.saved_teams import MANIFEST, load_model_file
+from sb3_pm.agents.deployment.saved_teams import MANIFEST
 from sb3_pm.agents.deployment.transfer import on_graph, transfer_problem
 from sb3_pm.agents.multiplexing.multiplexer import ParallelEnvMultiplexer
 from sb3_pm.agents.multiplexing.streams import StreamState
@@ -38,6 +38,7 @@ from sb3_pm.agents.training.learner_callbacks import (
     EpisodeMetricsCallback,
     close_loggers,
 )
+from sb3_pm.agents.training.learner_record import plain_hyperparams, saved_hyperparams
 from sb3_pm.agents.training.learners import agent_seed, check_same, learner_kwargs
 from sb3_pm.agents.training.rollout_batching import RolloutBatcher
 from sb3_pm.agents.training.team_learning import run_team_learning
@@ -94,7 +95,8 @@ class IndependentPPO(LearnedTeam):
     """
 
     name = "ippo"
-    MANIFEST_FORMAT = "sb3_pm.team/1"
+    MANIFEST_FORMAT = "sb3_pm.team/2"
+    OLD_FORMATS = ("sb3_pm.team/1",)
     resizable = True
     #: while training, run the learners' rollout passes as one stacked pass per joint step where it
     #: applies (:mod:`sb3_pm.agents.training.rollout_batching`; the same parameters bit for bit)
@@ -249,12 +251,15 @@ class IndependentPPO(LearnedTeam):
         :param checkpoints: where and how often to write checkpoints (none by default); a first
             Ctrl-C then checkpoints at the next rollout barrier and raises ``TrainingInterrupted``.
         :param on_interrupt: called on that first Ctrl-C (to tell the user what happens next).
-        :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``.
+        :raises ValueError: if the learners disagree on ``n_steps``/``n_envs``, or, with ``checkpoints``,
+            a hyperparameter has no plain form for the saved team (a Python function as a schedule).
         :raises Exception: the first error a learner raised (the others are stopped cleanly).
         """
         if total_timesteps < 1:
             raise InputError(f"total_timesteps must be positive, got {total_timesteps}")
         self._validate_learners(reset_num_timesteps)
+        if checkpoints is not None:
+            self.manifest()  # settings with no plain form cannot be checkpointed: refused before training
         self._training_filter()  # the deploy filter is for acting: off while the learners train
         try:
             return run_team_learning(
@@ -311,8 +316,12 @@ class IndependentPPO(LearnedTeam):
 
     # ---------------------------------------------------------- save / load
     def manifest(self) -> dict[str, Any]:
-        """What :meth:`save` writes to ``manifest.json``: the common fields and the agents' names."""
-        return {**super().manifest(), "agents": self.agents}
+        """What :meth:`save` writes to ``manifest.json``: the common fields, the agents' names and
+        their overrides in plain JSON (:mod:`.learner_record`)."""
+        per_agent = {
+            agent: plain_hyperparams(v, f"the hyperparams of {agent}") for agent, v in self.per_agent.items()
+        }
+        return {**super().manifest(), "agents": self.agents, "per_agent": per_agent}
 
     def model_files(self) -> dict[str, BaseAlgorithm]:
         """One zip per agent, named after it."""
@@ -328,27 +337,29 @@ class IndependentPPO(LearnedTeam):
         tensorboard_log: str | Path | None = None,
         verbose: int | None = None,
         strict_order: bool = True,
-        custom_objects: dict[str, Any] | None = None,
-        force_reset: bool = True,
         concurrent_updates: bool = True,
         wait_timeout: float | None = DEFAULT_WAIT_TIMEOUT,
     ) -> IndependentPPO:
         """Load a team saved with :meth:`save` (or the run folder of ``sb3-pm train`` holding it in
         ``team/``), ready to act or to resume training.
 
+        Nothing stored in the folder runs: the learners are built by the constructor from the
+        manifest's settings, then given the zips' tensors and counters
+        (:mod:`sb3_pm.agents.deployment.model_files`). Further training starts with an env reset.
+
         :param graph: the graph to run on; ``None`` uses the saved one. It must be the same problem
             (same fingerprint) as the one the team was trained on.
         :param n_envs: env copies for further training (default: the saved number).
-        :param force_reset: start further training with an env reset (SB3's default); False keeps the
-            saved last observations, for :meth:`from_checkpoint`, which restores the env copies too.
         :param concurrent_updates: see the constructor (not saved with a team).
         :param wait_timeout: see the constructor (not saved with a team).
         :raises FileNotFoundError: if the folder, its manifest or an agent's zip is missing.
-        :raises ValueError: if ``graph`` is not the graph the team was trained on.
+        :raises OldTeamFormatError: for a team in the old format (``sb3-pm convert-team`` converts it).
+        :raises InputError: if ``graph`` is not the graph the team was trained on, or a file is damaged.
         """
         folder, manifest, spec = cls.open_saved(
             path, graph, lambda manifest: [f"{agent}.zip" for agent in manifest["agents"]]
         )
+        hyperparams, per_agent = saved_hyperparams(folder / MANIFEST, manifest)
         team = cls(
             spec,
             n_agents=int(manifest["n_agents"]),
@@ -357,6 +368,8 @@ class IndependentPPO(LearnedTeam):
             policy=manifest["policy"],
             n_envs=int(n_envs or manifest["n_envs"]),
             seed=int(manifest["seed"]),
+            hyperparams=hyperparams,
+            per_agent=per_agent,
             tensorboard_log=tensorboard_log,
             verbose=0 if verbose is None else verbose,
             device=device,
@@ -365,23 +378,13 @@ class IndependentPPO(LearnedTeam):
             wait_timeout=wait_timeout,
             deploy_temperature=manifest.get("deploy_temperature"),
             deploy_filter=manifest.get("deploy_filter"),
-            _init_models=False,
         )
-        for i, agent in enumerate(team.agents):
-            model = load_model_file(
-                team.algo_class,
-                folder / f"{agent}.zip",
-                env=team.hub.vec_envs[i],
-                device=device,
-                custom_objects=custom_objects,
-                force_reset=force_reset,
-            )
-            if tensorboard_log is not None:
-                model.tensorboard_log = str(tensorboard_log)
-            if verbose is not None:
-                model.verbose = verbose
-            team.models[agent] = model
-        team._restore_acting_rule(manifest)
+        try:
+            team._restore_models(folder, device)
+            team._restore_acting_rule(manifest)
+        except BaseException:
+            team.close()
+            raise
         return team
 
     @classmethod
@@ -402,14 +405,13 @@ class IndependentPPO(LearnedTeam):
         """
         checkpoint = find_checkpoint(path)
         team = cls.load(
-            checkpoint,
-            device=device,
-            tensorboard_log=tensorboard_log,
-            verbose=verbose,
-            force_reset=False,
-            **options,
+            checkpoint, device=device, tensorboard_log=tensorboard_log, verbose=verbose, **options
         )
-        restore_state(team, checkpoint)
+        try:
+            restore_state(team, checkpoint)
+        except BaseException:
+            team.close()
+            raise
         team.checkpoint = checkpoint
         return team
 

@@ -1,0 +1,89 @@
+"""An env copy's state as plain values, for checkpoints (:mod:`sb3_pm.agents.training.checkpoints`).
+
+:class:`EnvState` gives :class:`~sb3_pm.envs.persistent_monitoring.PersistentMonitoringEnv` a
+``state_dict()`` / ``load_state_dict()`` pair: what changes while the env runs (the true state, the
+mental maps, the metrics, the reward terms, the rule's goals, the generator, the step counters), as
+arrays, numbers and the generator's ``bit_generator.state``. Everything else follows from the
+env's constructor arguments, so a checkpoint rebuilds each env copy from the team's settings and
+loads this state into it: nothing in the file is code.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from sb3_pm.errors import InputError
+from sb3_pm.graphs import GraphSpec
+
+if TYPE_CHECKING:
+    from sb3_pm.envs.persistent_monitoring import PersistentMonitoringEnv
+
+#: The env's own attributes a state keeps (sub-objects keep theirs through their own pairs).
+_ENV_FIELDS = ("agents", "_step_count", "_dwell", "_active", "_last_outcome_counts")
+
+
+class EnvState:
+    """The ``state_dict()`` / ``load_state_dict()`` pair of the persistent-monitoring env."""
+
+    def state_dict(self: PersistentMonitoringEnv) -> dict[str, Any]:  # type: ignore[misc]
+        """Everything the env's next steps depend on beyond its constructor arguments."""
+        state: dict[str, Any] = {name: copy.copy(getattr(self, name)) for name in _ENV_FIELDS}
+        state["rng"] = copy.deepcopy(self._rng)
+        state["observed"] = copy.copy(getattr(self, "_observed", None))
+        if self.family is not None:  # this episode's graph was drawn from the family
+            graph = self.graph
+            state["graph"] = {
+                "adjacency": graph.adjacency.copy(),
+                "targets": graph.targets.copy(),
+                "name": graph.name,
+                "positions": None if graph.positions is None else graph.positions.copy(),
+                "node_ids": None if graph.node_ids is None else list(graph.node_ids),
+            }
+        state["core"] = self.core.state_dict()
+        state["maps"] = self.maps.state_dict()
+        state["metrics"] = self.metrics.state_dict()
+        state["rewards"] = self.rewards_computer.state_dict()
+        state["advice"] = None if self._advice is None else self._advice.state_dict()
+        return state
+
+    def load_state_dict(self: PersistentMonitoringEnv, state: dict[str, Any]) -> None:  # type: ignore[misc]
+        """Put back a :meth:`state_dict` of an env built with the same arguments.
+
+        :raises InputError: if the state does not fit this env.
+        """
+        try:
+            if self.family is not None:
+                saved = state["graph"]
+                self._use_graph(
+                    GraphSpec(
+                        adjacency=np.asarray(saved["adjacency"], dtype=bool),
+                        targets=np.asarray(saved["targets"], dtype=bool),
+                        name=str(saved["name"]),
+                        positions=saved["positions"],
+                        node_ids=None if saved["node_ids"] is None else tuple(saved["node_ids"]),
+                    )
+                )
+            if not isinstance(state["rng"], np.random.Generator):
+                raise InputError("the saved env state has no generator")
+            for name in _ENV_FIELDS:
+                setattr(self, name, copy.copy(state[name]))
+            self.agents = [str(agent) for agent in self.agents]
+            self._rng = state["rng"]
+            if state["observed"] is not None:
+                self._observed = state["observed"]
+            self.core.load_state_dict(state["core"])
+            self.maps.load_state_dict(state["maps"])
+            self.metrics.load_state_dict(state["metrics"])
+            self.rewards_computer.load_state_dict(state["rewards"])
+            if (state["advice"] is None) != (self._advice is None):
+                raise InputError("the saved env state does not match the env's territory advice")
+            if self._advice is not None:
+                self._advice.load_state_dict(state["advice"])
+        except (KeyError, TypeError, AttributeError) as error:
+            raise InputError(f"the saved env state is incomplete or malformed ({error!r})") from None
+
+
+__all__ = ["EnvState"]
