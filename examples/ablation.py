@@ -24,6 +24,8 @@ import os
 import tempfile
 from pathlib import Path
 
+import torch
+
 from sb3_pm import IndependentPPO
 from sb3_pm.evaluation import anova_text, evaluate, markdown_table, summarize
 from sb3_pm.evaluation.statistics import anova
@@ -32,6 +34,9 @@ FLAGS = ("use_dcbf", "use_estimator", "avoid_collisions")
 
 
 def main() -> None:
+    # One torch thread per process: the networks are small, and two threads beside another
+    # process run several times slower than one.
+    torch.set_num_threads(1)
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

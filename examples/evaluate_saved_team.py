@@ -26,6 +26,8 @@ import os
 import tempfile
 from pathlib import Path
 
+import torch
+
 from sb3_pm.evaluation import compare, markdown_table, plot_uncertainty, record_gif, resolve_team
 
 
@@ -47,6 +49,9 @@ def train_tiny_team(graph: str, folder: Path, max_cycles: int) -> Path:
 
 
 def main() -> None:
+    # One torch thread per process: the networks are small, and two threads beside another
+    # process run several times slower than one.
+    torch.set_num_threads(1)
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

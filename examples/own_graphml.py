@@ -23,12 +23,17 @@ import os
 import tempfile
 from pathlib import Path
 
+import torch
+
 from sb3_pm import IndependentPPO
 from sb3_pm.evaluation import evaluate, markdown_table, resolve_team, summarize
 from sb3_pm.graphs import erdos_renyi, resolve_graph, save_graphml
 
 
 def main() -> None:
+    # One torch thread per process: the networks are small, and two threads beside another
+    # process run several times slower than one.
+    torch.set_num_threads(1)
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from sb3_contrib import MaskablePPO
 
 from sb3_pm.evaluation import evaluate, markdown_table, resolve_team, summarize
@@ -75,6 +76,9 @@ def check_truncation_flag(venv: Any, max_cycles: int) -> None:
 
 
 def main() -> None:
+    # One torch thread per process: the networks are small, and two threads beside another
+    # process run several times slower than one.
+    torch.set_num_threads(1)
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -26,6 +26,7 @@ import tempfile
 from pathlib import Path
 
 import gymnasium as gym
+import torch
 from sb3_contrib import MaskablePPO
 from stable_baselines3 import PPO
 
@@ -50,6 +51,9 @@ def run_episode(model: PPO, env: gym.Env, seed: int, masked: bool) -> dict[str, 
 
 
 def main() -> None:
+    # One torch thread per process: the networks are small, and two threads beside another
+    # process run several times slower than one.
+    torch.set_num_threads(1)
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -437,6 +437,7 @@ def run(args: argparse.Namespace) -> int:
                 max_cycles=args.steps,
                 env_kwargs=env_kwargs,
                 deterministic=deterministic,
+                threads=args.threads,
             )
         print(f"wrote {args.gif}", file=sys.stderr)
     return 0

@@ -16,7 +16,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from sb3_pm.evaluation.harness import EpisodeRecord, run_episode
+from sb3_pm.evaluation.harness import EpisodeRecord, run_episode, torch_threads
 from sb3_pm.files import atomic_path
 from sb3_pm.graphs import GraphLike, resolve_graph
 from sb3_pm.team_interface import Team
@@ -132,9 +132,14 @@ def record_gif(
     env_kwargs: Mapping[str, Any] | None = None,
     fps: int = 8,
     deterministic: bool | None = None,
+    threads: int | None = 1,
 ) -> EpisodeRecord:
     """Play one episode (env seed ``seed``, as episode 0 of ``evaluate(seed=seed)``) and save it,
     each frame written as it is drawn (:class:`GifWriter`; ``path`` is replaced at the end only).
+
+    :param threads: torch CPU threads while the team acts, as in
+        :func:`~sb3_pm.evaluation.evaluate` (one by default: a small forward pass is several times
+        slower on two threads beside another process); ``None`` leaves torch's count.
 
     ``graph``, ``n_agents`` and ``env_kwargs`` mean what they mean for
     :func:`~sb3_pm.evaluation.evaluate`: a trained team acts on its own graph, with its own size and
@@ -157,7 +162,7 @@ def record_gif(
         settle_site_bound(team, spec, n_agents, kwargs, max_cycles)
     env = team.make_env(spec, n_agents=n_agents, max_cycles=max_cycles, render_mode="rgb_array", **kwargs)
     try:
-        with gif_writer(path, fps=fps, palette_sample=episode_colors(env)) as writer:
+        with torch_threads(threads), gif_writer(path, fps=fps, palette_sample=episode_colors(env)) as writer:
             return run_episode(
                 team, env, seed, frames=writer, deterministic=team.acts_deterministically(deterministic)
             )
