@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from sb3_pm.errors import InputError
+from sb3_pm.files import atomic_path, write_atomic
 
 #: The bit generators a saved ``Generator`` may name (looked up in ``numpy.random``, nothing else).
 BIT_GENERATORS = ("PCG64", "PCG64DXSM", "MT19937", "Philox", "SFC64")
@@ -124,10 +125,11 @@ def write_state(value: Any, json_path: Path, arrays_path: Path) -> None:
     """Write ``value`` as ``json_path`` (the tree) and ``arrays_path`` (its arrays, ``.npz``)."""
     arrays: dict[str, np.ndarray] = {}
     tree = encode(value, arrays)
-    json_path.write_text(json.dumps(tree, sort_keys=True) + "\n")
+    write_atomic(json_path, json.dumps(tree, sort_keys=True) + "\n")
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)  # type: ignore[arg-type]  # names are strings
-    arrays_path.write_bytes(buffer.getvalue())
+    with atomic_path(arrays_path) as temporary:
+        temporary.write_bytes(buffer.getvalue())
 
 
 def read_state(json_path: Path, arrays_path: Path) -> Any:

@@ -26,6 +26,7 @@ LAYERS: list[tuple[str, ...]] = [
         "sb3_pm.files",
         "sb3_pm.machine",
         "sb3_pm.plain_state",
+        "sb3_pm.pretrained",  # the shipped teams' folders
         "sb3_pm.progress",
         "sb3_pm.version",
     ),

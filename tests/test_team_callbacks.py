@@ -12,8 +12,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import configure
 
 from sb3_pm.agents.training.team import IndependentPPO
-from sb3_pm.agents.training.team_callbacks import TeamEvalCallback, split_team_callbacks
+from sb3_pm.agents.training.team_callbacks import split_team_callbacks
 from sb3_pm.errors import InputError
+from sb3_pm.evaluation.team_eval_callback import TeamEvalCallback
 from tests.test_team import make_team, parameters
 
 th.set_num_threads(1)

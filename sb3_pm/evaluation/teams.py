@@ -9,6 +9,7 @@ from typing import Any
 from sb3_pm.baselines import BASELINES, make_team
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import resolve_graph
+from sb3_pm.pretrained import PREFIX, pretrained_names, pretrained_path
 from sb3_pm.team_interface import Team
 
 
@@ -19,7 +20,8 @@ class PolicyError(InputError):
 def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **kwargs: Any) -> Team:
     """A team for ``policy``.
 
-    :param policy: a baseline name (a key of :data:`~sb3_pm.baselines.BASELINES`) or the path of a
+    :param policy: a baseline name (a key of :data:`~sb3_pm.baselines.BASELINES`), a shipped
+        trained team (``pretrained:paper-50``, :mod:`sb3_pm.pretrained`) or the path of a
         directory holding a saved trained team (loaded with ``IndependentPPO.load``).
     :param graph: for a trained team, the graph it will run on; its loader checks that the team
         was trained on the same problem. Ignored for baselines.
@@ -31,6 +33,8 @@ def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **k
     text = str(policy)
     if text in BASELINES:
         return make_team(text, **kwargs)
+    if text.startswith(PREFIX):  # a team that ships with the package
+        return load_trained_team(pretrained_path(text), graph, device=device)
     path = Path(text).expanduser()
     if path.is_dir():
         return load_trained_team(path, graph, device=device)
@@ -39,7 +43,8 @@ def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **k
     if "/" in text or "\\" in text or text.startswith("."):
         raise FileNotFoundError(f"trained team directory not found: {text}")
     raise PolicyError(
-        f"unknown policy {text!r}: use a baseline ({', '.join(BASELINES)}) or a trained team directory"
+        f"unknown policy {text!r}: use a baseline ({', '.join(BASELINES)}), a pretrained team "
+        f"({', '.join(PREFIX + name for name in pretrained_names())}) or a trained team directory"
     )
 
 
@@ -90,6 +95,7 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
 
 
 def policy_label(policy: str | Path, team: Team) -> str:
-    """The report label: the baseline's name, or the trained team's directory name."""
+    """The report label: the baseline's name, the pretrained team's ``pretrained:<name>``, or the
+    trained team's directory name."""
     text = str(policy)
-    return text if text in BASELINES else Path(text).name or text
+    return text if text in BASELINES or text.startswith(PREFIX) else Path(text).name or text

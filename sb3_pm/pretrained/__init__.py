@@ -1,0 +1,52 @@
+"""Trained teams that ship with the package: ``--policy pretrained:<name>``.
+
+Each is a saved team folder (the safe format: a manifest and one SB3 zip per agent, read without
+unpickling) under ``sb3_pm/pretrained/<name>/``, with ``provenance.json`` saying which command,
+code version and seed made it and what it scored. The zips keep the policies' parameters and
+step counters only; the optimizers' states are left out, so a pretrained team acts, and trains on
+with fresh optimizers.
+
+========== ==================================================================================
+name        team
+========== ==================================================================================
+paper-50    the default configuration (``zoo/ippo.yml``) trained on the paper's 50-node graph
+            at the paper's budget, seed 0
+========== ==================================================================================
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from sb3_pm.errors import InputError
+
+#: What names a pretrained team in ``--policy``.
+PREFIX = "pretrained:"
+_FOLDER = Path(__file__).resolve().parent
+
+
+def pretrained_names() -> list[str]:
+    """The names of the shipped pretrained teams."""
+    return sorted(p.name for p in _FOLDER.iterdir() if (p / "manifest.json").is_file())
+
+
+def pretrained_path(name: str) -> Path:
+    """The folder of the pretrained team ``name`` (with or without the ``pretrained:`` prefix).
+
+    :raises InputError: for a name that ships no team.
+    """
+    name = name.removeprefix(PREFIX)
+    folder = _FOLDER / name
+    if "/" in name or "\\" in name or not (folder / "manifest.json").is_file():
+        raise InputError(f"no pretrained team {name!r}: use one of {', '.join(pretrained_names()) or 'none'}")
+    return folder
+
+
+def provenance(name: str) -> dict[str, Any]:
+    """How the pretrained team ``name`` was made and what it scored (its ``provenance.json``)."""
+    return dict(json.loads((pretrained_path(name) / "provenance.json").read_text()))
+
+
+__all__ = ["PREFIX", "pretrained_names", "pretrained_path", "provenance"]
