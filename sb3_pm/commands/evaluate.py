@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_pm.commands.options import add_compute_options, check_compute_options, check_writable
+from sb3_pm.commands.options import add_compute_options, check_compute_options, check_seeds, check_writable
 
 #: ``--settling`` given without SINCE. Not a string, which argparse would pass through ``type=int``,
 #: and not an int, so that ``--settling -1`` is refused like any other value out of range.
@@ -123,6 +123,9 @@ def check_counts(args: argparse.Namespace) -> None:
         value = getattr(args, flag)
         if value is not None and value < 1:
             raise UsageError(f"--{flag} must be at least 1, got {value}")
+    if getattr(args, "seed", None) is not None:
+        check_seeds([args.seed], "--seed")
+    check_seeds(getattr(args, "seeds", None) or [], "--seeds")
     settling = getattr(args, "settling", None)
     if settling is not None and settling is not SECOND_HALF and not 0 <= settling < args.steps:
         raise UsageError(

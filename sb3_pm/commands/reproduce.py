@@ -97,6 +97,7 @@ def _exit_on_sigterm(signum: int, frame: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_pm.commands.options import check_device, check_seeds
     from sb3_pm.errors import UsageError
     from sb3_pm.experiments import load_experiment, reproduce
     from sb3_pm.graphs import resolve_graph
@@ -126,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
         resolve_graph(graph)  # every graph checked before hours of training start
     if args.jobs is not None and args.jobs < 1:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    check_seeds(args.seeds or [], "--seeds")
+    check_device(args.device, "--device")
     if args.ray_address and args.backend != "ray":
         raise UsageError("--ray-address needs --backend ray")
     if args.backend == "ray":

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from sb3_pm.agents.deployment.saved_teams import read_manifest
 from sb3_pm.baselines import BASELINES, make_team
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import resolve_graph
@@ -62,7 +63,7 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
     for folder in (path, path / "team"):
         if (folder / "manifest.json").exists():
             try:
-                manifest = dict(json.loads((folder / "manifest.json").read_text()))
+                manifest = read_manifest(folder)  # every field of the right type
             except (json.JSONDecodeError, TypeError, ValueError) as error:
                 message = f"cannot load the trained team in {path}: bad manifest.json ({error})"
                 raise PolicyError(message) from error
