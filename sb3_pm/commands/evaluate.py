@@ -285,9 +285,11 @@ def print_summary(result: Any, stream: Any = None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_pm.baselines import BASELINES
     from sb3_pm.errors import InputError, UsageError
     from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
     from sb3_pm.graphs import resolve_graph
+    from sb3_pm.zoo.memory import check_memory, dense_attention, evaluation_estimate
 
     check_counts(args)
     check_compute_options(args)
@@ -339,6 +341,12 @@ def run(args: argparse.Namespace) -> int:
                 ),
                 file=sys.stderr,
             )
+    # sizes only: a graph too large for this host is refused before the env is built
+    learned = args.policy not in BASELINES
+    estimate = evaluation_estimate(
+        graph.n_nodes, args.agents, learned, dense_attention=dense_attention(graph, None)
+    )
+    check_memory(estimate, f"evaluating {args.agents} agents on {graph.name}")
     env_kwargs = failure_kwargs(args)  # over the team's own env settings (evaluate() adds them)
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     deterministic = acting_rule(args)

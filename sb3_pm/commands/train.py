@@ -157,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
     from sb3_pm.zoo import load_config
     from sb3_pm.zoo.checks import check_batch
     from sb3_pm.zoo.config import default_env
+    from sb3_pm.zoo.memory import check_memory, config_estimate
 
     if args.resume is not None:
         return resume(args)
@@ -191,6 +192,8 @@ def run(args: argparse.Namespace) -> int:
         for agent, values in config.agents.items():
             where = f"{config.source}: {config.entry}.agents.{agent} (with --n-envs)"
             check_batch({**config.hyperparams, **values}, config.n_envs, where)
+    # sizes only: a graph too large for this host is refused before any folder or env exists
+    check_memory(config_estimate(config, graph), f"training {config.n_agents} agents on {args.env}")
     out = args.out or Path("runs") / f"{graph_label(args.env)}_{config.algo}_s{args.seed}"
     # Everything is checked, and the team built (which validates policy_kwargs, the team size and
     # every learner argument), before the run folder is created or emptied: a bad run leaves nothing.

@@ -44,6 +44,7 @@ from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluat
 from sb3_pm.experiments.backends import default_jobs, run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
+from sb3_pm.experiments.memory_needs import check_sweep_memory
 from sb3_pm.experiments.record import EVAL_SEED_OFFSET, experiment_record, team_rules
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant, variant_config
@@ -379,6 +380,10 @@ def reproduce(
     cells = plan_cells(experiment, out, device=device, update_device=update_device)
     if update_device is not None:  # before the folder is written and hours of training start
         check_update_device_takers(update_device, cells)
+    # every cell's memory, from sizes, before the folder is written and any env allocated
+    check_sweep_memory(
+        [cell for cell in cells if not cell.done], backend, n_jobs or default_jobs(), experiment.name
+    )
     out.mkdir(parents=True, exist_ok=True)
     (out / "experiment.yml").write_text(yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     (out / "command.txt").write_text(shlex.join(command or sys.argv) + "\n")
