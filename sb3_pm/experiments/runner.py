@@ -41,7 +41,7 @@ import yaml
 
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
-from sb3_pm.experiments.backends import default_jobs, run_jobs
+from sb3_pm.experiments.backends import WorkerLost, default_jobs, run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.memory_needs import check_sweep_memory
@@ -408,16 +408,23 @@ def reproduce(
         bar = progress_bar(
             len(todo), f"{experiment.name} ({len(cells) - len(todo)} of {len(cells)} cells were done)", "cell"
         )
-    run_jobs(
-        run_cell,
-        todo,
-        backend=backend,
-        n_jobs=n_jobs,
-        ray_address=ray_address,
-        on_done=(lambda index, result: bar.update(1)) if bar is not None else None,
-    )
-    if bar is not None:
-        bar.close()
+    try:
+        run_jobs(
+            run_cell,
+            todo,
+            backend=backend,
+            n_jobs=n_jobs,
+            ray_address=ray_address,
+            on_done=(lambda index, result: bar.update(1)) if bar is not None else None,
+            label=lambda cell: str(Path(cell.folder).relative_to(out)),
+        )
+    except WorkerLost as error:  # the cells that finished are kept: the same command resumes the rest
+        raise WorkerLost(
+            f"{experiment.name}: {error}; run the same command again to resume", error.lost
+        ) from None
+    finally:
+        if bar is not None:
+            bar.close()
     comparison = Comparison(config=experiment_record(experiment))
     for cell in cells:
         payload = json.loads((Path(cell.folder) / "evaluation.json").read_text())
