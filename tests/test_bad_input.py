@@ -152,3 +152,43 @@ def test_a_manifest_field_of_the_wrong_type_is_one_line(tiny_train, tmp_path, ca
     team = Path(tmp_path / "team_graph")
     with pytest.raises(InputError, match="field graph must be an object"):
         read_manifest(team)
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ("max_cycles: 1e7\n", "max_cycles: expected an integer >= 1, got '1e7'"),
+        ("env_kwargs: {max_cycles: 1e7}\n", "env_kwargs must not set ['max_cycles']"),
+        (
+            "variants: {learned: {env_kwargs: {max_cycles: 7}}}\n",
+            "variant 'learned': env_kwargs must not set",
+        ),
+    ],
+)
+def test_an_experiment_refuses_max_cycles_it_would_ignore_or_misread(
+    tmp_path, capsys, settings, message
+) -> None:
+    """An experiment's max_cycles is every cell's: one written in env_kwargs was replaced silently."""
+    from tests.test_experiments import tiny_experiment
+
+    path = tiny_experiment(tmp_path)
+    text = path.read_text()
+    if settings.startswith("variants"):
+        text = text.replace("  learned: {}\n", "  learned: {env_kwargs: {max_cycles: 7}}\n")
+    else:
+        text = text.replace("max_cycles: 20\n", "") + settings
+    path.write_text(text)
+    out = tmp_path / "out"
+    argv = [
+        "reproduce",
+        str(path),
+        "--out",
+        str(out),
+        "--graphs",
+        str(tmp_path / "tiny.graphml"),
+        "--jobs",
+        "1",
+    ]
+    assert main(argv) == 2
+    one_line_error(capsys, message)
+    assert not out.exists()
