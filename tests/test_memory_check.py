@@ -100,7 +100,31 @@ def test_evaluate_refuses_a_graph_too_large_before_the_env(capsys, no_env_built)
     argv = ["evaluate", "--policy", "random", "--graph", "cycle", "--steps", "20", "--episodes", "1"]
     assert main(argv) == 2
     err = one_line(capsys)
-    assert "evaluating 4 agents on cycle-20000 needs about 8.9 GiB (graph 5.2 GiB, env copies 3.7 GiB)" in err
+    assert (
+        "evaluating random (4 agents) on cycle needs about 8.9 GiB (graph 5.2 GiB, env copies 3.7 GiB)" in err
+    )
+
+
+def test_evaluate_refuses_before_a_saved_team_loads(tmp_path, capsys, monkeypatch, no_env_built) -> None:
+    """A saved team builds its training env copies as it loads: the check comes first."""
+    import json
+
+    from sb3_pm.agents.training.team import IndependentPPO
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the team loaded before the memory check")
+
+    monkeypatch.setattr(IndependentPPO, "load", refuse)
+    team = tmp_path / "team"
+    team.mkdir()
+    (team / "manifest.json").write_text(
+        json.dumps({"n_agents": 2, "n_envs": 2, "agents": ["agent_0", "agent_1"]})
+    )
+    assert (
+        main(["evaluate", "--policy", str(team), "--graph", "cycle", "--steps", "20", "--episodes", "1"]) == 2
+    )
+    err = one_line(capsys)
+    assert f"evaluating {team} (2 agents) on cycle needs about" in err and "forward pass" in err
 
 
 def test_compare_refuses_a_graph_too_large_before_the_env(tmp_path, capsys, no_env_built) -> None:

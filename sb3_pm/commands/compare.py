@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_pm.commands.evaluate import check_counts
+from sb3_pm.commands.evaluate import check_counts, check_evaluation_memory
 from sb3_pm.commands.options import add_compute_options, check_compute_options
 
 
@@ -52,12 +52,9 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_pm.baselines import BASELINES
-    from sb3_pm.commands.evaluate import DEFAULT_AGENTS
     from sb3_pm.errors import UsageError
     from sb3_pm.evaluation import compare, markdown_table, policy_label, resolve_team
     from sb3_pm.graphs import resolve_graph
-    from sb3_pm.zoo.memory import check_memory, dense_attention, evaluation_estimate
 
     check_counts(args)
     check_compute_options(args)
@@ -68,24 +65,16 @@ def run(args: argparse.Namespace) -> int:
     if len(set(args.policies)) != len(args.policies):
         raise UsageError(f"--policies lists a policy twice: {args.policies}")
     graphs = {name: resolve_graph(name) for name in args.graphs}  # every graph checked before the long part
+    for name, graph in graphs.items():  # sizes only: before any team loads or env is built
+        for policy in args.policies:
+            check_evaluation_memory(policy, graph, args.agents, name)
     teams = {}
-    team_sizes: dict[str, int | None] = {}
     for policy in args.policies:
         team = resolve_team(policy, graph=args.graphs[0], device=args.device)  # checks it now
         label = policy_label(policy, team)
         if label in teams:
             raise UsageError(f"two policies share the label {label!r}")
-        team_sizes[label] = team.n_agents
         teams[label] = lambda graph, policy=policy: resolve_team(policy, graph=graph, device=args.device)
-    # sizes only: a graph too large for this host is refused before any env is built
-    for name, graph in graphs.items():
-        for policy, label in zip(args.policies, teams):
-            n_agents = args.agents or team_sizes[label] or DEFAULT_AGENTS
-            learned = policy not in BASELINES
-            estimate = evaluation_estimate(
-                graph.n_nodes, n_agents, learned, dense_attention=dense_attention(graph, None)
-            )
-            check_memory(estimate, f"evaluating {label} ({n_agents} agents) on {name}")
     comparison = compare(
         teams,
         args.graphs,

@@ -133,6 +133,34 @@ def check_counts(args: argparse.Namespace) -> None:
         )
 
 
+def check_evaluation_memory(policy: str, graph: Any, n_agents: int | None, name: str) -> None:
+    """Refuse, from sizes alone, an evaluation too large for this host's memory, before the team
+    loads (a saved team builds its training env copies as it loads) and before any env is built.
+
+    :param n_agents: the team size asked for (``None``: a saved team's own, else the default).
+    """
+    from sb3_pm.agents.deployment.saved_teams import MANIFEST, read_manifest
+    from sb3_pm.baselines import BASELINES
+    from sb3_pm.zoo.memory import check_memory, dense_attention, evaluation_estimate
+
+    manifest: dict[str, Any] = {}
+    if policy not in BASELINES:
+        folder = Path(policy) if (Path(policy) / MANIFEST).is_file() else Path(policy) / "team"
+        try:
+            manifest = read_manifest(folder)
+        except (OSError, ValueError):
+            pass  # the loader says what is wrong with it
+    agents = n_agents or int(manifest.get("n_agents") or DEFAULT_AGENTS)
+    estimate = evaluation_estimate(
+        graph.n_nodes,
+        agents,
+        policy not in BASELINES,
+        dense_attention=dense_attention(graph, None),
+        team_envs=int(manifest.get("n_envs") or 0),
+    )
+    check_memory(estimate, f"evaluating {policy} ({agents} agents) on {name}")
+
+
 def settle_since(args: argparse.Namespace) -> int | None:
     """The harness's ``settle_since`` from ``--settling [SINCE]`` (bare: the second half)."""
     if args.settling is None:
@@ -285,11 +313,9 @@ def print_summary(result: Any, stream: Any = None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sb3_pm.baselines import BASELINES
     from sb3_pm.errors import InputError, UsageError
     from sb3_pm.evaluation import evaluate, policy_label, record_gif, resolve_team
     from sb3_pm.graphs import resolve_graph
-    from sb3_pm.zoo.memory import check_memory, dense_attention, evaluation_estimate
 
     check_counts(args)
     check_compute_options(args)
@@ -305,6 +331,7 @@ def run(args: argparse.Namespace) -> int:
             check_temperature(args.temperature)  # before the team loads
         except InputError:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
+    check_evaluation_memory(args.policy, graph, args.agents, str(args.graph))
     team = resolve_team(args.policy, graph=graph, device=args.device)
     if args.agents is None:  # a trained team deploys as it was trained unless told otherwise
         args.agents = team.n_agents or DEFAULT_AGENTS
@@ -341,12 +368,6 @@ def run(args: argparse.Namespace) -> int:
                 ),
                 file=sys.stderr,
             )
-    # sizes only: a graph too large for this host is refused before the env is built
-    learned = args.policy not in BASELINES
-    estimate = evaluation_estimate(
-        graph.n_nodes, args.agents, learned, dense_attention=dense_attention(graph, None)
-    )
-    check_memory(estimate, f"evaluating {args.agents} agents on {graph.name}")
     env_kwargs = failure_kwargs(args)  # over the team's own env settings (evaluate() adds them)
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     deterministic = acting_rule(args)

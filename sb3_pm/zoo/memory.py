@@ -122,11 +122,19 @@ def training_estimate(
 
 
 def evaluation_estimate(
-    n_nodes: int, n_agents: int, learned: bool, heads: int = 4, dense_attention: bool = True
+    n_nodes: int,
+    n_agents: int,
+    learned: bool,
+    heads: int = 4,
+    dense_attention: bool = True,
+    team_envs: int = 0,
 ) -> MemoryEstimate:
     """What evaluating a team needs: the graph, one env, and for a learned team one forward pass on
-    every agent's map."""
-    parts = env_parts(n_nodes, n_agents, 1)
+    every agent's map.
+
+    :param team_envs: env copies a saved team builds as it loads (its training ``n_envs``).
+    """
+    parts = env_parts(n_nodes, n_agents, 1 + team_envs)
     if learned:
         parts.append(("forward pass", forward_bytes(n_nodes, n_agents, heads, 1, dense_attention, False)))
     return MemoryEstimate(tuple(parts))
