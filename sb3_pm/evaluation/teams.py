@@ -6,7 +6,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-from sb3_pm.agents.deployment.saved_teams import read_manifest
 from sb3_pm.baselines import BASELINES, make_team
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import resolve_graph
@@ -63,6 +62,8 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
     for folder in (path, path / "team"):
         if (folder / "manifest.json").exists():
             try:
+                from sb3_pm.agents.deployment.saved_teams import read_manifest  # lazy: imports SB3
+
                 manifest = read_manifest(folder)  # every field of the right type
             except (json.JSONDecodeError, TypeError, ValueError) as error:
                 message = f"cannot load the trained team in {path}: bad manifest.json ({error})"
