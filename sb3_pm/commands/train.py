@@ -187,10 +187,8 @@ def run(args: argparse.Namespace) -> int:
         config.n_timesteps = args.timesteps
     if args.n_envs is not None:
         config.n_envs = args.n_envs
-        # --n-envs changes the rollout the config's batch_size was checked against
-        check_batch(config.hyperparams, config.n_envs, f"{config.source}: {config.entry} (with --n-envs)")
-        for agent, values in config.agents.items():
-            where = f"{config.source}: {config.entry}.agents.{agent} (with --n-envs)"
+        for agent, values in [("", {}), *config.agents.items()]:  # batch_size was checked for another rollout
+            where = f"{config.source}: {config.entry}{f'.agents.{agent}' if agent else ''} (with --n-envs)"
             check_batch({**config.hyperparams, **values}, config.n_envs, where)
     # sizes only: a graph too large for this host is refused before any folder or env exists
     check_memory(config_estimate(config, graph), f"training {config.n_agents} agents on {args.env}")
