@@ -98,6 +98,8 @@ class TestEvaluate:
         code, _, err = run_cli(capsys, *argv, "--agents", "3")
         # This fake team is not resizable, so it cannot be deployed with another size.
         assert code == 2 and "has 4 agents and cannot be deployed with another number; pass --agents 4" in err
+        # --device reaches the loader as given (here where no GPU is needed: the team is a fake)
+        monkeypatch.setattr("sb3_pm.commands.options.check_device", lambda device, flag: None)
         code, _, _ = run_cli(capsys, *argv, "--device", "cuda")
         assert code == 0 and loaded[-1] == (team_dir, "cuda")
 

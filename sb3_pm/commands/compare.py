@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_pm.commands.evaluate import check_counts
+from sb3_pm.commands.evaluate import check_counts, check_evaluation_memory
 from sb3_pm.commands.options import add_compute_options, check_compute_options
 
 
@@ -65,8 +65,10 @@ def run(args: argparse.Namespace) -> int:
         raise FileExistsError(f"--out {args.out} is not empty; pass --overwrite to write into it")
     if len(set(args.policies)) != len(args.policies):
         raise UsageError(f"--policies lists a policy twice: {args.policies}")
-    for graph in args.graphs:
-        resolve_graph(graph)  # every graph checked before the long part starts
+    graphs = {name: resolve_graph(name) for name in args.graphs}  # every graph checked before the long part
+    for name, graph in graphs.items():  # sizes only: before any team loads or env is built
+        for policy in args.policies:
+            check_evaluation_memory(policy, graph, args.agents, name)
     teams = {}
     for policy in args.policies:
         team = resolve_team(policy, graph=args.graphs[0], device=args.device)  # checks it now

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_pm.commands.interrupts import sigterm_as_interrupt
-from sb3_pm.commands.options import add_compute_options, check_compute_options, check_writable
+from sb3_pm.commands.options import add_compute_options, check_compute_options, check_seeds, check_writable
 from sb3_pm.files import write_atomic
 
 #: ``--settling`` given without SINCE. Not a string, which argparse would pass through ``type=int``,
@@ -125,11 +125,42 @@ def check_counts(args: argparse.Namespace) -> None:
         value = getattr(args, flag)
         if value is not None and value < 1:
             raise UsageError(f"--{flag} must be at least 1, got {value}")
+    if getattr(args, "seed", None) is not None:
+        check_seeds([args.seed], "--seed")
+    check_seeds(getattr(args, "seeds", None) or [], "--seeds")
     settling = getattr(args, "settling", None)
     if settling is not None and settling is not SECOND_HALF and not 0 <= settling < args.steps:
         raise UsageError(
             f"--settling SINCE must be in [0, {args.steps}) for {args.steps}-step episodes, got {settling}"
         )
+
+
+def check_evaluation_memory(policy: str, graph: Any, n_agents: int | None, name: str) -> None:
+    """Refuse, from sizes alone, an evaluation too large for this host's memory, before the team
+    loads (a saved team builds its training env copies as it loads) and before any env is built.
+
+    :param n_agents: the team size asked for (``None``: a saved team's own, else the default).
+    """
+    from sb3_pm.agents.deployment.saved_teams import MANIFEST, read_manifest
+    from sb3_pm.baselines import BASELINES
+    from sb3_pm.zoo.memory import check_memory, dense_attention, evaluation_estimate
+
+    manifest: dict[str, Any] = {}
+    if policy not in BASELINES:
+        folder = Path(policy) if (Path(policy) / MANIFEST).is_file() else Path(policy) / "team"
+        try:
+            manifest = read_manifest(folder)
+        except (OSError, ValueError):
+            pass  # the loader says what is wrong with it
+    agents = n_agents or int(manifest.get("n_agents") or DEFAULT_AGENTS)
+    estimate = evaluation_estimate(
+        graph.n_nodes,
+        agents,
+        policy not in BASELINES,
+        dense_attention=dense_attention(graph, None),
+        team_envs=int(manifest.get("n_envs") or 0),
+    )
+    check_memory(estimate, f"evaluating {policy} ({agents} agents) on {name}")
 
 
 def settle_since(args: argparse.Namespace) -> int | None:
@@ -334,6 +365,7 @@ def run(args: argparse.Namespace) -> int:
             check_temperature(args.temperature)  # before the team loads
         except InputError:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
+    check_evaluation_memory(args.policy, graph, args.agents, str(args.graph))
     team = resolve_team(args.policy, graph=graph, device=args.device)
     if args.agents is None:  # a trained team deploys as it was trained unless told otherwise
         args.agents = team.n_agents or DEFAULT_AGENTS

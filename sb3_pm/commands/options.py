@@ -37,11 +37,56 @@ def add_compute_options(parser: argparse.ArgumentParser, training: bool = False)
 
 
 def check_compute_options(args: Any) -> None:
-    """Refuse ``--threads`` below 1 with one line, before any work starts."""
+    """Refuse ``--threads`` below 1 and a ``--device`` this host does not have, with one line,
+    before any work starts."""
     from sb3_pm.errors import UsageError
 
     if args.threads < 1:
         raise UsageError(f"--threads must be at least 1, got {args.threads}")
+    check_device(args.device, "--device")
+
+
+def check_device(device: Any, flag: str) -> None:
+    """Refuse a torch device that does not exist on this host (``cuda`` without a GPU), with one line.
+
+    Left alone, SB3 falls back to the CPU without a word for ``cuda``, so a run meant for a GPU
+    would take the CPU's hours unnoticed. ``cpu`` and ``auto`` (the GPU where there is one) always
+    pass, without importing torch.
+
+    :param flag: names the value in the error (``--device``, ``args.yml device``).
+    """
+    from sb3_pm.errors import UsageError
+
+    if device is None or device in ("cpu", "auto"):
+        return
+    import torch
+
+    try:
+        parsed = torch.device(str(device))
+    except (RuntimeError, TypeError):
+        raise UsageError(f"{flag}: expected cpu, cuda, cuda:N or auto, got {device!r}") from None
+    if parsed.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise UsageError(f"{flag} {device}: this host has no CUDA GPU torch can use; use --device cpu")
+        if parsed.index is not None and parsed.index >= count:
+            raise UsageError(
+                f"{flag} {device}: this host has {count} CUDA GPU(s) (cuda:0 to cuda:{count - 1})"
+            )
+    elif parsed.type == "mps" and not torch.backends.mps.is_available():
+        raise UsageError(f"{flag} {device}: this host has no MPS device; use --device cpu")
+    elif parsed.type not in ("cpu", "cuda", "mps"):
+        raise UsageError(f"{flag}: expected cpu, cuda, cuda:N or auto, got {device!r}")
+
+
+def check_seeds(seeds: Any, flag: str) -> None:
+    """Refuse a negative seed with one line (numpy's seeding refuses it only deep in the first
+    episode, with a traceback)."""
+    from sb3_pm.errors import UsageError
+
+    for seed in seeds:
+        if seed < 0:
+            raise UsageError(f"{flag} must be at least 0, got {seed}")
 
 
 def check_writable(path: Any, flag: str) -> None:

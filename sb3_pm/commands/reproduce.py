@@ -129,6 +129,7 @@ def check_sweep_folder(out: Path, experiment: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sb3_pm.commands.options import check_device, check_seeds
     from sb3_pm.commands.run_folder import RunFolderError, held_lock
     from sb3_pm.errors import UsageError
     from sb3_pm.experiments import load_experiment, reproduce
@@ -159,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
         resolve_graph(graph)  # every graph checked before hours of training start
     if args.jobs is not None and args.jobs < 1:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    check_seeds(args.seeds or [], "--seeds")
+    check_device(args.device, "--device")
     if args.ray_address and args.backend != "ray":
         raise UsageError("--ray-address needs --backend ray")
     if args.backend == "ray":

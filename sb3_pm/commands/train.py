@@ -34,7 +34,7 @@ from typing import Any
 
 import yaml
 
-from sb3_pm.commands.options import add_compute_options
+from sb3_pm.commands.options import add_compute_options, check_device
 from sb3_pm.commands.run_folder import (
     RunFolderError,
     contents_problem,
@@ -156,7 +156,9 @@ def run(args: argparse.Namespace) -> int:
     from sb3_pm.errors import UsageError
     from sb3_pm.graphs import GraphFamily, graph_label, resolve_graph_or_family
     from sb3_pm.zoo import load_config
+    from sb3_pm.zoo.checks import check_batch
     from sb3_pm.zoo.config import default_env
+    from sb3_pm.zoo.memory import check_memory, config_estimate
 
     if args.resume is not None:
         return resume(args)
@@ -171,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--{flag.replace('_', '-')} must be at least 1, got {value}")
     if args.seed < 0:
         raise UsageError(f"--seed must be at least 0, got {args.seed}")
+    check_device(args.device, "--device")
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every must be at least 0, got {args.checkpoint_every}")
     graph = resolve_graph_or_family(args.env)
@@ -185,6 +188,11 @@ def run(args: argparse.Namespace) -> int:
         config.n_timesteps = args.timesteps
     if args.n_envs is not None:
         config.n_envs = args.n_envs
+        for agent, values in [("", {}), *config.agents.items()]:  # batch_size was checked for another rollout
+            where = f"{config.source}: {config.entry}{f'.agents.{agent}' if agent else ''} (with --n-envs)"
+            check_batch({**config.hyperparams, **values}, config.n_envs, where)
+    # sizes only: a graph too large for this host is refused before any folder or env exists
+    check_memory(config_estimate(config, graph), f"training {config.n_agents} agents on {args.env}")
     out = args.out or Path("runs") / f"{graph_label(args.env)}_{config.algo}_s{args.seed}"
     # Everything is checked, and the team built (which validates policy_kwargs, the team size and
     # every learner argument), before the run folder is created or emptied: a bad run leaves nothing.
@@ -274,12 +282,16 @@ def resume(args: argparse.Namespace) -> int:
         raise UsageError(f"{out / 'args.yml'} is not valid YAML ({error})") from None
     if not isinstance(recorded, dict):
         raise UsageError(f"{out / 'args.yml'} is not a record of sb3-pm train's arguments")
+    threads, device = recorded.get("threads", 1), str(recorded.get("device", "cpu"))
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise UsageError(f"{out / 'args.yml'}: threads must be an integer of at least 1, got {threads!r}")
+    check_device(device, f"{out / 'args.yml'}: device")
     import torch
 
-    torch.set_num_threads(int(recorded.get("threads", 1)))  # the interrupted run's: same arithmetic
+    torch.set_num_threads(threads)  # the interrupted run's: same arithmetic
     try:
         team = IndependentPPO.from_checkpoint(
-            out, device=str(recorded.get("device", "cpu")), tensorboard_log=out / "tb", verbose=args.verbose
+            out, device=device, tensorboard_log=out / "tb", verbose=args.verbose
         )
     except CheckpointError as error:
         raise UsageError(f"cannot resume {out}: {error}; start again with --overwrite") from None

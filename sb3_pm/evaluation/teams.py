@@ -68,7 +68,9 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
     for folder in (path, path / "team"):
         if (folder / "manifest.json").exists():
             try:
-                manifest = dict(json.loads((folder / "manifest.json").read_text()))
+                from sb3_pm.agents.deployment.saved_teams import read_manifest  # lazy: imports SB3
+
+                manifest = read_manifest(folder)  # every field of the right type
             except (json.JSONDecodeError, TypeError, ValueError) as error:
                 message = f"cannot load the trained team in {path}: bad manifest.json ({error})"
                 raise PolicyError(message) from error

@@ -41,9 +41,10 @@ import yaml
 
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation import SEED_STRIDE, Comparison, EvaluationResult, evaluate
-from sb3_pm.experiments.backends import default_jobs, run_jobs
+from sb3_pm.experiments.backends import WorkerLost, default_jobs, run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
+from sb3_pm.experiments.memory_needs import check_sweep_memory
 from sb3_pm.experiments.record import EVAL_SEED_OFFSET, experiment_record, team_rules
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant, variant_config
@@ -379,6 +380,10 @@ def reproduce(
     cells = plan_cells(experiment, out, device=device, update_device=update_device)
     if update_device is not None:  # before the folder is written and hours of training start
         check_update_device_takers(update_device, cells)
+    # every cell's memory, from sizes, before the folder is written and any env allocated
+    check_sweep_memory(
+        [cell for cell in cells if not cell.done], backend, n_jobs or default_jobs(), experiment.name
+    )
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "experiment.yml", yaml.safe_dump(experiment_record(experiment), sort_keys=False))
     write_atomic(out / "command.txt", shlex.join(command or sys.argv) + "\n")
@@ -403,16 +408,23 @@ def reproduce(
         bar = progress_bar(
             len(todo), f"{experiment.name} ({len(cells) - len(todo)} of {len(cells)} cells were done)", "cell"
         )
-    run_jobs(
-        run_cell,
-        todo,
-        backend=backend,
-        n_jobs=n_jobs,
-        ray_address=ray_address,
-        on_done=(lambda index, result: bar.update(1)) if bar is not None else None,
-    )
-    if bar is not None:
-        bar.close()
+    try:
+        run_jobs(
+            run_cell,
+            todo,
+            backend=backend,
+            n_jobs=n_jobs,
+            ray_address=ray_address,
+            on_done=(lambda index, result: bar.update(1)) if bar is not None else None,
+            label=lambda cell: str(Path(cell.folder).relative_to(out)),
+        )
+    except WorkerLost as error:  # the cells that finished are kept: the same command resumes the rest
+        raise WorkerLost(
+            f"{experiment.name}: {error}; run the same command again to resume", error.lost
+        ) from None
+    finally:
+        if bar is not None:
+            bar.close()
     comparison = Comparison(config=experiment_record(experiment))
     for cell in cells:
         payload = json.loads((Path(cell.folder) / "evaluation.json").read_text())

@@ -303,6 +303,10 @@ def load_experiment(path: str | Path) -> Experiment:
                 f"variant {key!r}: a baseline's env_kwargs must not set {clash}: "
                 "use the experiment's graphs, n_agents and max_cycles",
             )
+        if clash:  # a learned variant's would be replaced by the experiment's, without a word
+            raise _fail(
+                path, f"variant {key!r}: env_kwargs must not set {clash}: use the experiment's {clash[0]}"
+            )
         train = settings.get("train", True)
         if not isinstance(train, bool):
             raise _fail(path, f"variant {key!r}: 'train' must be true or false, got {train!r}")
@@ -413,6 +417,9 @@ def load_experiment(path: str | Path) -> Experiment:
         raise _fail(path, str(error)) from error
     if experiment.episodes < 1:
         raise _fail(path, "'episodes' must be at least 1")
+    clash = sorted(_EXPERIMENT_ENV_KEYS & set(experiment.env_kwargs))
+    if clash:  # replaced by the experiment's own in every cell, without a word
+        raise _fail(path, f"env_kwargs must not set {clash}: use the experiment's {clash[0]}")
     clash = sorted(_EXPERIMENT_ENV_KEYS & set(experiment.eval_env_kwargs))
     if clash:
         raise _fail(

@@ -128,9 +128,48 @@ def read_manifest(folder: Path) -> dict[str, Any]:
     if not path.exists():
         raise FileNotFoundError(f"{folder} is not a saved team: {MANIFEST} is missing")
     try:
-        return dict(json.loads(path.read_text()))
+        manifest = json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise InputError(f"{path} is not valid JSON: {error}") from error
+    check_manifest_fields(path, manifest)
+    return dict(manifest)
+
+
+#: The type of each manifest field the loaders read, and of the ``graph`` record's fields.
+MANIFEST_FIELDS: dict[str, tuple[type, ...]] = {
+    "graph": (dict,),
+    "agents": (list,),
+    "n_agents": (int,),
+    "n_envs": (int,),
+    "seed": (int,),
+    "env_kwargs": (dict,),
+    "algo": (str,),
+    "policy": (str,),
+    "format": (str,),
+}
+GRAPH_FIELDS: dict[str, tuple[type, ...]] = {"name": (str,), "fingerprint": (str,), "family": (dict,)}
+
+
+def check_manifest_fields(path: Path, manifest: Any) -> None:
+    """Refuse a hand-edited or damaged manifest whose fields have the wrong type, with one line
+    naming the field, before a loader indexes into it (a ``graph`` written as a string gave a
+    ``TypeError`` traceback).
+
+    :raises InputError: naming ``path`` and the field.
+    """
+    if not isinstance(manifest, dict):
+        raise InputError(f"{path}: expected a JSON object, got {type(manifest).__name__}")
+    for fields, values, prefix in (
+        (MANIFEST_FIELDS, manifest, ""),
+        (GRAPH_FIELDS, manifest.get("graph"), "graph."),
+    ):
+        for name, types in fields.items():
+            if not isinstance(values, dict) or name not in values:
+                continue
+            value = values[name]
+            if isinstance(value, bool) or not isinstance(value, types):
+                expected = {dict: "an object", list: "a list", int: "an integer", str: "a string"}[types[0]]
+                raise InputError(f"{path}: field {prefix}{name} must be {expected}, got {value!r}")
 
 
 def graph_for_saved_team(
