@@ -1,0 +1,57 @@
+"""The teams that ship with the package load safely and act legally, with no training."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from sb3_pm.cli import main
+from sb3_pm.errors import InputError
+from sb3_pm.evaluation import resolve_team
+from sb3_pm.pretrained import pretrained_names, pretrained_path, provenance
+
+
+def test_every_pretrained_team_says_how_it_was_made() -> None:
+    assert "paper-50" in pretrained_names()
+    for name in pretrained_names():
+        record = provenance(name)
+        assert record["seed"] == 0 and "sb3-pm train" in record["command"] and "commit" in record["code"]
+
+
+def test_the_pretrained_team_acts_legally() -> None:
+    team = resolve_team("pretrained:paper-50")
+    assert team.learned and team.n_agents == 4
+    env = team.make_env()
+    observations, _ = env.reset(seed=3)
+    team.reset(env, seed=3)
+    for _ in range(60):
+        actions = team.predict(observations, deterministic=True)
+        for agent, node in actions.items():
+            assert observations[agent]["action_mask"][node] == 1
+        observations, *_ = env.step(actions)
+
+
+def test_the_command_line_evaluates_it_with_a_gif(tmp_path, capsys) -> None:
+    code = main(
+        [
+            "evaluate",
+            "--policy",
+            "pretrained:paper-50",
+            "--episodes",
+            "1",
+            "--steps",
+            "30",
+            "--json",
+            str(tmp_path / "r.json"),
+            "--gif",
+            str(tmp_path / "r.gif"),
+        ]
+    )
+    assert code == 0 and (tmp_path / "r.gif").stat().st_size > 0
+    assert json.loads((tmp_path / "r.json").read_text())["episodes"][0]["steps"] == 30
+
+
+def test_an_unknown_pretrained_team_is_one_line() -> None:
+    with pytest.raises(InputError, match="no pretrained team 'nope': use one of paper-50"):
+        pretrained_path("pretrained:nope")
