@@ -105,27 +105,6 @@ class TestIllegalActions:
             assert stay.unwrapped.positions.tolist() == [node]
             assert infos["agent_0"]["illegal_action"] == destination
 
-    @pytest.mark.parametrize(
-        "missing",
-        [("_legal_table", "_row_start"), ("n_nodes", "_legal_sets", "_next_u", "_no_illegal")],
-        ids=["legality-table", "set-and-update-tables"],
-    )
-    def test_a_core_pickled_before_its_tables_still_steps(self, missing: tuple[str, ...]) -> None:
-        # Checkpoints of earlier versions pickled the env copies; a core written then lacks the tables.
-        import pickle
-
-        env = make(path_graph(4, [3]), 1, [0])
-        core = env.unwrapped.core
-        state = {k: v for k, v in core.__dict__.items() if k not in missing}
-        old = object.__new__(type(core))
-        old.__dict__.update(state)
-        env.unwrapped.core = pickle.loads(pickle.dumps(old))
-        act(env, 1)
-        assert env.unwrapped.positions.tolist() == [1]
-        assert env.unwrapped.uncertainty[3] == 1  # eq. (1) by the rebuilt table
-        with pytest.raises(IllegalActionError, match="cannot move to node 3"):
-            act(env, 3)
-
     def test_the_core_refuses_a_destination_list_of_another_length(self) -> None:
         from sb3_pm.envs.core import MonitoringCore
 

@@ -210,21 +210,6 @@ def test_training_with_failures_is_refused() -> None:
         IndependentPPO(path_graph(6, [0, 5]), n_agents=2, env_kwargs={"failures": {"agent_1": 3}})
 
 
-def test_an_env_pickled_before_failures_existed_still_resumes() -> None:
-    # Checkpoints of earlier versions pickled the env copies; one written then lacks the failure state.
-    import pickle
-
-    env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=4, max_cycles=10)
-    state = env.__getstate__() if hasattr(env, "__getstate__") else dict(env.__dict__)
-    state = {k: v for k, v in state.items() if k not in ("_active", "_fail_at", "failures", "failure_rate")}
-    old = object.__new__(type(env))
-    old.__setstate__(state)
-    restored = pickle.loads(pickle.dumps(old))
-    observations, _ = restored.reset(seed=0)
-    observations, *_ = restored.step(stay_actions(restored, observations))
-    assert restored.agents == restored.possible_agents and restored.failures == {}
-
-
 def test_a_failed_agent_senses_nothing_even_in_a_shared_map() -> None:
     # Path 0..6; agent_1 fails on node 6 after step 1. With a shared map, agent_0 (far away on 0)
     # must not keep seeing node 6 through it: node 6's age grows.

@@ -182,20 +182,6 @@ def test_skipping_folded_positions_discovers_the_same_edges(obs_radius: int) -> 
     assert told._adjacency_cached and any(told._folded_positions)
 
 
-def test_maps_pickled_before_the_folded_positions_still_discover_edges() -> None:
-    # Checkpoints of earlier versions pickled the env copies; maps written then lack the new caches.
-    import pickle
-
-    env, _ = env_on_path([0])
-    maps = env.unwrapped.maps
-    state = {k: v for k, v in maps.__dict__.items() if k not in ("_folded_positions", "_adjacency_cached")}
-    old = object.__new__(type(maps))
-    old.__dict__.update(state)
-    env.unwrapped.maps = pickle.loads(pickle.dumps(old))
-    obs, *_ = env.step({"agent_0": 1})
-    assert obs["agent_0"]["adjacency"].sum() == 4  # edges 0-1 and 1-2, both ways
-
-
 def test_adjacency_observations_stay_read_only_through_a_pickle() -> None:
     # Callers keep these arrays without copying; an unpickled map (a copy) must not hand out
     # arrays a caller could write into the map's cache through.

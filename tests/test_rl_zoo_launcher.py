@@ -101,9 +101,15 @@ def test_a_config_is_named_or_found_for_our_ids(tmp_path: Path, monkeypatch: pyt
         resolve_config(["-conf", "nope"])
 
 
-def test_acting_takes_the_masks_from_the_observation() -> None:
+def test_acting_takes_the_masks_from_the_observation(monkeypatch: pytest.MonkeyPatch) -> None:
     """rl-zoo's enjoy passes no masks: the registered class reads the observation's."""
     from rl_zoo3.utils import ALGOS
+
+    for name in ("dcbf_ppo", "maskable_ppo", "ppo_mask"):  # put back the plain classes afterwards
+        if name in ALGOS:
+            monkeypatch.setitem(ALGOS, name, ALGOS[name])
+        else:
+            monkeypatch.setitem(ALGOS, name, None)
 
     from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
 

@@ -29,6 +29,8 @@ from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.evaluation.teams import load_trained_team
 from sb3_pm.graphs import erdos_renyi
 from sb3_pm.plain_state import StateFormatError, read_state
+from tests.test_checkpoints import _assert_same
+from tests.test_checkpoints import _state as _tensors
 
 th.set_num_threads(1)
 
@@ -79,24 +81,6 @@ def _team(algo: str = "dcbf_ppo") -> IndependentPPO:
     return IndependentPPO(
         GRAPH, n_agents=2, algo=algo, n_envs=2, seed=5, hyperparams=HYPERPARAMS, env_kwargs={"max_cycles": 20}
     )
-
-
-def _tensors(team: IndependentPPO) -> list[th.Tensor]:
-    """Every learner's parameters and optimizer moments, in a fixed order."""
-    tensors: list[th.Tensor] = []
-    for agent in team.agents:
-        policy = team.models[agent].policy
-        tensors += list(policy.state_dict().values())
-        for optimizer in (policy.optimizer, getattr(policy, "estimator_optimizer", None)):
-            if optimizer is not None:
-                for moments in optimizer.state_dict()["state"].values():
-                    tensors += [v for v in moments.values() if isinstance(v, th.Tensor)]
-    return tensors
-
-
-def _assert_same(a: list[th.Tensor], b: list[th.Tensor]) -> None:
-    assert len(a) == len(b)
-    assert all(th.equal(x, y) for x, y in zip(a, b))
 
 
 def _metrics(team: object) -> dict[str, float]:

@@ -33,6 +33,17 @@ def test_one_callback_object_serves_every_learner_as_a_copy() -> None:
     assert callback.n_calls == 64 // team.n_envs  # its own steps only: the second learner has a copy
 
 
+def test_one_checkpoint_callback_writes_each_learners_files_apart(tmp_path: Path) -> None:
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    make_team().learn(64, callback=CheckpointCallback(16, str(tmp_path)))
+    for agent in ("agent_0", "agent_1"):
+        assert sorted(p.name for p in (tmp_path / agent).iterdir()) == [
+            "rl_model_32_steps.zip",
+            "rl_model_64_steps.zip",
+        ]
+
+
 def test_team_callbacks_are_split_from_learner_callbacks() -> None:
     evaluation, learner = TeamEvalCallback(), Counting()
     assert split_team_callbacks(evaluation) == (None, [evaluation])
@@ -65,6 +76,14 @@ def test_team_evaluation_keeps_the_best_team_and_changes_no_training(tmp_path: P
     assert best.num_timesteps in [
         r["timesteps"] for r in records if r["avg_uncertainty"] == callback.best_mean
     ]
+    assert json.loads((tmp_path / "best.json").read_text())["avg_uncertainty"] == callback.best_mean
+    # Another run into the same folder replaces the saved team only with a better one.
+    again = TeamEvalCallback(
+        eval_freq=1, n_eval_episodes=2, max_cycles=20, best_model_save_path=tmp_path, verbose=0
+    )
+    make_team(seed=1).learn(32, callback=again)
+    worse = again.evaluations[0]["avg_uncertainty"] >= callback.best_mean
+    assert (IndependentPPO.load(tmp_path / "team").seed == 0) == worse
 
 
 def test_team_scalars_and_evaluations_go_to_the_teams_logger(tmp_path: Path) -> None:

@@ -147,7 +147,10 @@ def check_evaluation_memory(policy: str, graph: Any, n_agents: int | None, name:
 
     manifest: dict[str, Any] = {}
     if policy not in BASELINES:
-        folder = Path(policy) if (Path(policy) / MANIFEST).is_file() else Path(policy) / "team"
+        from sb3_pm.pretrained import PREFIX, pretrained_path
+
+        where = pretrained_path(policy) if policy.startswith(PREFIX) else Path(policy)
+        folder = where if (where / MANIFEST).is_file() else where / "team"
         try:
             manifest = read_manifest(folder)
         except (OSError, ValueError):

@@ -128,6 +128,18 @@ def check_sweep_folder(out: Path, experiment: Any) -> None:
             )
 
 
+def check_cells_memory(experiment: Any, args: argparse.Namespace) -> None:
+    """The sweep's memory check (:func:`~sb3_pm.experiments.memory_needs.check_sweep_memory`) on
+    the cells still to run, before anything is written."""
+    from sb3_pm.experiments.backends import default_jobs
+    from sb3_pm.experiments.memory_needs import check_sweep_memory
+    from sb3_pm.experiments.runner import plan_cells
+
+    cells = plan_cells(experiment, args.out, device=args.device, update_device=args.update_device)
+    todo = [cell for cell in cells if not cell.done]
+    check_sweep_memory(todo, args.backend, args.jobs or default_jobs(), experiment.name)
+
+
 def run(args: argparse.Namespace) -> int:
     from sb3_pm.commands.options import check_device, check_seeds
     from sb3_pm.commands.run_folder import RunFolderError, held_lock
@@ -174,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         cells = plan_cells(experiment, args.out, device=args.device, update_device=args.update_device)
         check_update_device_takers(args.update_device, cells)
     check_sweep_folder(args.out, experiment)  # before the folder is created: a refusal leaves nothing
+    check_cells_memory(experiment, args)  # likewise, before the lock file creates the folder
     args.out.mkdir(parents=True, exist_ok=True)
     # SIGTERM ends the sweep like Ctrl-C: the workers are terminated with it (a SIGKILLed parent's
     # workers notice on their own, see sb3_pm.experiments.backends.exit_with_parent).

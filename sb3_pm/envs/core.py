@@ -16,9 +16,6 @@ from sb3_pm.graphs import GraphSpec
 
 #: The default cap on a target's uncertainty (``u_max``), here and in the PettingZoo env.
 DEFAULT_U_MAX = 100
-#: What :meth:`MonitoringCore._build_tables` derives from the graph (rebuilt on unpickling a
-#: core written before one of them existed).
-_DERIVED_TABLES = frozenset({"n_nodes", "_legal_sets", "_next_u"})
 
 
 class IllegalActionError(InputError):
@@ -93,13 +90,6 @@ class MonitoringCore:
         levels = np.arange(self.u_max + 1, dtype=np.int64)
         # empty: u + 1 up to the cap; occupied: u - 1, and 0 stays 0
         self._next_u = np.concatenate([np.minimum(levels + 1, self.u_max), np.maximum(levels - 1, 0)])
-
-    def __setstate__(self, state: dict) -> None:
-        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict`),
-        rebuilding the lookup tables that cores pickled by earlier versions lack."""
-        self.__dict__.update(state)
-        if not _DERIVED_TABLES <= state.keys():
-            self._build_tables()
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """The true state (positions and uncertainties), as plain arrays (a checkpoint's)."""

@@ -104,14 +104,9 @@ class MentalMaps:
             self._all_explored = True
 
     def __setstate__(self, state: dict) -> None:
-        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict`).
-        Maps pickled before the discovery caches existed get empty ones (so the cache is
-        rebuilt and every position is folded again), and, since NumPy unpickles every array
-        writeable, the cached int8 adjacencies are marked read-only again, as
-        :meth:`adjacency_observation` promises."""
+        """Unpickle (a copy of the env): NumPy unpickles every array writeable, so the cached int8
+        adjacencies are marked read-only again, as :meth:`adjacency_observation` promises."""
         self.__dict__.update(state)
-        self.__dict__.setdefault("_adjacency_cached", False)
-        self.__dict__.setdefault("_folded_positions", [set() for _ in range(self.n_agents)])
         for cached in state.get("_adjacency_int8", []):
             if cached is not None:
                 cached.setflags(write=False)

@@ -108,14 +108,6 @@ class EpisodeMetrics:
         self.peak = max(self.peak, highest)
         self.saturated_steps += highest >= self.u_max
 
-    def __setstate__(self, state: dict) -> None:
-        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict`),
-        filling counters added in later versions: an episode recorded before them had every
-        agent live on every step."""
-        self.__dict__.update(state)
-        self.__dict__.setdefault("live_agent_steps", self.steps * self.n_agents)
-        self.__dict__.setdefault("failure_steps", [])
-
     #: What :meth:`state_dict` keeps: everything :meth:`reset` and :meth:`update` change.
     _STATE = (
         "steps",

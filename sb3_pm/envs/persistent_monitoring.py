@@ -211,28 +211,6 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
             self._renderer.close()
             self._renderer = None
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        """Unpickle (a copy or a pickle of the env; checkpoints keep :meth:`state_dict` instead),
-        giving attributes added in later versions their defaults (an env pickled before agent
-        failures existed goes on as an env without failures)."""
-        self.__dict__.update(state)
-        if "family" not in state:  # written before graph families existed
-            self.family = None
-            self.space_nodes = self.graph.n_nodes
-        if "_active" not in state:
-            self.failures, self.failure_rate = {}, 0.0
-            self._fail_at = np.full(self.n_agents, self.max_cycles + 1, dtype=np.int64)
-            self._active = np.ones(self.n_agents, dtype=bool)
-        if "_territory" not in state:  # written before the territory reward existed
-            self._territory, self._rows = None, np.arange(self.n_agents)
-        if "territory_input" not in state:  # written before the territory input existed
-            self.territory_input, self._territory_column = False, None
-        if "advice_input" not in state:  # written before the rule's advice existed
-            self.advice_input, self._advice = False, None
-        if "target_knowledge" not in state:  # written before known targets existed
-            self.target_knowledge = "discovered"
-            self.maps.target_knowledge, self.maps._known_targets = "discovered", None
-
     def _check_failures(
         self, failures: Mapping[str, int] | None, rate: float
     ) -> tuple[dict[str, int], float]:

@@ -36,21 +36,13 @@ from scipy import stats
 
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import EvaluationResult
+from sb3_pm.evaluation.statistics import graphs_of
 
 #: Bootstrap replicates of each interval: the percentiles of 2,000 replicates move by about 1% of
 #: the interval's width from one generator seed to another.
 BOOTSTRAP_REPS = 2000
 #: The interval's coverage.
 CONFIDENCE = 0.95
-
-
-def graphs_in(by_policy: Mapping[str, Sequence[EvaluationResult]]) -> list[str]:
-    """Every graph that some policy has a run on, in first-seen order."""
-    seen: dict[str, None] = {}
-    for results in by_policy.values():
-        for result in results:
-            seen.setdefault(result.graph, None)
-    return list(seen)
 
 
 def run_scores(results: Sequence[EvaluationResult], graphs: Sequence[str], metric: str) -> np.ndarray:
@@ -77,7 +69,7 @@ def normalized_scores(
     run score there (1: as good as the reference)."""
     if reference not in by_policy:
         raise InputError(f"the reference {reference!r} has no results")
-    graphs = graphs_in(by_policy)
+    graphs = graphs_of(by_policy)
     scale = run_scores(by_policy[reference], graphs, metric).mean(axis=0)  # (graphs,)
     if not np.all(np.isfinite(scale)) or np.any(scale == 0):
         raise InputError(f"the reference {reference!r} has a zero or undefined mean {metric} on a graph")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,9 @@ from sb3_pm.agents.training.team_callbacks import TeamCallback
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.files import write_atomic
+
+#: The best team's score, beside it in ``best_model_save_path``.
+BEST_RECORD = "best.json"
 
 
 class TeamEvalCallback(TeamCallback):
@@ -31,7 +35,8 @@ class TeamEvalCallback(TeamCallback):
     :param eval_seed: the first held episode's env seed (episode ``i`` uses ``eval_seed + i``);
         keep it apart from the training seeds.
     :param max_cycles: steps per held episode (default: the team's ``max_cycles``).
-    :param best_model_save_path: folder where the best team is saved (as ``team/``), or ``None``.
+    :param best_model_save_path: folder where the best team is saved (as ``team/``, with its score
+        in ``best.json``; a team already there is replaced only by a better one), or ``None``.
     :param log_path: folder of ``evaluations.json`` (every evaluation's metrics), or ``None``.
     :param deterministic: most likely actions (default) or sampled ones.
     """
@@ -104,7 +109,7 @@ class TeamEvalCallback(TeamCallback):
         if improved:
             self.best_mean = record["avg_uncertainty"]
             if self.best_model_save_path is not None:
-                self.team.save(self.best_model_save_path / "team", overwrite=True)
+                self._save_best(record)
         self.logger.record("eval/best_avg_uncertainty", self.best_mean)
         self.logger.dump(self.team.num_timesteps)
         if self.log_path is not None:
@@ -115,6 +120,30 @@ class TeamEvalCallback(TeamCallback):
                 f"team evaluation at {record['timesteps']} steps per learner: avg_uncertainty "
                 f"{record['avg_uncertainty']:.1f}, max_neglect {record['max_neglect']:.1f}{best}"
             )
+
+    def _init_callback(self) -> None:
+        # A resumed run (or another run into the same folder) keeps the best team saved there
+        # unless it does better.
+        if self.best_model_save_path is not None and (self.best_model_save_path / BEST_RECORD).is_file():
+            saved = json.loads((self.best_model_save_path / BEST_RECORD).read_text())
+            self.best_mean = min(self.best_mean, float(saved["avg_uncertainty"]))
+
+    def _save_best(self, record: dict[str, Any]) -> None:
+        """Save the team as ``best_model_save_path/team``, staged and renamed into place, so a
+        crash leaves the previous best team whole; then its score, in :data:`BEST_RECORD`."""
+        assert self.best_model_save_path is not None
+        folder = self.best_model_save_path
+        folder.mkdir(parents=True, exist_ok=True)
+        staging, previous, target = folder / ".team.tmp", folder / ".team.old", folder / "team"
+        for leftover in (staging, previous):
+            shutil.rmtree(leftover, ignore_errors=True)
+        self.team.save(staging)
+        if target.exists():
+            target.rename(previous)
+        staging.rename(target)
+        shutil.rmtree(previous, ignore_errors=True)
+        best = {"avg_uncertainty": record["avg_uncertainty"], "timesteps": record["timesteps"]}
+        write_atomic(folder / BEST_RECORD, json.dumps(best, indent=1))
 
     def _write_log(self) -> None:
         assert self.log_path is not None

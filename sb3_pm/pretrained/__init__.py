@@ -1,10 +1,9 @@
 """Trained teams that ship with the package: ``--policy pretrained:<name>``.
 
 Each is a saved team folder (the safe format: a manifest and one SB3 zip per agent, read without
-unpickling) under ``sb3_pm/pretrained/<name>/``, with ``provenance.json`` saying which command,
-code version and seed made it and what it scored. The zips keep the policies' parameters and
-step counters only; the optimizers' states are left out, so a pretrained team acts, and trains on
-with fresh optimizers.
+unpickling) under ``sb3_pm/pretrained/<name>/``, as ``sb3-pm train`` saved it (optimizer states
+included, so it can train on), with ``provenance.json`` saying which command, code version and
+seed made it and what it scored.
 
 ========== ==================================================================================
 name        team

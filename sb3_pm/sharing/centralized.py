@@ -203,13 +203,7 @@ class CentralizedPPO(LearnedTeam):
             device=device,
             deploy_temperature=manifest.get("deploy_temperature"),
         )
-        try:
-            team._restore_models(folder, device)
-            team._restore_acting_rule(manifest)
-        except BaseException:
-            team.close()
-            raise
-        return team
+        return team._restore_saved(folder, device, manifest)  # type: ignore[no-any-return]
 
     def close(self) -> None:
         """Close the env copies and the model's logger."""

@@ -361,13 +361,24 @@ class LearnedTeam(DeploymentRule):
         write_manifest(folder, manifest)  # last: a folder with a manifest holds a whole team
         return folder
 
-    def _restore_models(self, folder: Path, device: str) -> None:
+    def close(self) -> None:
+        """Release what the team holds (its env copies); subclasses that hold some override it."""
+
+    def _restore_saved(self, folder: Path, device: str, manifest: Mapping[str, Any]) -> Any:
         """Load every model file's tensors and counters into the learners just built (nothing in
-        the zips is unpickled: :func:`~sb3_pm.agents.deployment.model_files.restore_model`)."""
+        the zips is unpickled: :func:`~sb3_pm.agents.deployment.model_files.restore_model`), then
+        the acting rule; returns ``self``. On failure the team is closed (its env copies' workers
+        stopped) before the error goes on."""
         from sb3_pm.agents.deployment.model_files import restore_model
 
-        for name, model in self.model_files().items():
-            restore_model(model, folder / name, device)
+        try:
+            for name, model in self.model_files().items():
+                restore_model(model, folder / name, device)
+            self._restore_acting_rule(manifest)
+        except BaseException:
+            self.close()
+            raise
+        return self
 
     @classmethod
     def open_saved(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import os
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 
@@ -70,6 +71,10 @@ def with_episode_metrics(callback: BaseCallback | list[BaseCallback] | None) -> 
     return CallbackList(callbacks)
 
 
+#: The attributes by which SB3's callbacks name where they write (``CheckpointCallback.save_path``,
+#: ``EvalCallback.best_model_save_path`` and ``log_path``).
+PATH_ATTRIBUTES = ("save_path", "best_model_save_path", "log_path")
+
 #: What ``IndependentPPO.learn(callback=...)`` takes: one callback per agent, in any of these forms.
 CallbackArg = (
     BaseCallback
@@ -84,14 +89,23 @@ def per_agent_callbacks(callback: CallbackArg, agents: Sequence[str]) -> list[Ba
     """One callback (or None) per agent, in ``agents`` order, from a list, an ``{agent: callback}``
     dict, a factory ``agent_name -> callback``, or one callback object: the first agent gets it
     and every other agent a deep copy of it, as SB3 binds a callback to one model (each copy keeps
-    its own counters, and an ``EvalCallback`` copy its own evaluations).
+    its own counters, and an ``EvalCallback`` copy its own evaluations). Where SB3's callbacks name
+    a folder they write to (:data:`PATH_ATTRIBUTES`), each agent's callback writes to its own
+    subfolder, named after the agent: the learners run side by side, and would overwrite each
+    other's files.
 
     :raises InputError: for a list of the wrong length.
     """
     if callback is None:
         return [None] * len(agents)
     if isinstance(callback, BaseCallback):
-        return [callback] + [copy.deepcopy(callback) for _ in agents[1:]]
+        callbacks = [callback] + [copy.deepcopy(callback) for _ in agents[1:]]
+        for agent, each in zip(agents, callbacks):
+            for name in PATH_ATTRIBUTES:
+                value = getattr(each, name, None)
+                if isinstance(value, (str, os.PathLike)):
+                    setattr(each, name, os.path.join(value, agent))
+        return callbacks
     if isinstance(callback, Mapping):
         return [callback.get(agent) for agent in agents]
     if callable(callback):

@@ -22,10 +22,6 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.zoo.registry import CLASS_KEYS
 
-#: Package roots whose classes a manifest may name by import path (``module:Name``), beside the
-#: registry's names: the ones the registry itself imports from.
-TRUSTED_ROOTS = ("torch", "stable_baselines3", "sb3_contrib", "sb3_pm")
-
 #: The constructor arguments of SB3's PPO (and MaskablePPO, DCBFPPO) that :func:`model_hyperparams`
 #: reads back from a model's attributes of the same name.
 PPO_KEYS = (
@@ -50,15 +46,25 @@ PPO_KEYS = (
 
 
 def class_name(value: type, key: str) -> str:
-    """A class's registry name for ``key`` (``Tanh``), else its ``module:Name`` import path."""
-    path = f"{value.__module__}:{value.__qualname__}"
+    """A class's registry name for ``key`` (``Tanh``, or a name given to
+    :func:`~sb3_pm.zoo.registry.register_class`).
+
+    :raises InputError: for a class the registry does not name: a saved team names classes the way
+        a config does, never by import path.
+    """
     for name, registered in CLASS_KEYS[key].items():
-        module, _, attr = registered.partition(":")
-        if attr == value.__qualname__ and (
-            module == value.__module__ or getattr(_module(module), attr, None) is value
-        ):
+        if registered is value:
             return name
-    return path
+        if isinstance(registered, str):
+            module, _, attr = registered.partition(":")
+            if attr == value.__qualname__ and (
+                module == value.__module__ or getattr(_module(module), attr, None) is value
+            ):
+                return name
+    raise InputError(
+        f"policy_kwargs.{key} {value.__module__}.{value.__qualname__} has no registry name, so a saved "
+        f"team could not name it: register it with sb3_pm.zoo.registry.register_class({key!r}, name, cls)"
+    )
 
 
 def _module(name: str) -> Any:
@@ -142,7 +148,7 @@ def plain_hyperparams(hyperparams: Mapping[str, Any], where: str) -> dict[str, A
 
 def check_plain_hyperparams(hyperparams: Any, where: str) -> dict[str, Any]:
     """A manifest's hyperparameters, checked to be what :func:`plain_hyperparams` writes: a mapping
-    of plain values whose class names are registry names or classes of :data:`TRUSTED_ROOTS`.
+    of plain values whose class names are registry names.
 
     :raises InputError: for anything else.
     """
@@ -152,12 +158,10 @@ def check_plain_hyperparams(hyperparams: Any, where: str) -> dict[str, Any]:
     for key in CLASS_KEYS:
         name = (checked.get("policy_kwargs") or {}).get(key)
         if isinstance(name, str) and name not in CLASS_KEYS[key]:
-            root = name.partition(":")[0].split(".")[0]
-            if root not in TRUSTED_ROOTS:
-                raise InputError(
-                    f"{where}: policy_kwargs.{key} {name!r} is neither a registered name nor a class "
-                    f"of {', '.join(TRUSTED_ROOTS)}; a saved team names no other code"
-                )
+            raise InputError(
+                f"{where}: policy_kwargs.{key} {name!r} is not a registered name; a saved team names no "
+                f"other code (register your own class with sb3_pm.zoo.registry.register_class before loading)"
+            )
     return checked
 
 
@@ -213,7 +217,6 @@ def model_hyperparams(model: Any, where: str) -> dict[str, Any]:
 
 __all__ = [
     "PPO_KEYS",
-    "TRUSTED_ROOTS",
     "check_plain_hyperparams",
     "class_name",
     "model_hyperparams",

@@ -137,12 +137,14 @@ def convert_team(old: str | Path, new: str | Path, overwrite: bool = False, devi
     **Loads the old team by unpickling its files: only for teams you trust.** The new folder is
     checked by loading it the safe way: the same parameters and optimizer states, bit for bit.
 
-    :raises InputError: if ``old`` holds no team in an old format, or the team has a setting
-        the current format cannot record.
+    :raises InputError: if ``old`` holds no team in an old format, ``new`` is ``old``, or the
+        team has a setting the current format cannot record.
     :raises FileExistsError: if ``new`` holds a team and ``overwrite`` is False.
     """
-    team, manifest = _load_old(old, device)
     target = Path(new)
+    if target.resolve() in (Path(old).resolve(), (Path(old) / "team").resolve()):
+        raise InputError(f"convert-team writes a new folder: {new} is the old team itself")
+    team, manifest = _load_old(old, device)
     try:
         _learner_settings(team, manifest)
         saved = team.save(target, overwrite=overwrite)

@@ -379,13 +379,7 @@ class IndependentPPO(LearnedTeam):
             deploy_temperature=manifest.get("deploy_temperature"),
             deploy_filter=manifest.get("deploy_filter"),
         )
-        try:
-            team._restore_models(folder, device)
-            team._restore_acting_rule(manifest)
-        except BaseException:
-            team.close()
-            raise
-        return team
+        return team._restore_saved(folder, device, manifest)  # type: ignore[no-any-return]
 
     @classmethod
     def from_checkpoint(
