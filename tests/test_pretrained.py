@@ -13,7 +13,7 @@ from sb3_pm.pretrained import pretrained_names, pretrained_path, provenance
 
 
 def test_every_pretrained_team_says_how_it_was_made() -> None:
-    assert "paper-50" in pretrained_names()
+    assert {"paper-50", "transfer"} <= set(pretrained_names())
     for name in pretrained_names():
         record = provenance(name)
         assert record["seed"] == 0 and "sb3-pm train" in record["command"] and "commit" in record["code"]
@@ -52,6 +52,17 @@ def test_the_command_line_evaluates_it_with_a_gif(tmp_path, capsys) -> None:
     assert json.loads((tmp_path / "r.json").read_text())["episodes"][0]["steps"] == 30
 
 
+def test_the_transfer_team_acts_legally_on_a_graph_it_never_saw() -> None:
+    team = resolve_team("pretrained:transfer", graph="karate")
+    env = team.make_env("karate")
+    observations, _ = env.reset(seed=4)
+    team.reset(env, seed=4)
+    for _ in range(40):
+        actions = team.predict(observations)
+        assert all(observations[agent]["action_mask"][node] == 1 for agent, node in actions.items())
+        observations, *_ = env.step(actions)
+
+
 def test_an_unknown_pretrained_team_is_one_line() -> None:
-    with pytest.raises(InputError, match="no pretrained team 'nope': use one of paper-50"):
+    with pytest.raises(InputError, match="no pretrained team 'nope': use one of paper-50, transfer"):
         pretrained_path("pretrained:nope")
