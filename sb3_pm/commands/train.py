@@ -25,15 +25,13 @@ from __future__ import annotations
 
 import argparse
 import shlex
-import signal
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from sb3_pm.commands.interrupts import sigterm_as_interrupt
 from sb3_pm.commands.options import add_compute_options, check_device
 from sb3_pm.commands.run_folder import (
     RunFolderError,
@@ -43,6 +41,7 @@ from sb3_pm.commands.run_folder import (
     locked_run_folder,
     save_final_team,
 )
+from sb3_pm.commands.tracking import add_tracking_options, check_tracking, tracked
 from sb3_pm.errors import InputError
 from sb3_pm.files import append_atomic, write_atomic
 from sb3_pm.machine import write_machine_record
@@ -115,6 +114,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity of every learner (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_compute_options(parser, training=True)
+    add_tracking_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise UsageError(f"--seed must be at least 0, got {args.seed}")
     check_device(args.device, "--device")
+    check_tracking(args)
     if args.checkpoint_every < 0:
         raise UsageError(f"--checkpoint-every must be at least 0, got {args.checkpoint_every}")
     graph = resolve_graph_or_family(args.env)
@@ -240,7 +241,8 @@ def run(args: argparse.Namespace) -> int:
                     for agent, values in config.per_agent().items()
                 )
                 print(f"learning rates (learning_rate_spread {config.learning_rate_spread:g}): {rates}")
-            return _learn_and_save(team, config.n_timesteps, args, out, args.checkpoint_every, args.env)
+            with tracked(args, out, {"env": str(args.env), "seed": args.seed, **config.to_dict()}):
+                return _learn_and_save(team, config.n_timesteps, args, out, args.checkpoint_every, args.env)
     except RunFolderError as error:
         raise UsageError(str(error)) from None
     finally:
@@ -343,7 +345,7 @@ def _learn_and_save(
         )
 
     try:
-        with _sigterm_as_interrupt():
+        with sigterm_as_interrupt():
             if steps is None:
                 team.learn_remaining(schedule, progress_bar=not args.no_progress, on_interrupt=tell)
             else:
@@ -366,24 +368,6 @@ def _learn_and_save(
         graph = "paper-50"
     print(f"evaluate it with: sb3-pm evaluate --policy {out} --graph {graph}")
     return 0
-
-
-@contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """Treat SIGTERM (a cluster's preemption, ``kill``) like Ctrl-C while training."""
-
-    def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, interrupt)
-    except ValueError:  # not the main thread: leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _write_records(args: argparse.Namespace, config: Any, out: Path) -> None:

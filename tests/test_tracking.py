@@ -1,0 +1,42 @@
+"""``sb3-pm train --track``: the run mirrored to Weights & Biases, offline here."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from sb3_pm.cli import main
+
+SMALL = ["--env", "karate", "--timesteps", "16", "--hyperparams", "n_steps:8", "batch_size:8", "n_epochs:1"]
+
+
+def test_a_tracked_run_writes_an_offline_wandb_run_with_its_config(tmp_path: Path, monkeypatch) -> None:
+    pytest.importorskip("wandb", reason="--track needs the [track] extra")
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    out = tmp_path / "run"
+    assert main(["train", *SMALL, "--seed", "3", "--out", str(out), "--track", "--no-progress"]) == 0
+    [run] = list((out / "wandb").glob("offline-run-*"))
+    [record] = list(run.glob("run-*.wandb"))  # the run, to upload later with wandb sync
+    data = record.read_bytes()
+    assert b'"karate"' in data and b"n_timesteps" in data  # its config, as the run resolved it
+    synced = {path.name for path in (run / "files").iterdir()}
+    assert {"agent_0_1", "agent_1_1", "team_1"} <= synced  # every learner's TensorBoard run and the team's
+    assert (out / "team" / "manifest.json").is_file()  # the training itself as without --track
+
+
+def test_track_without_wandb_is_one_line_before_any_folder(tmp_path: Path, monkeypatch, capsys) -> None:
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_wandb(name: str, *args, **kwargs):
+        if name == "wandb":
+            raise ImportError("no wandb here")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_wandb)
+    out = tmp_path / "run"
+    assert main(["train", *SMALL, "--out", str(out), "--track", "--no-progress"]) == 2
+    assert "--track needs wandb" in capsys.readouterr().err and not out.exists()
