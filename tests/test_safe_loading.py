@@ -83,6 +83,23 @@ def _team(algo: str = "dcbf_ppo") -> IndependentPPO:
     )
 
 
+def _evaluate_cli(folder: Path, tmp_path: Path) -> int:
+    """``sb3-pm evaluate --policy FOLDER`` for one 5-step episode; its exit status."""
+    return main(
+        [
+            "evaluate",
+            "--policy",
+            str(folder),
+            "--graph",
+            str(_graph_file(tmp_path)),
+            "--steps",
+            "5",
+            "--episodes",
+            "1",
+        ]
+    )
+
+
 def _metrics(team: object) -> dict[str, float]:
     return evaluate(team, GRAPH, episodes=2, seed=3, max_cycles=20).mean
 
@@ -153,19 +170,7 @@ def test_payloads_in_a_saved_team_never_run(trained, tmp_path, capsys) -> None:
     team = load_trained_team(folder)
     assert _metrics(team) == metrics
     team.close()
-    code = main(
-        [
-            "evaluate",
-            "--policy",
-            str(folder),
-            "--graph",
-            str(_graph_file(tmp_path)),
-            "--steps",
-            "5",
-            "--episodes",
-            "1",
-        ]
-    )
+    code = _evaluate_cli(folder, tmp_path)
     capsys.readouterr()
     assert code == 0
     assert not marker.exists()
@@ -205,19 +210,7 @@ def test_an_old_format_team_is_refused_in_one_line(trained, tmp_path, capsys) ->
         assert len(str(error.value).splitlines()) == 1
     with pytest.raises(OldTeamFormatError):
         IndependentPPO.load(folder)
-    code = main(
-        [
-            "evaluate",
-            "--policy",
-            str(folder),
-            "--graph",
-            str(_graph_file(tmp_path)),
-            "--steps",
-            "5",
-            "--episodes",
-            "1",
-        ]
-    )
+    code = _evaluate_cli(folder, tmp_path)
     err = capsys.readouterr().err
     assert code == 2 and "old format" in err and "convert-team" in err and len(err.strip().splitlines()) == 1
     assert not marker.exists()
