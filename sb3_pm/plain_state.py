@@ -145,7 +145,12 @@ def read_state(json_path: Path, arrays_path: Path) -> Any:
         if isinstance(error, FileNotFoundError):
             raise
         raise StateFormatError(f"{json_path.name}/{arrays_path.name} cannot be read ({error})") from None
-    return decode(tree, arrays)
+    try:
+        return decode(tree, arrays)
+    except (TypeError, ValueError) as error:  # a crafted entry (a pair that is not one, a bad maxlen)
+        if isinstance(error, StateFormatError):
+            raise
+        raise StateFormatError(f"{json_path.name} holds a malformed entry ({error})") from None
 
 
 __all__ = ["BIT_GENERATORS", "StateFormatError", "decode", "encode", "read_state", "write_state"]

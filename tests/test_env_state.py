@@ -79,3 +79,25 @@ def test_a_state_for_another_env_is_refused() -> None:
     other = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=2)
     with pytest.raises(InputError):
         other.load_state_dict(_plain(env.state_dict()))
+
+
+@pytest.mark.parametrize(
+    "tree",
+    [
+        {"__dict__": [[1, 2, 3]]},  # a pair of three
+        {"__deque__": [1, 2], "maxlen": -1},  # a maxlen deque refuses
+        {"__dict__": 5},  # not a list of pairs
+    ],
+)
+def test_a_malformed_state_entry_is_one_line(tmp_path, tree) -> None:
+    import json
+
+    import numpy as np
+
+    from sb3_pm.plain_state import StateFormatError, read_state
+
+    (tmp_path / "state.json").write_text(json.dumps(tree))
+    np.savez(tmp_path / "state.npz")
+    with pytest.raises(StateFormatError) as error:
+        read_state(tmp_path / "state.json", tmp_path / "state.npz")
+    assert "\n" not in str(error.value)

@@ -86,12 +86,16 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
         # Another graph: load the team on its own, then rebuild its policies for this one, or
         # refuse with the reason (sb3_pm.agents.deployment.transfer).
         team = team_class.load(path, device=device)
-        if team_class is CentralizedPPO:
-            raise InputError(
-                f"the team was trained on graph {team.graph.name!r}; "
-                "a centralized team cannot act on another graph"
-            )
-        return team.on_graph(graph)  # type: ignore[no-any-return]
+        try:
+            if team_class is CentralizedPPO:
+                raise InputError(
+                    f"the team was trained on graph {team.graph.name!r}; "
+                    "a centralized team cannot act on another graph"
+                )
+            return team.on_graph(graph)  # type: ignore[no-any-return]
+        except BaseException:
+            team.close()  # its env copies' workers, before the refusal goes on
+            raise
     except (FileNotFoundError, ValueError) as error:
         raise PolicyError(f"cannot load the trained team in {path}: {error}") from error
 
