@@ -1,0 +1,120 @@
+"""``sb3-pm evaluate``'s acting-rule options: ``--neglect-bound`` (a number, ``off`` or ``auto``),
+``--neglect-scope``, ``--temperature``, ``--stochastic`` and ``--deterministic``, checked against
+the team and applied to it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+#: ``--neglect-bound off``: act with no bound, whatever the team's deploy_filter says.
+BOUND_OFF = "off"
+#: ``--neglect-bound auto``: the territory bound calibrated on the site
+#: (:mod:`sb3_pm.evaluation.neglect_calibration`).
+BOUND_AUTO = "auto"
+
+
+def neglect_bound_option(text: str) -> float | str:
+    """``--neglect-bound``'s value: a number, ``off`` or ``auto``."""
+    word = text.strip().lower()
+    if word in (BOUND_OFF, BOUND_AUTO):
+        return word
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, 'off' or 'auto', got {text!r}") from None
+
+
+def require_filter(team: Any) -> None:
+    """``--neglect-bound`` needs a team with the DCBF filter (a trained DCBF team)."""
+    from sb3_pm.errors import UsageError
+
+    if not team.learned:
+        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
+
+
+def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwargs: dict[str, Any]) -> Any:
+    """``--neglect-bound auto``: calibrate the territory bound on ``graph`` for the team's agents
+    and set it on the team (:func:`~sb3_pm.evaluation.neglect_calibration.settle_site_bound`), and
+    put the number (or ``off`` where the territories cannot be held) in ``args`` for the messages
+    that follow. Returns the :class:`~sb3_pm.evaluation.neglect_calibration.CalibratedBound`.
+
+    :param env_kwargs: the team's environment settings, without ``--fail``/``--failure-rate``
+        (the bound is for the team as deployed, not as it fails).
+    """
+    from sb3_pm.errors import UsageError
+    from sb3_pm.evaluation.neglect_calibration import settle_site_bound
+
+    require_filter(team)
+    if args.neglect_scope not in (None, "territory"):
+        raise UsageError(
+            f"--neglect-bound auto is a territory bound (calibrated on territory_patrol); "
+            f"--neglect-scope {args.neglect_scope} cannot go with it"
+        )
+    trained = team.n_agents
+    if trained is not None and trained != args.agents:
+        # The bound keeps the trained team's split (agents that share a learner share its
+        # territory), so a calibration on another split would measure other territories.
+        raise UsageError(
+            f"--neglect-bound auto calibrates the {trained}-agent team's territories; deploy it with "
+            f"--agents {trained}, or give a number B (or off) for {args.agents} agents"
+        )
+    calibration = settle_site_bound(team, graph, args.agents, env_kwargs, max_cycles=args.steps)
+    args.neglect_bound = BOUND_OFF if calibration.bound is None else calibration.bound
+    args.neglect_scope = None if calibration.bound is None else "territory"
+    print(calibration.describe(), file=sys.stderr)
+    return calibration
+
+
+def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None = None) -> None:
+    """``--neglect-bound`` (and ``--neglect-scope``): set the filter's bound on a trained team, or
+    switch it off (``"off"``); a baseline has no filter."""
+
+    if bound is None:
+        return
+    require_filter(team)
+    if bound == BOUND_OFF:
+        team.set_filter(neglect_bound=None)
+        return
+    if scope is None:  # the team's own scope (its deploy_filter's), else known: said, not implied
+        pending = team.site_bound_pending  # deploy_filter auto: a territory bound
+        scope = "territory" if pending else (team.acting_filter() or {}).get("neglect_scope", "known")
+    team.set_filter(neglect_bound=bound, neglect_scope=scope)
+
+
+def apply_temperature(team: Any, temperature: float | None, stochastic: bool = False) -> None:
+    """``--temperature``: the sampling temperature of a trained DCBF team; a baseline has none.
+    ``--stochastic`` samples from the trained distribution (temperature 1), also on a team whose
+    config set another ``deploy_temperature``."""
+    from sb3_pm.errors import UsageError
+
+    if stochastic and team.deploy_temperature is not None:
+        temperature = 1.0
+    if temperature is None:
+        return
+    if not team.learned:
+        raise UsageError(f"--temperature needs a trained team; {team.name!r} is not one")
+    team.set_sampling_temperature(temperature)
+
+
+def acting_rule(args: argparse.Namespace) -> bool | None:
+    """``deterministic`` for the harness from ``--deterministic`` / ``--stochastic`` /
+    ``--temperature``, or ``None``: the team's own ``deploy_temperature`` decides."""
+    if args.deterministic:
+        return True
+    if args.stochastic or args.temperature is not None:
+        return False
+    return None
+
+
+__all__ = [
+    "BOUND_AUTO",
+    "BOUND_OFF",
+    "acting_rule",
+    "apply_neglect_bound",
+    "apply_temperature",
+    "neglect_bound_option",
+    "require_filter",
+    "resolve_auto_bound",
+]
