@@ -37,24 +37,24 @@ EXPECTED_FILES = {
 }
 
 
+def quick_reproduce(name: str, out: Path) -> list[str]:
+    """``sb3-pm reproduce NAME --quick --out OUT`` in one process, without a progress bar."""
+    return [
+        "reproduce",
+        str(experiment_file(name)),
+        "--quick",
+        "--out",
+        str(out),
+        "--jobs",
+        "1",
+        "--no-progress",
+    ]
+
+
 @pytest.mark.parametrize("name", ["comparison", "ablation"])
 def test_quick_experiment_runs_end_to_end(tmp_path: Path, name: str) -> None:
     out = tmp_path / name
-    assert (
-        main(
-            [
-                "reproduce",
-                str(experiment_file(name)),
-                "--quick",
-                "--out",
-                str(out),
-                "--jobs",
-                "1",
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
+    assert main(quick_reproduce(name, out)) == 0
     assert EXPECTED_FILES <= {p.name for p in out.iterdir()}
     experiment = load_experiment(experiment_file(name)).quick()
     table = (out / "results.md").read_text()
@@ -553,16 +553,7 @@ def test_a_baseline_variant_is_evaluated_under_its_own_env_kwargs(tmp_path: Path
     # known_map.yml runs local_greedy with the default maps and with known targets, on the same
     # episodes; the recorded config says which, and known targets change what the greedy agents do.
     out = tmp_path / "known_map"
-    argv = [
-        "reproduce",
-        str(experiment_file("known_map")),
-        "--quick",
-        "--out",
-        str(out),
-        "--jobs",
-        "1",
-        "--no-progress",
-    ]
+    argv = quick_reproduce("known_map", out)
     assert main([*argv, "--variants", "local_greedy", "local_greedy_known_targets"]) == 0
     payloads = {
         variant: json.loads((out / "cells" / variant / "paper-50" / "seed0" / "evaluation.json").read_text())

@@ -240,13 +240,16 @@ def test_a_trusted_old_format_team_converts_bit_for_bit(trained, tmp_path, capsy
 def test_a_centralized_team_round_trips_and_its_old_format_is_refused(tmp_path) -> None:
     from sb3_pm import CentralizedPPO, convert_team
 
-    team = CentralizedPPO(
-        GRAPH,
-        n_agents=2,
-        seed=1,
-        hyperparams={"n_steps": 16, "batch_size": 16, "n_epochs": 1},
-        env_kwargs={"max_cycles": 20},
-    )
+    def central_team() -> CentralizedPPO:
+        return CentralizedPPO(
+            GRAPH,
+            n_agents=2,
+            seed=1,
+            hyperparams={"n_steps": 16, "batch_size": 16, "n_epochs": 1},
+            env_kwargs={"max_cycles": 20},
+        )
+
+    team = central_team()
     team.learn(16)
     folder = team.save(tmp_path / "central")
     loaded = CentralizedPPO.load(folder)
@@ -264,13 +267,7 @@ def test_a_centralized_team_round_trips_and_its_old_format_is_refused(tmp_path) 
         load_trained_team(folder)
     assert not marker.exists()
     old = tmp_path / "old"
-    team = CentralizedPPO(
-        GRAPH,
-        n_agents=2,
-        seed=1,
-        hyperparams={"n_steps": 16, "batch_size": 16, "n_epochs": 1},
-        env_kwargs={"max_cycles": 20},
-    )
+    team = central_team()
     team.save(old)
     fresh = list(team.model.policy.state_dict().values())
     team.close()

@@ -50,7 +50,7 @@ import numpy as np
 # (which calls register_envs) before any module of the package, this one included.
 from sb3_pm.errors import UsageError
 from sb3_pm.zoo.registry import ALGORITHMS, import_path
-from sb3_pm.zoo.shipped import CONFIG_DIR, _shipped, shipped_names
+from sb3_pm.zoo.shipped import resolve_config_path, shipped_names
 
 #: rl-zoo algorithm name -> our registry name (:data:`sb3_pm.zoo.registry.ALGORITHMS`).
 RL_ZOO_ALGOS: dict[str, str] = {
@@ -115,8 +115,13 @@ def register_rl_zoo_algos(acting: bool = False) -> list[str]:
 
 
 def shipped_config(name: str) -> Path | None:
-    """The shipped rl-zoo config ``name`` (``dcbf_ppo`` or ``dcbf_ppo.yml``), or ``None``."""
-    return _shipped(name, CONFIG_DIR, ("zoo/",))
+    """The shipped rl-zoo config ``name`` (``dcbf_ppo``, ``dcbf_ppo.yml`` or ``zoo/dcbf_ppo.yml``),
+    or ``None`` (:func:`~sb3_pm.zoo.shipped.resolve_config_path`, the rule ``sb3-pm`` names
+    configs by)."""
+    try:
+        return resolve_config_path(name)
+    except FileNotFoundError:
+        return None
 
 
 def _option(args: list[str], *names: str) -> tuple[int, str] | None:
@@ -140,12 +145,12 @@ def resolve_config(args: Sequence[str]) -> list[str]:
     given = _option(args, "-conf", "--conf-file")
     if given is not None:
         index, value = given
-        if not Path(value).exists() and "." not in value.removesuffix(".yml"):
-            path = shipped_config(value)
-            if path is None:
-                raise UsageError(
-                    f"-conf {value!r} is neither a file nor a shipped config ({', '.join(shipped_names())})"
-                )
+        path = shipped_config(value)
+        if path is None and "." not in value.removesuffix(".yml"):  # a dotted name: rl-zoo's module
+            raise UsageError(
+                f"-conf {value!r} is neither a file nor a shipped config ({', '.join(shipped_names())})"
+            )
+        if path is not None:
             args[index] = str(path) if args[index] == value else f"{args[index].split('=', 1)[0]}={path}"
         return args
     env, algo = _option(args, "--env"), _option(args, "--algo")
