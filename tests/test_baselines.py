@@ -37,6 +37,7 @@ class TestRegistry:
             "local_greedy",
             "tour_patrol",
             "territory_patrol",
+            "optimal_planner",
         ]
         for name, cls in BASELINES.items():
             team = make_team(name)
@@ -49,8 +50,8 @@ class TestRegistry:
     def test_kwargs(self) -> None:
         assert make_team("grazing", commit=False).commit is False
 
-    def test_only_grazing_is_omniscient(self) -> None:
-        assert [name for name, cls in BASELINES.items() if cls.omniscient] == ["grazing"]
+    def test_only_grazing_and_the_planner_are_omniscient(self) -> None:
+        assert [name for name, cls in BASELINES.items() if cls.omniscient] == ["grazing", "optimal_planner"]
 
 
 @pytest.mark.parametrize("name", list(BASELINES))

@@ -6,6 +6,7 @@ from typing import Any
 
 from sb3_pm.baselines.grazing import GrazingTeam
 from sb3_pm.baselines.local_greedy import LocalGreedyTeam
+from sb3_pm.baselines.optimal_planner import OptimalPlannerTeam
 from sb3_pm.baselines.random_walk import RandomTeam
 from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
 from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
@@ -16,7 +17,15 @@ from sb3_pm.team_interface import Team
 #: Baseline name -> team class, in the order reports list them.
 BASELINES: dict[str, type[Team]] = {
     cls.name: cls
-    for cls in (RandomTeam, SitOnNodesTeam, GrazingTeam, LocalGreedyTeam, TourPatrolTeam, TerritoryPatrolTeam)
+    for cls in (
+        RandomTeam,
+        SitOnNodesTeam,
+        GrazingTeam,
+        LocalGreedyTeam,
+        TourPatrolTeam,
+        TerritoryPatrolTeam,
+        OptimalPlannerTeam,
+    )
 }
 
 

@@ -1,0 +1,59 @@
+"""``optimal_planner``: the best centralized schedule the library finds (docs/PLANNING.md).
+
+An omniscient, centralized team. At every reset it reads the episode's start positions and
+uncertainties, plans with :func:`sb3_pm.planning.team_plan.plan_team` (groups of targets per
+agent, matched to the agents by the Hungarian method, improved by local search, exact schedules
+for two-target groups, refined by joint simulation), then acts each step by the plan with the true
+uncertainties. Its ``avg_uncertainty`` is an upper bound on the optimum; ``sb3-pm bound`` gives the
+lower one.
+
+It is the reference an optimality gap is measured against, not a deployable team: it reads the
+whole state and needs the episode's starts before the first step.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sb3_pm.baselines._common import agent_positions, env_graph
+from sb3_pm.errors import InputError
+from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS
+from sb3_pm.planning.team_plan import TeamPlan, plan_team
+from sb3_pm.team_interface import Observation, Team
+
+
+class OptimalPlannerTeam(Team):
+    """Centralized planning on the true state.
+
+    :param search_seconds: the plan search's wall-clock budget per episode.
+    """
+
+    name = "optimal_planner"
+    omniscient = True
+
+    def __init__(self, search_seconds: float = DEFAULT_SEARCH_SECONDS) -> None:
+        if search_seconds <= 0:
+            raise InputError(f"search_seconds must be positive, got {search_seconds}")
+        self.search_seconds = float(search_seconds)
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        super().reset(env, seed)
+        state = env.unwrapped
+        graph = env_graph(env)
+        self.plan: TeamPlan = plan_team(
+            graph, state.positions, state.max_cycles, state.u_max, state.uncertainty, self.search_seconds
+        )
+        distances = graph.hop_distances.astype(int).tolist()
+        next_hop = graph.next_hop.astype(int).tolist()
+        self._controllers = self.plan.controllers(distances, next_hop)
+        self._index = {agent: i for i, agent in enumerate(state.possible_agents)}
+
+    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+        state = self.env.unwrapped
+        uncertainty = state.uncertainty
+        remaining = state.max_cycles - state.step_count
+        agents, positions = agent_positions(observations)
+        return {
+            agent: int(self._controllers[self._index[agent]].move(int(position), uncertainty, remaining))
+            for agent, position in zip(agents, positions)
+        }

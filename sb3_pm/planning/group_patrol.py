@@ -1,0 +1,88 @@
+"""One agent patrolling a group of targets with the true uncertainties (docs/PLANNING.md "Plans").
+
+The rule, per step: on a group target with ``u > 0``, dwell; else keep walking to the goal chosen
+earlier; else choose the group's other target with the highest ``u`` (ties: nearest, then lowest
+node) and step along a shortest path. A group of one target is held once reached.
+
+:func:`group_move` is the rule, written once; :func:`solo_cost` runs it for one agent alone on its
+group, which is what the plan search prices. Both work on plain Python ints, because a search
+prices thousands of (start, group) pairs and a few-target step is far cheaper without NumPy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+__all__ = ["dropped_cost", "group_move", "solo_cost"]
+
+
+def group_move(
+    position: int,
+    goal: int | None,
+    group: Sequence[int],
+    u: Sequence[int],
+    distances: Sequence[Sequence[int]],
+    next_hop: Sequence[Sequence[int]],
+) -> tuple[int, int | None]:
+    """The agent's next node by the group rule, and the goal it keeps.
+
+    :param position: the agent's node.
+    :param goal: the goal kept from the last step, or ``None``.
+    :param group: the group's target nodes.
+    :param u: the true uncertainty of every node (indexable by node).
+    :param distances: hop distances, ``distances[a][b]``.
+    :param next_hop: ``next_hop[a][b]``, the first node of a shortest path from ``a`` to ``b``.
+    """
+    if not group:
+        return position, None
+    if position in group and u[position] > 0:
+        return position, None
+    if goal is not None and goal != position:
+        return next_hop[position][goal], goal
+    best: int | None = None
+    best_key: tuple[int, int, int] | None = None
+    for target in group:
+        if target == position:
+            continue
+        key = (-u[target], distances[position][target], target)
+        if best_key is None or key < best_key:
+            best, best_key = target, key
+    if best is None:  # a group of one target, reached
+        return position, None
+    return next_hop[position][best], best
+
+
+def solo_cost(
+    start: int,
+    group: Sequence[int],
+    initial: Sequence[int],
+    max_cycles: int,
+    u_max: int,
+    distances: Sequence[Sequence[int]],
+    next_hop: Sequence[Sequence[int]],
+) -> int:
+    """The group's summed uncertainty over an episode with one agent from ``start`` on it alone.
+
+    :param initial: the group targets' ``u`` at reset, in ``group`` order.
+    :return: ``Σ_k Σ_group u`` over steps ``k = 1 .. max_cycles``.
+    """
+    group = list(group)
+    values = {target: int(value) for target, value in zip(group, initial)}
+    position, goal, total = start, None, 0
+    for _ in range(max_cycles):
+        position, goal = group_move(position, goal, group, values, distances, next_hop)
+        for target in group:
+            value = values[target]
+            if target == position:
+                values[target] = value - 1 if value > 0 else 0
+            else:
+                values[target] = value + 1 if value < u_max else u_max
+        total += sum(values.values())
+    return total
+
+
+def dropped_cost(initial: int, max_cycles: int, u_max: int) -> int:
+    """``Σ_k u`` of a target nobody visits: it grows by one per step up to ``u_max``."""
+    full = max(0, min(max_cycles, u_max - initial))  # steps before it reaches the cap
+    growing = full * initial + full * (full + 1) // 2
+    return growing + (max_cycles - full) * u_max

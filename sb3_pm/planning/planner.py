@@ -1,0 +1,184 @@
+"""The centralized plan: which agent patrols which targets (docs/PLANNING.md "Plans").
+
+A plan gives every agent a group of targets, possibly leaving some targets to nobody; each agent
+then follows :func:`~sb3_pm.planning.group_patrol.group_move` on its group with the true
+uncertainties. Priced as if each agent were alone on its group (an agent crossing another's
+target only lowers it), a plan's cost is a sum, so:
+
+1. the groups start as the territory split (:func:`sb3_pm.graphs.territories.target_territories`),
+   the convention ``territory_patrol`` keeps;
+2. for given groups, the agents are matched to them by the Hungarian method
+   (``scipy.optimize.linear_sum_assignment``) on each agent's solo cost from its own start;
+3. local search moves a target to another group or to nobody, brings a dropped target back, or
+   swaps two targets of two groups, taking the best improving change, until none improves.
+
+Every candidate is priced by simulation (:func:`~sb3_pm.planning.group_patrol.solo_cost`), cached
+per (start, group). The plan is an upper bound on the optimum once replayed through the env.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from sb3_pm.errors import InputError
+from sb3_pm.graphs import GraphSpec
+from sb3_pm.graphs.territories import target_territories
+from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
+
+__all__ = ["PatrolPlan", "plan_patrol"]
+
+#: The default wall-clock budget of the local search, in seconds: a plan for one episode.
+DEFAULT_SEARCH_SECONDS = 30.0
+
+
+@dataclass(frozen=True)
+class PatrolPlan:
+    """Each agent's group of targets.
+
+    :ivar groups: one tuple of target nodes per agent, in agent order (empty: the agent idles).
+    :ivar dropped: the targets no agent patrols.
+    :ivar predicted: the plan's decomposed ``avg_uncertainty`` (each agent alone on its group).
+    :ivar searched: local-search rounds taken; ``complete`` is False if the time budget ran out.
+    """
+
+    groups: tuple[tuple[int, ...], ...]
+    dropped: tuple[int, ...]
+    predicted: float
+    searched: int = 0
+    complete: bool = True
+    notes: dict[str, float] = field(default_factory=dict)
+
+
+class _Pricer:
+    """Solo costs, cached, for one episode's starts and initial uncertainties."""
+
+    def __init__(
+        self, graph: GraphSpec, starts: np.ndarray, initial: np.ndarray, max_cycles: int, u_max: int
+    ) -> None:
+        self.starts = [int(s) for s in starts]
+        self.initial = {int(node): int(initial[node]) for node in graph.target_indices}
+        self.max_cycles, self.u_max = max_cycles, u_max
+        self.distances = graph.hop_distances.astype(np.int64).tolist()
+        self.next_hop = graph.next_hop.astype(np.int64).tolist()
+        self._cache: dict[tuple[int, tuple[int, ...]], int] = {}
+
+    def solo(self, start: int, group: tuple[int, ...]) -> int:
+        key = (start, group)
+        if key not in self._cache:
+            initial = [self.initial[t] for t in group]
+            self._cache[key] = solo_cost(
+                start, group, initial, self.max_cycles, self.u_max, self.distances, self.next_hop
+            )
+        return self._cache[key]
+
+    def dropped(self, target: int) -> int:
+        return dropped_cost(self.initial[target], self.max_cycles, self.u_max)
+
+    def assign(self, groups: list[tuple[int, ...]]) -> tuple[int, list[int]]:
+        """The least summed solo cost over agent-to-group matchings, and each agent's group index."""
+        costs = np.array([[self.solo(s, g) for g in groups] for s in self.starts], dtype=np.float64)
+        rows, cols = linear_sum_assignment(costs)
+        order = [0] * len(self.starts)
+        for row, col in zip(rows, cols):
+            order[row] = int(col)
+        return int(costs[rows, cols].sum()), order
+
+    def total(self, groups: list[tuple[int, ...]], dropped: tuple[int, ...]) -> tuple[int, list[int]]:
+        cost, order = self.assign(groups)
+        return cost + sum(self.dropped(t) for t in dropped), order
+
+
+def _neighbours(groups: list[tuple[int, ...]], dropped: tuple[int, ...]):
+    """Every plan one change away: a move, a drop, a return or a swap."""
+    n = len(groups)
+    for g, group in enumerate(groups):
+        for target in group:
+            rest = tuple(t for t in group if t != target)
+            for h in range(n):
+                if h != g:
+                    moved = list(groups)
+                    moved[g], moved[h] = rest, tuple(sorted(groups[h] + (target,)))
+                    yield moved, dropped
+            yield (
+                [rest if i == g else grp for i, grp in enumerate(groups)],
+                tuple(sorted(dropped + (target,))),
+            )
+    for target in dropped:
+        rest_dropped = tuple(t for t in dropped if t != target)
+        for h in range(n):
+            moved = list(groups)
+            moved[h] = tuple(sorted(groups[h] + (target,)))
+            yield moved, rest_dropped
+    for g in range(n):
+        for h in range(g + 1, n):
+            for a in groups[g]:
+                for b in groups[h]:
+                    moved = list(groups)
+                    moved[g] = tuple(sorted(t for t in groups[g] if t != a) + [b])
+                    moved[h] = tuple(sorted(t for t in groups[h] if t != b) + [a])
+                    yield moved, dropped
+
+
+def plan_patrol(
+    graph: GraphSpec,
+    starts: np.ndarray,
+    max_cycles: int,
+    u_max: int,
+    initial_uncertainty: np.ndarray | None = None,
+    search_seconds: float = DEFAULT_SEARCH_SECONDS,
+) -> PatrolPlan:
+    """The best plan the search finds for one episode.
+
+    :param graph: the site.
+    :param starts: ``(n,)`` the agents' start nodes.
+    :param max_cycles: ``K``, the episode's length.
+    :param u_max: the uncertainty cap.
+    :param initial_uncertainty: ``(N,)`` the uncertainties at reset (default: all 0).
+    :param search_seconds: the local search's wall-clock budget (it stops early at a local optimum).
+    """
+    starts = np.asarray(starts, dtype=np.int64)
+    if starts.ndim != 1 or starts.size == 0:
+        raise InputError(f"starts must be a non-empty list of nodes, got {starts.tolist()}")
+    if search_seconds <= 0:
+        raise InputError(f"search_seconds must be positive, got {search_seconds}")
+    initial = (
+        np.zeros(graph.n_nodes, dtype=np.int64)
+        if initial_uncertainty is None
+        else np.asarray(initial_uncertainty)
+    )
+    pricer = _Pricer(graph, starts, initial, max_cycles, u_max)
+    n = starts.size
+    owner = target_territories(graph.hop_distances, graph.target_indices, n)
+    groups = [tuple(int(t) for t in graph.target_indices[owner == i]) for i in range(n)]
+    dropped: tuple[int, ...] = ()
+    best, order = pricer.total(groups, dropped)
+    first = best
+    deadline = time.monotonic() + search_seconds
+    rounds, complete = 0, True
+    while True:
+        improved = None
+        for candidate, candidate_dropped in _neighbours(groups, dropped):
+            if time.monotonic() > deadline:
+                complete = False
+                break
+            cost, candidate_order = pricer.total(candidate, candidate_dropped)
+            if cost < best:
+                best, improved = cost, (candidate, candidate_dropped, candidate_order)
+        if improved is None or not complete:
+            if improved is not None:
+                groups, dropped, order = improved
+            break
+        groups, dropped, order = improved
+        rounds += 1
+    return PatrolPlan(
+        groups=tuple(groups[order[agent]] for agent in range(n)),
+        dropped=dropped,
+        predicted=best / max_cycles,
+        searched=rounds,
+        complete=complete,
+        notes={"territory_split": first / max_cycles},
+    )

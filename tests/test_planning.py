@@ -1,0 +1,169 @@
+"""The planner and the lower bounds: exhaustive search on small graphs, and agreement with the env."""
+
+from __future__ import annotations
+
+import itertools
+from functools import cache
+
+import numpy as np
+import pytest
+
+from sb3_pm.baselines import make_team
+from sb3_pm.envs import persistent_monitoring_v0
+from sb3_pm.errors import InputError
+from sb3_pm.evaluation import evaluate
+from sb3_pm.graphs import GraphSpec
+from sb3_pm.graphs.generators import erdos_renyi
+from sb3_pm.planning import lower_bound, priced_bound, stepwise_bound
+from sb3_pm.planning.controllers import simulate
+from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
+from sb3_pm.planning.pair_schedule import PairSchedule
+from sb3_pm.planning.team_plan import plan_team
+from tests.conftest import path_graph
+
+
+def optimum(
+    graph: GraphSpec, starts: tuple[int, ...], max_cycles: int, u_max: int
+) -> tuple[float, np.ndarray]:
+    """The exact least ``avg_uncertainty`` over every joint move sequence, and the least summed
+    target ``u`` after each step ``k`` over every team (``(K,)``), by exhaustive dynamic programming."""
+    targets = tuple(int(t) for t in graph.target_indices)
+    moves = [tuple(int(v) for v in np.flatnonzero(row)) for row in graph.reachable]
+
+    def advance(positions: tuple[int, ...], values: tuple[int, ...]) -> tuple[int, ...]:
+        return tuple(
+            (max(u - 1, 0) if t in positions else min(u + 1, u_max)) for t, u in zip(targets, values)
+        )
+
+    @cache
+    def best(step: int, positions: tuple[int, ...], values: tuple[int, ...]) -> int:
+        if step == max_cycles:
+            return 0
+        return min(
+            sum(after) + best(step + 1, nxt, after)
+            for nxt in itertools.product(*(moves[p] for p in positions))
+            for after in [advance(nxt, values)]
+        )
+
+    # the least total after each step over all teams: a forward sweep of the reachable states
+    states = {(tuple(starts), tuple(0 for _ in targets))}
+    least = np.empty(max_cycles, dtype=np.int64)
+    for k in range(max_cycles):
+        states = {
+            (nxt, advance(nxt, values))
+            for positions, values in states
+            for nxt in itertools.product(*(moves[p] for p in positions))
+        }
+        least[k] = min(sum(values) for _, values in states)
+    return best(0, tuple(starts), tuple(0 for _ in targets)) / max_cycles, least
+
+
+def small_cases() -> list[tuple[GraphSpec, tuple[int, ...]]]:
+    cases = [
+        (path_graph(5, [0, 2, 4]), (1,)),
+        (path_graph(5, [0, 1, 4]), (2, 3)),
+        (path_graph(4, [0, 3]), (1,)),
+    ]
+    for seed in range(4):
+        graph = erdos_renyi(6, edge_prob=0.4, n_targets=3, seed=seed)
+        rng = np.random.default_rng(seed)
+        cases.append(
+            (graph, tuple(int(s) for s in rng.choice(graph.n_nodes, size=1 + seed % 2, replace=False)))
+        )
+    return cases
+
+
+@pytest.mark.parametrize("case", range(7))
+def test_bounds_and_plan_bracket_the_exhaustive_optimum(case: int) -> None:
+    graph, starts = small_cases()[case]
+    max_cycles, u_max = 7, 4
+    best, least = optimum(graph, starts, max_cycles, u_max)
+    steps = stepwise_bound(graph, np.array(starts), max_cycles, u_max)
+    assert (steps <= least).all(), (steps, least)
+    assert lower_bound(graph, np.array(starts), max_cycles, u_max) <= best + 1e-9
+    assert priced_bound(graph, np.array(starts), max_cycles, u_max) <= best + 1e-9
+    plan = plan_team(graph, np.array(starts), max_cycles, u_max, search_seconds=5)
+    assert plan.simulated >= best - 1e-9
+
+
+@pytest.mark.parametrize(
+    ("targets", "start", "max_cycles", "u_max"),
+    [([0, 2, 4], 1, 14, 8), ([0, 3], 1, 16, 10), ([1, 4], 0, 16, 6)],
+)
+def test_the_priced_bound_holds_where_it_is_the_larger(
+    targets: list[int], start: int, max_cycles: int, u_max: int
+) -> None:
+    """Targets with no target neighbour: every arrival costs a walk, which only this bound counts."""
+    graph = path_graph(5, targets)
+    best, _ = optimum(graph, (start,), max_cycles, u_max)
+    priced = priced_bound(graph, np.array([start]), max_cycles, u_max)
+    stepwise = float(stepwise_bound(graph, np.array([start]), max_cycles, u_max).mean())
+    assert stepwise < priced <= best + 1e-9
+
+
+def test_a_plan_replays_through_the_env_to_its_simulated_figure() -> None:
+    env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=4, max_cycles=120)
+    env.reset(seed=3)
+    state = env.unwrapped
+    plan = plan_team(state.graph, state.positions, 120, state.u_max, state.uncertainty, search_seconds=5)
+    result = evaluate(
+        make_team("optimal_planner", search_seconds=5), "paper-50", episodes=1, seed=3, max_cycles=120
+    )
+    assert result.episodes[0].metrics["avg_uncertainty"] == pytest.approx(plan.simulated)
+    distances = state.graph.hop_distances.astype(int).tolist()
+    next_hop = state.graph.next_hop.astype(int).tolist()
+    again = simulate(
+        plan.controllers(distances, next_hop),
+        state.positions,
+        state.graph.target_indices,
+        np.zeros(state.graph.n_nodes, dtype=np.int64),
+        120,
+        state.u_max,
+    )
+    assert again == pytest.approx(plan.simulated)
+
+
+def test_the_planner_is_no_worse_than_territory_patrol_and_no_better_than_the_bound() -> None:
+    kwargs = dict(episodes=2, seed=11, max_cycles=200)
+    for graph in ("paper-50", "rooms-4"):
+        planner = evaluate(make_team("optimal_planner", search_seconds=5), graph, **kwargs)
+        rule = evaluate(make_team("territory_patrol"), graph, **kwargs)
+        for mine, theirs in zip(planner.values("avg_uncertainty"), rule.values("avg_uncertainty")):
+            assert mine <= theirs
+        env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=4, max_cycles=200)
+        for record in planner.episodes:
+            env.reset(seed=record.seed)
+            bound = lower_bound(env.unwrapped.graph, env.unwrapped.positions, 200, env.unwrapped.u_max)
+            assert bound <= record.metrics["avg_uncertainty"] + 1e-9
+
+
+def test_the_pair_schedule_prices_what_it_plays_and_beats_the_greedy_rule() -> None:
+    graph = path_graph(7, [1, 5])
+    distances, next_hop = graph.hop_distances.astype(int).tolist(), graph.next_hop.astype(int).tolist()
+    schedule = PairSchedule(graph.hop_distances, graph.next_hop, 1, 5, 60, 10, keep_actions=True)
+    for start in range(7):
+        cost, entry = schedule.entry(start, 0, 0)
+        position, u, played = start, {1: 0, 5: 0}, 0
+        for remaining in range(60, 0, -1):
+            position = schedule.move(position, entry, u[1], u[5], remaining)
+            u = {t: (max(v - 1, 0) if t == position else min(v + 1, 10)) for t, v in u.items()}
+            played += u[1] + u[5]
+        assert played == cost
+        assert cost <= solo_cost(start, (1, 5), [0, 0], 60, 10, distances, next_hop)
+
+
+def test_a_dropped_target_grows_to_the_cap() -> None:
+    for initial, steps, cap in [(0, 10, 4), (3, 10, 4), (0, 3, 100), (4, 5, 4)]:
+        assert dropped_cost(initial, steps, cap) == sum(min(initial + k, cap) for k in range(1, steps + 1))
+
+
+def test_bad_input_is_one_line() -> None:
+    graph = path_graph(4, [0, 3])
+    with pytest.raises(InputError, match="starts"):
+        lower_bound(graph, np.array([9]), 10, 5)
+    with pytest.raises(InputError, match="max_cycles and u_max"):
+        stepwise_bound(graph, np.array([0]), 0, 5)
+    with pytest.raises(InputError, match="search_seconds"):
+        make_team("optimal_planner", search_seconds=0)
+    with pytest.raises(InputError, match="two different targets"):
+        PairSchedule(graph.hop_distances, graph.next_hop, 0, 0, 10, 5)
