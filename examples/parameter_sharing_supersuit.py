@@ -49,7 +49,9 @@ class SharedPolicyTeam(Team):
     def __init__(self, model: MaskablePPO) -> None:
         self.model = model
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         actions = {}
         for agent, obs in observations.items():
             action, _ = self.model.predict(

@@ -8,10 +8,15 @@ The evaluation harness drives every team the same way::
 
     env = team.make_env(graph, n_agents=..., max_cycles=...)   # the env the team acts in
     team.reset(env, seed=...)            # once per episode, after env.reset()
-    actions = team.predict(observations, deterministic=True)
+    actions = team.predict_dict(observations, deterministic=True)   # {agent: destination node}
 
 ``deterministic`` is the harness's choice; when the caller leaves it open, a team's
 ``deploy_temperature`` decides (``None``: deterministic; a learned team may sample instead).
+
+:meth:`Team.predict_dict` is the method every team implements. :meth:`Team.predict` is SB3's
+shape around it, for code written against an SB3 model: ``actions, state = team.predict(obs)``
+returns the same ``{agent: action}`` dict and hands ``state`` back unchanged (no team is
+recurrent).
 
 ``observations`` maps agent names to that agent's own observation (a mental map by default).
 A *decentralized* team must compute each agent's action from that agent's observation alone;
@@ -28,7 +33,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, final
 
 import numpy as np
 
@@ -117,8 +122,30 @@ class Team(ABC):
         self.rng = np.random.default_rng(seed)
 
     @abstractmethod
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
-        """One destination node per agent in ``observations``."""
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
+        """One destination node per agent in ``observations``: the method every team implements."""
+
+    @final
+    def predict(
+        self,
+        observation: dict[str, Observation],
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool | None = None,
+    ) -> tuple[dict[str, int], Any]:
+        """SB3's ``predict``: ``(actions, state)``, where ``actions`` is :meth:`predict_dict`'s
+        ``{agent: destination node}`` for the team's ``{agent: observation}``.
+
+        :param observation: ``{agent: observation}``, PettingZoo's shape.
+        :param state: handed back unchanged (no team keeps a recurrent state).
+        :param episode_start: accepted for SB3's signature and not read.
+        :param deterministic: ``None`` (the default) follows the team's rule
+            (:meth:`acts_deterministically`: argmax unless it has a ``deploy_temperature``).
+        """
+        actions = self.predict_dict(observation, deterministic=self.acts_deterministically(deterministic))
+        return actions, state
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(name={self.name!r})"

@@ -58,7 +58,7 @@ def test_the_advice_is_the_territory_patrol_move_on_every_step_of_several_episod
         observations, _ = env.reset(seed=episode)
         rule.reset(env, seed=episode)
         while env.agents:
-            moves = rule.predict(observations)
+            moves = rule.predict_dict(observations)
             kept_goals += sum(goal is not None for goal in rule.rule.goals)
             for agent, observation in observations.items():
                 assert advised(observation) == moves[agent]
@@ -77,7 +77,7 @@ def test_agents_that_follow_the_advice_play_the_territory_patrol_episode() -> No
     observations, _ = baseline.reset(seed=4)
     rule.reset(baseline, seed=4)
     while baseline.agents:
-        observations, *_ = baseline.step(rule.predict(observations))
+        observations, *_ = baseline.step(rule.predict_dict(observations))
     assert env.episode_metrics() == baseline.episode_metrics()
 
 
@@ -95,7 +95,7 @@ def test_the_rule_itself_is_the_territory_patrol_of_before_it_moved() -> None:
             observations, _ = env.reset(seed=episode)
             team.reset(env, seed=episode)
             while env.agents:
-                actions = team.predict(observations)
+                actions = team.predict_dict(observations)
                 digest.update(np.array([actions[a] for a in sorted(actions)], dtype=np.int64).tobytes())
                 observations, *_ = env.step(actions)
     assert digest.hexdigest() == "5f2df4c59d2ca7358b87dc78af74fa31f7fbea07fd4bd79a6b7ca7c80c22e42c"
@@ -180,11 +180,11 @@ def test_a_copied_env_resumes_with_the_rules_goals(copied) -> None:
         return {a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in observations.items()}
 
     for _ in range(15):
-        rule.predict(observations)
+        rule.predict_dict(observations)
         observations, *_ = env.step(random_moves(observations))
     copy = copied(env)
     for _ in range(40):
-        moves = rule.predict(observations)
+        moves = rule.predict_dict(observations)
         assert {a: advised(o) for a, o in observations.items()} == moves
         observations, *_ = copy.step(random_moves(observations))
 
@@ -244,7 +244,7 @@ def test_a_saved_team_keeps_the_option_and_acts_legally_on_other_graphs(tmp_path
         observations, _ = env.reset(seed=0)
         loaded.reset(env, seed=0)
         for _ in range(5):
-            actions = loaded.predict(observations)
+            actions = loaded.predict_dict(observations)
             for agent, action in actions.items():
                 assert observations[agent]["action_mask"][action] == 1
             observations, *_ = env.step(actions)

@@ -22,7 +22,7 @@ def play(team: Team, env, seed: int = 0, options: dict | None = None):
     observations, _ = env.reset(seed=seed, options=options)
     team.reset(env, seed=seed + 1)
     while env.agents:
-        actions = team.predict(observations)
+        actions = team.predict_dict(observations)
         before = env.unwrapped.positions
         yield observations, before, actions
         observations, *_ = env.step(actions)
@@ -76,7 +76,7 @@ class TestRandom:
         team.reset(None, seed=0)
         mask = np.zeros(10, dtype=np.int8)
         mask[[2, 5, 7]] = 1
-        draws = [team.predict({"a": {"action_mask": mask}})["a"] for _ in range(3000)]
+        draws = [team.predict_dict({"a": {"action_mask": mask}})["a"] for _ in range(3000)]
         values, counts = np.unique(draws, return_counts=True)
         assert values.tolist() == [2, 5, 7]
         assert np.all(np.abs(counts / 3000 - 1 / 3) < 0.04)
@@ -126,7 +126,7 @@ class TestGrazing:
         team.reset(env, seed=0)
         env.unwrapped.core.uncertainty[[0, 4]] = [3, 1]
         for expected in ([0], [0], [0], [1]):  # u at 0: 3 -> 2 -> 1 -> 0, then leave towards 4
-            actions = team.predict(observations)
+            actions = team.predict_dict(observations)
             assert [actions["agent_0"]] == expected
             observations, *_ = env.step(actions)
 
@@ -201,11 +201,11 @@ class TestLocalGreedy:
         nodes[3, :2] = [2, 10]  # seen 10 steps ago at u=2: estimate 12
         mask = np.array([1, 1, 1, 0], dtype=np.int8)
         obs = {"nodes": nodes, "adjacency": adjacency, "position": 1, "action_mask": mask}
-        assert team.predict({"a": obs})["a"] == 2
+        assert team.predict_dict({"a": obs})["a"] == 2
         nodes[3, 1] = 1  # now the estimate is 3 < 5
-        assert team.predict({"a": obs})["a"] == 0
+        assert team.predict_dict({"a": obs})["a"] == 0
         nodes[1, 2], nodes[1, 0] = 1, 1  # the agent's own node is a target with u > 0: dwell
-        assert team.predict({"a": obs})["a"] == 1
+        assert team.predict_dict({"a": obs})["a"] == 1
 
     def test_commits_to_its_goal_until_it_is_seen_served(self) -> None:
         team = LocalGreedyTeam(u_max=100)
@@ -220,11 +220,11 @@ class TestLocalGreedy:
         nodes[4, :2] = [2, 8]  # estimate 10: the goal
         mask = np.array([0, 1, 1, 1, 0], dtype=np.int8)
         obs = {"nodes": nodes, "adjacency": adjacency, "position": 2, "action_mask": mask}
-        assert team.predict({"a": obs})["a"] == 3
+        assert team.predict_dict({"a": obs})["a"] == 3
         nodes[0, :2] = [50, 0]  # target 0 now looks far more urgent, but the agent keeps its goal
-        assert team.predict({"a": obs})["a"] == 3
+        assert team.predict_dict({"a": obs})["a"] == 3
         nodes[4, :2] = [0, 0]  # goal seen this step with u = 0: choose again
-        assert team.predict({"a": obs})["a"] == 1
+        assert team.predict_dict({"a": obs})["a"] == 1
 
     def test_bfs_cache_follows_the_adjacency_object(self) -> None:
         env = make_env(max_cycles=40)
@@ -267,7 +267,7 @@ class TestLocalGreedy:
                 seen |= (graph.hop_distances[env.unwrapped.positions] <= env.obs_radius).any(axis=0)
                 if scramble is not None:
                     env.unwrapped.core.uncertainty[scramble] = rng.integers(0, 101, size=len(scramble))
-                actions = team.predict(observations)
+                actions = team.predict_dict(observations)
                 actions_log.append(actions)
                 observations, *_ = env.step(actions)
             return actions_log, seen

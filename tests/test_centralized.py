@@ -41,7 +41,7 @@ def test_save_load_gives_identical_actions(tmp_path: Path) -> None:
     env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, max_cycles=20, shared_map=True)
     observations, _ = env.reset(seed=3)
     while env.agents:
-        a, b = team.predict(observations), loaded.predict(observations)
+        a, b = team.predict_dict(observations), loaded.predict_dict(observations)
         assert a == b
         observations, *_ = env.step(a)
 

@@ -193,14 +193,16 @@ def test_predict_without_deterministic_follows_the_rule() -> None:
     def draws(team: IndependentPPO, deterministic: bool | None) -> list[dict[str, int]]:
         th.manual_seed(11)
         if deterministic is None:
-            return [team.predict(observations) for _ in range(20)]
-        return [team.predict(observations, deterministic) for _ in range(20)]
+            return [team.predict_dict(observations) for _ in range(20)]
+        return [team.predict_dict(observations, deterministic) for _ in range(20)]
 
     sampling, plain = make_team(0.5), make_team(None)
     assert draws(sampling, None) == draws(sampling, False)
     assert len({str(d) for d in draws(sampling, None)}) > 1  # it does sample
     assert draws(plain, None) == draws(plain, True) == draws(sampling, True)
     assert len({str(d) for d in draws(plain, None)}) == 1
+    th.manual_seed(11)  # SB3's shape, deterministic=None by default: the same rule
+    assert [sampling.predict(observations)[0] for _ in range(20)] == draws(sampling, None)
 
 
 def test_a_moved_team_samples_at_the_rule_on_its_rebuilt_policies() -> None:

@@ -53,7 +53,7 @@ class ScriptedTeam(Team):
         super().reset(env, seed)
         self.k = 0
 
-    def predict(self, observations, deterministic=True):
+    def predict_dict(self, observations, deterministic=True):
         agents = list(observations)
         if self.k < len(self.moves):
             move = self.moves[self.k]

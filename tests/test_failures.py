@@ -163,7 +163,7 @@ class TestOtherTeamSizes:
         observations, _ = env.reset(seed=1)
         team.reset(env, seed=1)
         while env.agents:  # the env raises on any illegal move
-            actions = team.predict(observations)
+            actions = team.predict_dict(observations)
             assert set(actions) == set(observations)
             observations, *_ = env.step(actions)
 
@@ -232,9 +232,9 @@ def test_the_harness_never_asks_a_failed_agent_to_act() -> None:
     from sb3_pm.baselines import make_team
 
     class Checked(type(make_team("random"))):  # type: ignore[misc]
-        def predict(self, observations, deterministic=True):
+        def predict_dict(self, observations, deterministic=True):
             assert set(observations) <= set(self.env.agents)
-            return super().predict(observations, deterministic)
+            return super().predict_dict(observations, deterministic)
 
     result = evaluate(
         Checked(), "paper-50", episodes=1, max_cycles=30, env_kwargs={"failures": {"agent_2": 10}}

@@ -26,7 +26,7 @@ def test_the_pretrained_team_acts_legally() -> None:
     observations, _ = env.reset(seed=3)
     team.reset(env, seed=3)
     for _ in range(60):
-        actions = team.predict(observations, deterministic=True)
+        actions = team.predict_dict(observations, deterministic=True)
         for agent, node in actions.items():
             assert observations[agent]["action_mask"][node] == 1
         observations, *_ = env.step(actions)
@@ -58,7 +58,7 @@ def test_the_transfer_team_acts_legally_on_a_graph_it_never_saw() -> None:
     observations, _ = env.reset(seed=4)
     team.reset(env, seed=4)
     for _ in range(40):
-        actions = team.predict(observations)
+        actions = team.predict_dict(observations)
         assert all(observations[agent]["action_mask"][node] == 1 for agent, node in actions.items())
         observations, *_ = env.step(actions)
 

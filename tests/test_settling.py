@@ -56,7 +56,7 @@ class Bouncer(Team):
 
     name = "bouncer"
 
-    def predict(self, observations, deterministic=True):
+    def predict_dict(self, observations, deterministic=True):
         positions = self.env.unwrapped.core.positions
         first = 2 if positions[0] == 1 else 1
         second = min(int(positions[1]) + 1, 4)

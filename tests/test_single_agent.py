@@ -88,7 +88,7 @@ def test_illegal_action_is_a_stay_and_reported() -> None:
 class Stay(Team):
     name = "stay"
 
-    def predict(self, observations: dict[str, Any], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(self, observations: dict[str, Any], deterministic: bool = True) -> dict[str, int]:
         return {agent: int(obs["position"]) for agent, obs in observations.items()}
 
 

@@ -38,7 +38,7 @@ def rollout_actions(team: IndependentPPO, steps: int = 15, seed: int = 5) -> lis
     team.reset(env, seed=seed)
     actions = []
     for _ in range(steps):
-        chosen = team.predict(observations, deterministic=True)
+        chosen = team.predict_dict(observations, deterministic=True)
         for agent, node in chosen.items():
             assert observations[agent]["action_mask"][node] == 1
         actions.append(chosen)
@@ -150,7 +150,7 @@ def test_per_agent_overrides() -> None:
 def test_predict_with_plain_ppo() -> None:
     team = make_team(algo="ppo")
     assert team.env_kwargs["illegal_action"] == "stay"
-    actions = team.predict(
+    actions = team.predict_dict(
         {
             a: obs
             for a, obs in persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, **ENV)
@@ -159,6 +159,32 @@ def test_predict_with_plain_ppo() -> None:
         }
     )
     assert set(actions) == {"agent_0", "agent_1"} and all(isinstance(v, int) for v in actions.values())
+
+
+def test_predict_is_sb3_shaped_around_predict_dict() -> None:
+    """``predict`` returns SB3's ``(actions, state)``: ``predict_dict``'s actions, ``state`` as given."""
+    import numpy as np
+
+    from sb3_pm.baselines import make_team as make_baseline
+
+    trained = make_team()
+    trained.learn(32)
+    env = persistent_monitoring_v0.parallel_env(graph=GRAPH, n_agents=2, **ENV)
+    observations, _ = env.reset(seed=0)
+    for team in (make_baseline("random"), trained):
+        team.reset(env, seed=1)
+        expected = team.predict_dict(observations, deterministic=True)
+        team.reset(env, seed=1)  # the same draws again (the random baseline)
+        result = team.predict(observations)
+        assert isinstance(result, tuple) and len(result) == 2
+        assert result == (expected, None)
+        state = object()
+        team.reset(env, seed=1)
+        actions, returned = team.predict(
+            observations, state=state, episode_start=np.ones(2, dtype=bool), deterministic=True
+        )
+        assert returned is state and actions == expected
+    env.close()
 
 
 def test_stochastic_evaluation_is_reproducible_and_differs_from_deterministic() -> None:

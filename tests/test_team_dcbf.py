@@ -28,7 +28,7 @@ def actions(team: IndependentPPO) -> list[dict[str, int]]:
     team.reset(env, seed=4)
     chosen = []
     for _ in range(10):
-        step = team.predict(observations, deterministic=True)
+        step = team.predict_dict(observations, deterministic=True)
         chosen.append(step)
         observations, *_ = env.step(step)
     return chosen

@@ -55,7 +55,7 @@ def walk(team: Any, n_agents: int, steps: int = 40, env_kwargs: dict[str, Any] |
             return
         yield observations
         team.stacked_inference = False
-        actions = team.predict(observations)
+        actions = team.predict_dict(observations)
         team.stacked_inference = True
         observations, *_ = env.step(actions)
 
@@ -72,9 +72,9 @@ def check_equal(team: Any, observations: dict[str, Any], policies: list[Any], to
             f"{agent}: {(logits[k] - expected_logits[0]).abs().max()}"
         )
     team.stacked_inference = False
-    serial = team.predict(observations)
+    serial = team.predict_dict(observations)
     team.stacked_inference = True
-    assert team.predict(observations) == serial
+    assert team.predict_dict(observations) == serial
 
 
 @pytest.mark.parametrize(
@@ -118,7 +118,7 @@ def play(team: Any, steps: int, seed: int, deterministic: bool = True) -> list[d
     team.reset(env, seed=seed)
     chosen = []
     for _ in range(steps):
-        chosen.append(team.predict(observations, deterministic=deterministic))
+        chosen.append(team.predict_dict(observations, deterministic=deterministic))
         observations, *_ = env.step(chosen[-1])
     return chosen
 
@@ -192,7 +192,7 @@ def test_a_transferred_team_stacks_on_its_new_graph() -> None:
     for _ in range(30):
         policies = [team.policies[team.learner_for(a)] for a in observations]
         check_equal(team, observations, policies, together)  # the team's pass ran, and it is exact
-        observations, *_ = env.step(team.predict(observations))
+        observations, *_ = env.step(team.predict_dict(observations))
 
 
 def test_maps_for_the_sparse_kernel_run_one_pass_per_agent() -> None:
@@ -200,8 +200,8 @@ def test_maps_for_the_sparse_kernel_run_one_pass_per_agent() -> None:
     policies = [team.models[a].policy for a in team.agents]
     observations = next(walk(team, 3))
     assert TeamForward().logits(policies, [observations[a] for a in team.agents]) is None
-    serial = team.predict(observations)
-    assert team.predict(observations) == serial
+    serial = team.predict_dict(observations)
+    assert team.predict_dict(observations) == serial
 
 
 def test_activations_whose_last_elements_would_round_otherwise_run_one_pass_per_agent() -> None:
@@ -215,9 +215,9 @@ def test_activations_whose_last_elements_would_round_otherwise_run_one_pass_per_
     assert "vector loop" in str(together.refusal)
     team._team_forward = together
     team.stacked_inference = False
-    serial = team.predict(observations)
+    serial = team.predict_dict(observations)
     team.stacked_inference = True
-    assert team.predict(observations) == serial
+    assert team.predict_dict(observations) == serial
 
 
 def test_observations_of_another_shape_are_left_to_the_serial_path() -> None:
@@ -249,12 +249,12 @@ def test_the_policies_modules_hold_their_own_tensors_after_a_team_pass() -> None
     team = make_team()
     before = {a: dict(team.models[a].policy.state_dict(keep_vars=True)) for a in team.agents}
     observations = next(walk(team, 3))
-    team.predict(observations)  # the team's pass
+    team.predict_dict(observations)  # the team's pass
     for a in team.agents:
         after = team.models[a].policy.state_dict(keep_vars=True)
         assert all(after[k] is before[a][k] for k in after)  # no tensor swapped in and left behind
     team.stacked_inference = False
-    team.predict(observations)  # the serial path still runs on them
+    team.predict_dict(observations)  # the serial path still runs on them
 
 
 def test_what_cannot_act_together_says_why_and_runs_one_pass_per_agent() -> None:
@@ -276,7 +276,7 @@ def test_what_cannot_act_together_says_why_and_runs_one_pass_per_agent() -> None
     assert together.logits(policies, [observations[a] for a in team.agents]) is None
     assert "filter" in str(together.refusal)
     team._team_forward = together
-    assert set(team.predict(observations)) == set(team.agents)  # one pass per agent instead
+    assert set(team.predict_dict(observations)) == set(team.agents)  # one pass per agent instead
     team.set_filter(neglect_bound=30.0)  # every learner alike again: one pass for the team
     assert together.logits(policies, [observations[a] for a in team.agents]) is not None
 
@@ -350,7 +350,7 @@ def test_a_transferred_team_with_more_agents_and_the_rule_prior_samples_together
         team.reset(env, seed=4)
         chosen = []
         while env.agents:
-            chosen.append(team.predict(observations))
+            chosen.append(team.predict_dict(observations))
             observations, *_ = env.step(chosen[-1])
         draws.append(chosen)
     assert len(draws[0]) == 40 and draws[0] == draws[1]
@@ -414,9 +414,9 @@ def test_most_likely_actions_from_the_allowed_nodes_are_one_pass_per_agents() ->
         steps = 0
         while env.agents:
             team.stacked_inference = False
-            serial = team.predict(observations, deterministic=True)
+            serial = team.predict_dict(observations, deterministic=True)
             team.stacked_inference = True
-            assert team.predict(observations, deterministic=True) == serial
+            assert team.predict_dict(observations, deterministic=True) == serial
             observations, *_ = env.step(serial)
             steps += 1
         counts = team._team_forward.counts

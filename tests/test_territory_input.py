@@ -107,7 +107,7 @@ def test_a_transferable_team_sees_each_graphs_own_split() -> None:
         for _ in range(5):
             for i, agent in enumerate(env.possible_agents):
                 np.testing.assert_array_equal(observations[agent]["nodes"][:, -1], owns[i])
-            actions = moved.predict(observations)
+            actions = moved.predict_dict(observations)
             for agent, action in actions.items():
                 assert observations[agent]["action_mask"][action] == 1  # legal on the new graph
             observations, *_ = env.step(actions)

@@ -12,16 +12,16 @@ from sb3_pm.evaluation import evaluate, record_gif
 
 
 def counting_team() -> tuple[Any, list[int]]:
-    """A baseline team whose ``predict`` records torch's thread count."""
+    """A baseline team whose ``predict_dict`` records torch's thread count."""
     team = make_team("random")
     seen: list[int] = []
-    predict = team.predict
+    predict = team.predict_dict
 
     def recorded(*args: Any, **kwargs: Any) -> Any:
         seen.append(th.get_num_threads())
         return predict(*args, **kwargs)
 
-    team.predict = recorded  # type: ignore[method-assign]
+    team.predict_dict = recorded  # type: ignore[method-assign]
     return team, seen
 
 

@@ -1,4 +1,4 @@
-"""``sb3-pm train --track``: the run mirrored to Weights & Biases, offline here."""
+"""``sb3-pm train --track`` and ``reproduce --track``: runs mirrored to Weights & Biases, offline here."""
 
 from __future__ import annotations
 
@@ -40,3 +40,32 @@ def test_track_without_wandb_is_one_line_before_any_folder(tmp_path: Path, monke
     out = tmp_path / "run"
     assert main(["train", *SMALL, "--out", str(out), "--track", "--no-progress"]) == 2
     assert "--track needs wandb" in capsys.readouterr().err and not out.exists()
+    sweep = ["reproduce", "comparison", "--quick", "--out", str(out), "--track", "--no-progress"]
+    assert main(sweep) == 2
+    assert "--track needs wandb" in capsys.readouterr().err and not out.exists()
+
+
+def test_reproduce_tracks_each_training_cell_as_one_offline_run(tmp_path: Path, monkeypatch) -> None:
+    pytest.importorskip("wandb", reason="--track needs the [track] extra")
+    from tests.test_experiments import tiny_experiment
+
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    path, out = tiny_experiment(tmp_path), tmp_path / "sweep"
+    graph = str(tmp_path / "tiny.graphml")
+    # Two jobs: the cells run in worker processes, which get the tracking from the cells alone.
+    argv = ["reproduce", str(path), "--out", str(out), "--graphs", graph, "--seeds", "0"]
+    assert main([*argv, "--jobs", "2", "--no-progress", "--track", "--wandb-project", "pm-sweep"]) == 0
+    learned = out / "cells" / "learned" / "tiny" / "seed0"
+    [run] = list((learned / "wandb").glob("offline-run-*"))
+    [record] = list(run.glob("run-*.wandb"))
+    data = record.read_bytes()
+    assert b"pm-sweep" in data and b"learned/tiny/seed0" in data  # the project given; named after the cell
+    assert b"\x04tiny" in data  # grouped under the experiment's name (a 4-byte protobuf string)
+    assert b"n_timesteps" in data and b"hidden_dim" in data  # the cell's training config
+    synced = {p.name for p in (run / "files").iterdir()}
+    assert {"agent_0_1", "agent_1_1", "team_1"} <= synced  # every learner's TensorBoard run and the team's
+    assert not list((out / "cells" / "random").rglob("wandb"))  # a baseline cell trains nothing: no run
+    assert (learned / "DONE").is_file() and "pm-sweep" not in (out / "experiment.yml").read_text()
+    assert main([*argv, "--jobs", "1", "--no-progress"]) == 0  # the same sweep, resumed without --track
+    assert len(list((learned / "wandb").glob("offline-run-*"))) == 1  # nothing trained again

@@ -1,6 +1,6 @@
 """Decentralized teams of independent learners, by job:
 
-* :mod:`sb3_pm.agents.deployment`: how a trained team acts (one acting rule, one ``predict``) and
+* :mod:`sb3_pm.agents.deployment`: how a trained team acts (one acting rule, one ``predict_dict``) and
   how it is saved;
 * :mod:`sb3_pm.agents.multiplexing`: one PettingZoo parallel env seen as one SB3 ``VecEnv`` per
   learner, with the learners' threads and random streams;

@@ -40,7 +40,9 @@ class GrazingTeam(Team):
         self.graph = env_graph(env)
         self.goals: dict[str, int] = {}
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         state = self.env.unwrapped
         u = state.uncertainty
         # Agents that failed (the env's ``failures``) stand nowhere, and their goals are free again.

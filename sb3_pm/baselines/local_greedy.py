@@ -139,5 +139,7 @@ class LocalGreedyTeam(Team):
         mask = obs["action_mask"]
         return move if mask[move] else position  # the known graph is a subgraph of the true one
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         return {agent: self.act(agent, obs) for agent, obs in observations.items()}

@@ -20,7 +20,9 @@ class RandomTeam(Team):
     name = "random"
     omniscient = False
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         agents = list(observations)
         masks = np.stack([np.asarray(observations[a]["action_mask"], dtype=bool) for a in agents])
         # argmax over iid uniform scores restricted to the mask is a uniform draw from the mask,

@@ -1,6 +1,6 @@
 """``sit_on_nodes``: go to the nearest unclaimed target and stay there (docs/METHOD.md "Baselines").
 
-Claims are made once per episode, at the first :meth:`predict` after :meth:`reset`, in agent
+Claims are made once per episode, at the first :meth:`predict_dict` after :meth:`reset`, in agent
 order: each agent claims the nearest (in hops) target that no earlier agent has claimed, ties
 going to the lower node index. An agent left without a free target (more agents than targets)
 claims the nearest target anyway, so it still sits on one.
@@ -44,7 +44,9 @@ class SitOnNodesTeam(Team):
             free &= targets != choice
         return claims
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         agents, positions = agent_positions(observations)
         if self.claims is None:
             self.claims = self.claim(agents, positions)

@@ -69,5 +69,7 @@ class TerritoryPatrolTeam(Team):
         nodes = np.asarray(obs["nodes"])
         return self.rule.move(i, int(obs["position"]), nodes[:, U], nodes[:, AGE])
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         return {agent: self.act(agent, obs) for agent, obs in observations.items()}

@@ -4,7 +4,7 @@ The tour is an approximate travelling-salesman tour of the targets on hop distan
 nearest-neighbour tour from the lowest-index target, improved by 2-opt until no reversal
 shortens it. It depends on the graph only, so it is computed once per graph and cached.
 
-At the first :meth:`predict` of an episode the agents are spread evenly: the tour is cut into
+At the first :meth:`predict_dict` of an episode the agents are spread evenly: the tour is cut into
 ``n_agents`` equally spaced slots (slot ``j`` at tour position ``floor(j * T / n)``), and agents
 are matched to slots minimizing the total hop distance (``scipy.optimize.linear_sum_assignment``).
 Then every agent walks the tour in the same direction: shortest path to its next tour target,
@@ -101,7 +101,9 @@ class TourPatrolTeam(Team):
         rows, cols = linear_sum_assignment(cost)
         return {agents[r]: int(slots[c]) for r, c in zip(rows, cols)}
 
-    def predict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         agents, positions = agent_positions(observations)
         if self.pointer is None:
             self.pointer = self.spread(agents, positions)

@@ -8,6 +8,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from sb3_pm.commands.tracking import add_tracking_options, check_tracking, tracking_of
+
 
 def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
@@ -59,6 +61,7 @@ def register(subparsers: Any) -> None:
         help="torch device of the learned teams' update phases alone, e.g. cuda with --device cpu: "
         "rollouts on the CPU, updates on the GPU (default: --device)",
     )
+    add_tracking_options(parser, "each training cell's TensorBoard logs (one W&B run per cell)")
     parser.set_defaults(func=run)
 
 
@@ -174,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
     check_seeds(args.seeds or [], "--seeds")
     check_device(args.device, "--device")
+    check_tracking(args)
     if args.ray_address and args.backend != "ray":
         raise UsageError("--ray-address needs --backend ray")
     if args.backend == "ray":
@@ -181,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise UsageError(f"--out {args.out} exists and is not a directory")
     if args.update_device is not None:  # before the folder is created and hours of training start
-        from sb3_pm.experiments.runner import check_update_device_takers, plan_cells
+        from sb3_pm.experiments.preflight import check_update_device_takers
+        from sb3_pm.experiments.runner import plan_cells
 
         cells = plan_cells(experiment, args.out, device=args.device, update_device=args.update_device)
         check_update_device_takers(args.update_device, cells)
@@ -204,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
                 command=getattr(args, "command_line", None),
                 device=args.device,
                 update_device=args.update_device,
+                tracking=tracking_of(args, group=experiment.name),
             )
     except RunFolderError as error:
         raise UsageError(str(error)) from None

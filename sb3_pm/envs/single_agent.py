@@ -40,7 +40,7 @@ class Teammates(Protocol):
 
     def reset(self, env: Any, seed: int | None = None) -> None: ...
 
-    def predict(
+    def predict_dict(
         self, observations: dict[str, dict[str, Any]], deterministic: bool = True
     ) -> Mapping[str, Any]: ...
 
@@ -105,7 +105,8 @@ class SingleAgentMonitoringEnv(gym.Env):
         if self.teammates is not None:
             # Fixed teammates are part of this env's dynamics: their most likely actions, whatever a
             # learned team's deploy_temperature says, so the env depends on its seed alone.
-            return {a: int(v) for a, v in self.teammates.predict(observations, deterministic=True).items()}
+            actions = self.teammates.predict_dict(observations, deterministic=True)
+            return {a: int(v) for a, v in actions.items()}
         return {
             a: int(self._teammate_rng.choice(np.flatnonzero(obs["action_mask"])))
             for a, obs in observations.items()

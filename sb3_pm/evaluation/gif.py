@@ -145,7 +145,7 @@ def record_gif(
     :func:`~sb3_pm.evaluation.evaluate`: a trained team acts on its own graph, with its own size and
     in its own env settings unless told otherwise.
 
-    :param deterministic: passed to ``team.predict``, as in :func:`~sb3_pm.evaluation.evaluate`
+    :param deterministic: passed to ``team.predict_dict``, as in :func:`~sb3_pm.evaluation.evaluate`
         (``None``: the team's ``deploy_temperature`` decides).
     :return: the episode's record, identical to the one :func:`~sb3_pm.evaluation.evaluate` makes.
     """

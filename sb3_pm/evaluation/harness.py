@@ -218,7 +218,7 @@ def evaluate(
     :param progress: report progress on stderr (:func:`sb3_pm.progress.progress_bar`: a tqdm bar on
         a terminal, a plain line every 30 s elsewhere); ``False`` (default) is silent.
     :param policy_name: the label in reports; defaults to ``team.name``.
-    :param deterministic: passed to ``team.predict``; ``False`` samples a learned team's actions
+    :param deterministic: passed to ``team.predict_dict``; ``False`` samples a learned team's actions
         (from the team's own seeded stream, so still reproducible) at the team's sampling
         temperature: its ``deploy_temperature`` if it has one, else 1 unless
         ``set_sampling_temperature`` said otherwise. ``None`` (default) follows the team's
@@ -355,7 +355,7 @@ def run_episode(
     infos: dict[str, dict] = {}
     steps = 0
     while env.agents:
-        actions = team.predict(observations, deterministic=deterministic)
+        actions = team.predict_dict(observations, deterministic=deterministic)
         observations, _, _, _, infos = env.step(actions)
         if len(observations) > len(env.agents):  # agents that failed this step leave the team
             observations = {agent: obs for agent, obs in observations.items() if agent in env.agents}

@@ -45,9 +45,11 @@ from sb3_pm.experiments.backends import WorkerLost, default_jobs, run_jobs
 from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.memory_needs import check_sweep_memory
+from sb3_pm.experiments.preflight import check_update_device_takers
 from sb3_pm.experiments.record import EVAL_SEED_OFFSET, experiment_record, team_rules
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant, variant_config
+from sb3_pm.experiments.tracking import Tracking, check_wandb, wandb_run
 from sb3_pm.files import move_aside, write_atomic
 from sb3_pm.graphs import graph_label
 from sb3_pm.machine import usable_cores, write_machine_record
@@ -82,6 +84,9 @@ class Cell:
     update_slots: int | None = None
     #: Where a ``train_env`` variant's team is trained (shared by its cells on every graph).
     team_folder: str | None = None
+    #: The W&B run settings of the cell's training (``--track``), or ``None``: not tracked. Not
+    #: part of the experiment record.
+    tracking: Tracking | None = None
 
     @property
     def done(self) -> bool:
@@ -99,7 +104,11 @@ def training_folder(out: Path, variant: Variant, seed: int) -> Path:
 
 
 def plan_cells(
-    experiment: Experiment, out: Path, device: str = "cpu", update_device: str | None = None
+    experiment: Experiment,
+    out: Path,
+    device: str = "cpu",
+    update_device: str | None = None,
+    tracking: Tracking | None = None,
 ) -> list[Cell]:
     """Every cell of the grid, in table order."""
     cells = []
@@ -124,29 +133,10 @@ def plan_cells(
                         device=device,
                         update_device=update_device,
                         team_folder=shared,
+                        tracking=tracking,
                     )
                 )
     return cells
-
-
-def check_update_device_takers(update_device: str, cells: list[Cell]) -> None:
-    """Refuse, before any training, an update device torch cannot use here, or one for a learned
-    variant whose learners cannot take it (only DCBF-PPO learners move their updates).
-
-    :raises InputError: naming the device, or the variant and its algorithm.
-    """
-    from sb3_pm.ppo_dcbf.update_device import check_update_device
-
-    check_update_device(update_device)
-    checked: set[str] = set()
-    for cell in cells:
-        variant = Variant(**cell.variant)
-        if variant.kind == "baseline" or not variant.train or variant.key in checked:
-            continue
-        checked.add(variant.key)
-        algo = cell_config(cell, variant).algo
-        if algo != "dcbf_ppo":
-            raise InputError(f"--update-device needs dcbf_ppo learners; variant {variant.key!r} uses {algo}")
 
 
 def _core_share(backend: str, n_jobs: int | None, trainings: int) -> int:
@@ -205,7 +195,8 @@ def cell_config(cell: Cell, variant: Variant) -> Any:
 
 
 def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
-    """Train the learned team of a cell and save it to ``folder/team``."""
+    """Train the learned team of a cell and save it to ``folder/team``; with the cell's
+    :attr:`~Cell.tracking`, its training is one W&B run named after the cell's folder."""
     config = cell_config(cell, variant)
     timesteps = variant.timesteps or cell.timesteps or config.n_timesteps
     from sb3_pm.agents.training.checkpoints import CHECKPOINTS
@@ -214,15 +205,18 @@ def _train(cell: Cell, variant: Variant, folder: Path) -> Any:
 
     team_class: Any = CentralizedPPO if variant.kind == "centralized" else IndependentPPO
     graph = variant.train_env or cell.graph
-    if variant.train and team_class is IndependentPPO:
-        team = _train_with_checkpoints(cell, config, timesteps, folder, graph)
-    else:
-        team = team_class.from_config(
-            config, graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
-        )
-        if variant.train:
-            _set_update_device(team, cell)
-            team.learn(timesteps)
+    record = {**config.to_dict(), "n_timesteps": timesteps, "variant": variant.key, "env": str(graph)}
+    record["seed"] = cell.seed
+    with wandb_run(cell.tracking if variant.train else None, folder, "/".join(folder.parts[-3:]), record):
+        if variant.train and team_class is IndependentPPO:
+            team = _train_with_checkpoints(cell, config, timesteps, folder, graph)
+        else:
+            team = team_class.from_config(
+                config, graph, seed=cell.seed, tensorboard_log=str(folder / "tb"), device=cell.device
+            )
+            if variant.train:
+                _set_update_device(team, cell)
+                team.learn(timesteps)
     team.save(folder / "team", overwrite=True)
     # The machine that trained the team: the same seed trains another team on another kind of CPU.
     write_machine_record(folder)
@@ -369,15 +363,21 @@ def reproduce(
     command: list[str] | None = None,
     device: str = "cpu",
     update_device: str | None = None,
+    tracking: Tracking | None = None,
 ) -> Comparison:
     """Run (or resume) ``experiment`` into ``out`` and write its reports; returns the comparison.
 
     :param device: torch device of the learned teams (``cpu``, ``cuda``, ``auto``).
     :param update_device: torch device of the learned teams' update phases alone (e.g. ``cuda``
         with ``device="cpu"``: :attr:`~sb3_pm.agents.training.team.IndependentPPO.update_device`).
+    :param tracking: track each cell's training as one W&B run (:mod:`.tracking`), grouped under
+        the experiment's name unless it names a group; ``None``: no tracking.
     """
     out = Path(out)
-    cells = plan_cells(experiment, out, device=device, update_device=update_device)
+    if tracking is not None:  # before anything is written
+        check_wandb("tracking")
+        tracking = tracking if tracking.group is not None else replace(tracking, group=experiment.name)
+    cells = plan_cells(experiment, out, device=device, update_device=update_device, tracking=tracking)
     if update_device is not None:  # before the folder is written and hours of training start
         check_update_device_takers(update_device, cells)
     # every cell's memory, from sizes, before the folder is written and any env allocated
@@ -441,6 +441,7 @@ __all__ = [
     "EVAL_SEED_OFFSET",
     "Cell",
     "cell_config",
+    "check_update_device_takers",
     "experiment_record",
     "plan_cells",
     "reproduce",

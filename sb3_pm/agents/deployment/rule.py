@@ -1,4 +1,4 @@
-""":class:`DeploymentRule`: how a trained team acts, kept in one place, and its only ``predict``.
+""":class:`DeploymentRule`: how a trained team acts, kept in one place, and its only ``predict_dict``.
 
 Every trained team reaches it: :class:`~sb3_pm.agents.training.team.IndependentPPO` (one learner per
 agent), :class:`~sb3_pm.sharing.centralized.CentralizedPPO` (one shared network) and a trained team
@@ -32,7 +32,8 @@ from sb3_pm.team_interface import Observation, Team, without_caller_keys
 
 class DeploymentRule(Team):
     """The acting rule of a trained team (temperature, DCBF filter, pending calibration), its
-    environment settings and its one :meth:`predict`."""
+    environment settings and its one :meth:`predict_dict` (SB3's shape around it:
+    :meth:`~sb3_pm.team_interface.Team.predict`)."""
 
     learned = True
     _deploy_temperature: float | None = None
@@ -74,7 +75,7 @@ class DeploymentRule(Team):
         """``{name: policy}``: every policy that acts for the team."""
         raise NotImplementedError
 
-    def predict(  # type: ignore[override]
+    def predict_dict(  # type: ignore[override]
         self, observations: dict[str, Observation], deterministic: bool | None = None
     ) -> dict[str, int]:
         """One destination node per agent in ``observations``, each from its own policy
@@ -149,10 +150,10 @@ class DeploymentRule(Team):
     # ------------------------------------------------------- temperature
     @property
     def deploy_temperature(self) -> float | None:  # type: ignore[override]
-        """How the team acts when nothing says otherwise (``predict(obs)``, ``evaluate()``,
-        ``sb3-pm evaluate`` and ``compare``): ``None`` takes each agent's most likely allowed node
-        (argmax); a temperature samples from ``softmax(logits / T)`` over the allowed nodes, as
-        :meth:`set_sampling_temperature`. Set by the config's ``deploy_temperature`` and saved with
+        """How the team acts when nothing says otherwise (``predict(obs)``, ``predict_dict(obs)``,
+        ``evaluate()``, ``sb3-pm evaluate`` and ``compare``): ``None`` takes each agent's most likely
+        allowed node (argmax); a temperature samples from ``softmax(logits / T)`` over the allowed
+        nodes, as :meth:`set_sampling_temperature`. Set by the config's ``deploy_temperature`` and saved with
         the team. Training never reads it.
 
         :raises InputError: on setting anything but ``None`` or a positive finite number.
@@ -183,7 +184,7 @@ class DeploymentRule(Team):
         return values.pop() if len(values) == 1 else None
 
     def set_sampling_temperature(self, temperature: float) -> None:
-        """Sampled actions (``predict(..., deterministic=False)``) of every policy come from
+        """Sampled actions (``predict_dict(..., deterministic=False)``) of every policy come from
         ``softmax(logits / temperature)`` over its allowed nodes, for deployment; deterministic
         actions are unchanged. Not saved with the team (:attr:`deploy_temperature` is).
 

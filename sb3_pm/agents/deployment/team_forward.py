@@ -161,7 +161,7 @@ class TeamForward:
     def _acting_pass(
         self, policies: Sequence[Any], observations: Sequence[Mapping[str, Any]], allowed_only: bool
     ) -> _Pass | None:
-        """:meth:`_run` for ``predict``, counting rule 8's decisions."""
+        """:meth:`_run` for ``predict_dict``, counting rule 8's decisions."""
         result = self._run(policies, observations, None, allowed_only)
         if result is not None and result.forced is not None:
             for k, policy in enumerate(policies):
@@ -213,7 +213,7 @@ class TeamForward:
         allowed_only: bool = False,
     ) -> _Pass | None:
         """The pass (:class:`_Pass`; policy ``k``'s ``B`` maps in rows ``k * B`` to
-        ``(k + 1) * B - 1``) for ``predict`` (``maps=None``: one map each, the observation's
+        ``(k + 1) * B - 1``) for ``predict_dict`` (``maps=None``: one map each, the observation's
         ``action_mask`` intersected with the filter's) or a rollout step (``maps`` each, the
         filter's masks alone); ``allowed_only``: the most likely actions from the allowed nodes'
         logits where they decide them. ``None``: refused (:attr:`refusal` says why)."""
