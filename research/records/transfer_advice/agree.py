@@ -22,7 +22,7 @@ for graph in sys.argv[2:]:
     team.reset(env, seed=1000000)
     same = total = choice = same_choice = 0
     while env.agents:
-        actions = team.predict(obs, deterministic=False)
+        actions = team.predict_dict(obs, deterministic=False)
         for agent, o in obs.items():
             advised = int(np.flatnonzero(o["nodes"][:, -1])[0])
             total += 1

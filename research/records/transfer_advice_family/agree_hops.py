@@ -30,7 +30,7 @@ for graph in sys.argv[2:]:
     hops = None
     counts = []  # (hops to the nearest node of the own territory, took the rule's move)
     while env.agents:
-        actions = team.predict(obs, deterministic=False)
+        actions = team.predict_dict(obs, deterministic=False)
         for agent, o in obs.items():
             if hops is None:  # the known map: every agent's adjacency is the site's
                 hops = dict(nx.all_pairs_shortest_path_length(nx.from_numpy_array(o["adjacency"] > 0)))
