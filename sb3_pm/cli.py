@@ -19,7 +19,7 @@ from sb3_pm.version import __version__
 __all__ = ["UsageError", "build_parser", "main"]
 
 #: Command modules, in help order.
-COMMAND_MODULES = ("evaluate", "compare", "effect", "train", "reproduce", "convert_team")
+COMMAND_MODULES = ("evaluate", "compare", "effect", "bound", "train", "reproduce", "convert_team")
 
 
 def build_parser() -> argparse.ArgumentParser:

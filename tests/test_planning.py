@@ -3,20 +3,23 @@
 from __future__ import annotations
 
 import itertools
+import json
 from functools import cache
 
 import numpy as np
 import pytest
 
 from sb3_pm.baselines import make_team
+from sb3_pm.cli import main
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.errors import InputError
-from sb3_pm.evaluation import evaluate
+from sb3_pm.evaluation import evaluate, markdown_table
+from sb3_pm.evaluation.statistics import GAP_METRIC, summarize
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.planning import lower_bound, priced_bound, stepwise_bound
 from sb3_pm.planning.controllers import simulate
-from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
+from sb3_pm.planning.group_patrol import dropped_cost, solo_cost, tour_move
 from sb3_pm.planning.pair_schedule import PairSchedule
 from sb3_pm.planning.team_plan import plan_team
 from tests.conftest import path_graph
@@ -167,3 +170,51 @@ def test_bad_input_is_one_line() -> None:
         make_team("optimal_planner", search_seconds=0)
     with pytest.raises(InputError, match="two different targets"):
         PairSchedule(graph.hop_distances, graph.next_hop, 0, 0, 10, 5)
+
+
+def test_the_tour_rule_walks_its_group_in_order() -> None:
+    ring = np.zeros((8, 8), dtype=bool)
+    for i in range(8):
+        ring[i, (i + 1) % 8] = ring[(i + 1) % 8, i] = True
+    flags = np.zeros(8, dtype=bool)
+    flags[[0, 2, 4, 6]] = True
+    graph = GraphSpec(adjacency=ring, targets=flags, name="ring")
+    distances, next_hop = graph.hop_distances.astype(int).tolist(), graph.next_hop.astype(int).tolist()
+    tour = (0, 2, 4, 6)
+    u = [0] * 8
+    position, goal, reached = 1, None, []
+    for _ in range(12):
+        position, goal = tour_move(position, goal, tour, u, distances, next_hop)
+        if position in tour and (not reached or reached[-1] != position):
+            reached.append(position)
+    assert reached[:5] == [0, 2, 4, 6, 0]
+
+
+def test_every_episode_records_its_lower_bound_and_gap(tmp_path) -> None:
+    result = evaluate(make_team("territory_patrol"), "paper-50", episodes=2, seed=5, max_cycles=80)
+    env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=4, max_cycles=80)
+    for record in result.episodes:
+        env.reset(seed=record.seed)
+        state = env.unwrapped
+        bound = lower_bound(state.graph, state.positions, 80, state.u_max, state.uncertainty)
+        assert record.metrics["lower_bound"] == pytest.approx(bound)
+        assert record.metrics["x_lower_bound"] == pytest.approx(record.metrics["avg_uncertainty"] / bound)
+        assert record.metrics["x_lower_bound"] >= 1.0
+    table = markdown_table(
+        summarize({"territory_patrol": [result]}, ("avg_uncertainty", "max_neglect", GAP_METRIC))
+    )
+    assert "× Lower Bound" in table.splitlines()[0]
+
+
+def test_the_bound_command_brackets_each_episode(tmp_path, capsys) -> None:
+    out = tmp_path / "bound.json"
+    argv = ["bound", "--graph", "paper-50", "--episodes", "2", "--steps", "60", "--planner"]
+    assert main([*argv, "--search-seconds", "5", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [row["env_seed"] for row in rows] == [0, 1]
+    for row in rows:
+        assert row["lower_bound"] == max(row["stepwise"], row["priced"])
+        assert row["planner"] >= row["lower_bound"] - 1e-9
+    assert main([*argv, "--search-seconds", "0"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert error[-1] == "sb3-pm bound: error: --search-seconds must be positive, got 0.0"

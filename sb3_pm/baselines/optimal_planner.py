@@ -48,7 +48,9 @@ class OptimalPlannerTeam(Team):
         self._controllers = self.plan.controllers(distances, next_hop)
         self._index = {agent: i for i, agent in enumerate(state.possible_agents)}
 
-    def predict_dict(self, observations: dict[str, Observation], deterministic: bool = True) -> dict[str, int]:
+    def predict_dict(
+        self, observations: dict[str, Observation], deterministic: bool = True
+    ) -> dict[str, int]:
         state = self.env.unwrapped
         uncertainty = state.uncertainty
         remaining = state.max_cycles - state.step_count

@@ -23,52 +23,8 @@ from scipy.optimize import linear_sum_assignment
 
 from sb3_pm.baselines._common import agent_positions, env_graph, own_uncertainty
 from sb3_pm.graphs import GraphSpec
+from sb3_pm.graphs.tours import approximate_tour
 from sb3_pm.team_interface import Observation, Team
-
-
-def tour_length(tour: np.ndarray, distances: np.ndarray) -> int:
-    """Hop length of the closed tour."""
-    return int(distances[tour, np.roll(tour, -1)].sum())
-
-
-def approximate_tour(nodes: np.ndarray, distances: np.ndarray) -> np.ndarray:
-    """A closed tour through ``nodes``: nearest neighbour, then 2-opt to a local optimum.
-
-    :param nodes: ``(T,)`` node indices to visit.
-    :param distances: ``(N, N)`` hop distances.
-    :return: ``(T,)`` the nodes in tour order, starting with ``nodes[0]``.
-    """
-    nodes = np.asarray(nodes, dtype=np.int64)
-    t = len(nodes)
-    if t <= 3:
-        return nodes.copy()
-    d = distances[np.ix_(nodes, nodes)].astype(np.int64)
-    order = [0]
-    unvisited = np.ones(t, dtype=bool)
-    unvisited[0] = False
-    for _ in range(t - 1):
-        row = np.where(unvisited, d[order[-1]], np.iinfo(np.int64).max)
-        nxt = int(row.argmin())  # ties: lowest index
-        order.append(nxt)
-        unvisited[nxt] = False
-    tour = np.array(order)
-    improved = True
-    while improved:
-        improved = False
-        for i in range(t - 1):
-            # Gain of reversing tour[i+1..j] for every j at once: replace edges (a,b),(c,e) by (a,c),(b,e).
-            a, b = tour[i], tour[i + 1]
-            js = np.arange(i + 2, t if i > 0 else t - 1)
-            if len(js) == 0:
-                continue
-            c, e = tour[js], tour[(js + 1) % t]
-            gain = d[a, b] + d[c, e] - d[a, c] - d[b, e]
-            best = int(gain.argmax())
-            if gain[best] > 0:
-                j = int(js[best])
-                tour[i + 1 : j + 1] = tour[i + 1 : j + 1][::-1].copy()
-                improved = True
-    return nodes[tour]
 
 
 class TourPatrolTeam(Team):

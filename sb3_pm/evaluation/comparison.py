@@ -33,6 +33,7 @@ from sb3_pm.evaluation.run_statistics import (
 )
 from sb3_pm.evaluation.statistics import (
     EXTRA_TABLE_METRICS,
+    GAP_METRIC,
     TABLE_METRICS,
     AnovaResult,
     Effect,
@@ -63,7 +64,10 @@ class Comparison:
 
     @property
     def table(self) -> dict[str, dict[str, Summary]]:
-        return summarize(self.results)
+        """Table I's metrics per algorithm, with the optimality gap when every result records it."""
+        results = [result for group in self.results.values() for result in group if result.episodes]
+        gap = (GAP_METRIC,) if results and all(GAP_METRIC in r.metric_names for r in results) else ()
+        return summarize(self.results, (*TABLE_METRICS, *gap))
 
     @property
     def anovas(self) -> list[AnovaResult]:

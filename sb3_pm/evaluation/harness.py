@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from sb3_pm.errors import InputError
+from sb3_pm.evaluation.optimality import add_gap, episode_bound
 from sb3_pm.evaluation.settling import Settling, SettlingRecorder
 from sb3_pm.graphs import GraphLike, graph_label, resolve_graph
 from sb3_pm.team_interface import Team
@@ -348,6 +349,7 @@ def run_episode(
     given (a list, or a writer that streams them to disk: :class:`~sb3_pm.evaluation.gif.GifWriter`),
     and let ``recorder`` see the env after every step (the record's ``settling`` is its result)."""
     observations, _ = env.reset(seed=env_seed)
+    bound = episode_bound(env.unwrapped)
     t_seed = team_seed(env_seed)
     team.reset(env, seed=t_seed)
     if frames is not None:
@@ -373,7 +375,7 @@ def run_episode(
         episode=0,
         seed=int(env_seed),
         team_seed=t_seed,
-        metrics=dict(metrics),
+        metrics=add_gap(metrics, bound),
         trace=env.unwrapped.uncertainty_trace(),
         settling=None if recorder is None else recorder.result(),
     )

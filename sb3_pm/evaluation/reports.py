@@ -3,7 +3,9 @@
 Columns: Algorithm | Avg. Uncertainty | SD | Max Neglect | SD. "Avg. Uncertainty" is the mean over
 points of ``avg_uncertainty``; "Max Neglect" is the mean over points of ``max_neglect``, each
 episode's longest run of steps in which some target had no agent (docs/METHOD.md "Metrics"). The
-paper calls its second column "Avg. Neglect Time"; the name here says what is measured.
+paper calls its second column "Avg. Neglect Time"; the name here says what is measured. When
+every result records it, a last column "× Lower Bound" gives the mean over points of
+``x_lower_bound``, each episode's score over the bound no team can beat (the optimality gap).
 """
 
 from __future__ import annotations
@@ -16,33 +18,51 @@ from collections.abc import Mapping, Sequence
 from sb3_pm.evaluation.statistics import AnovaResult, Effect, Summary
 
 HEADER = ("Algorithm", "Avg. Uncertainty", "SD", "Max Neglect", "SD")
+#: The optimality-gap column, present when the summaries have ``x_lower_bound``.
+GAP_HEADER = "× Lower Bound"
+
+
+def _has_gap(table: Mapping[str, Mapping[str, Summary]]) -> bool:
+    return bool(table) and all("x_lower_bound" in summaries for summaries in table.values())
+
+
+def _header(table: Mapping[str, Mapping[str, Summary]]) -> tuple[str, ...]:
+    return (*HEADER, GAP_HEADER) if _has_gap(table) else HEADER
 
 
 def _rows(table: Mapping[str, Mapping[str, Summary]], digits: int) -> list[tuple[str, ...]]:
+    gap = _has_gap(table)
     rows = []
     for policy, summaries in table.items():
         u, n = summaries["avg_uncertainty"], summaries["max_neglect"]
-        rows.append((policy, *(f"{value:.{digits}f}" for value in (u.mean, u.sd, n.mean, n.sd))))
+        cells = [f"{value:.{digits}f}" for value in (u.mean, u.sd, n.mean, n.sd)]
+        if gap:
+            cells.append(f"{summaries['x_lower_bound'].mean:.2f}")
+        rows.append((policy, *cells))
     return rows
 
 
 def markdown_table(table: Mapping[str, Mapping[str, Summary]], digits: int = 1) -> str:
-    """A GitHub Markdown table, one row per algorithm."""
-    lines = ["| " + " | ".join(HEADER) + " |", "|" + "|".join(["---"] + ["---:"] * 4) + "|"]
+    """A GitHub Markdown table, one row per algorithm (with the optimality gap when recorded)."""
+    header = _header(table)
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
     lines += ["| " + " | ".join(row) + " |" for row in _rows(table, digits)]
     return "\n".join(lines) + "\n"
 
 
 def csv_table(table: Mapping[str, Mapping[str, Summary]]) -> str:
     """CSV with full precision and the number of points per algorithm."""
+    gap = _has_gap(table)
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(
         ["algorithm", "avg_uncertainty_mean", "avg_uncertainty_sd", "max_neglect_mean", "max_neglect_sd", "n"]
+        + (["x_lower_bound_mean"] if gap else [])
     )
     for policy, summaries in table.items():
         u, n = summaries["avg_uncertainty"], summaries["max_neglect"]
-        writer.writerow([policy, repr(u.mean), repr(u.sd), repr(n.mean), repr(n.sd), u.n])
+        extra = [repr(summaries["x_lower_bound"].mean)] if gap else []
+        writer.writerow([policy, repr(u.mean), repr(u.sd), repr(n.mean), repr(n.sd), u.n, *extra])
     return buffer.getvalue()
 
 
@@ -65,7 +85,9 @@ def latex_table(
     lines = [r"\begin{table}[t]", r"\centering"]
     if caption:
         lines.append(rf"\caption{{{_latex_escape(caption)}}}")
-    lines += [r"\begin{tabular}{lrrrr}", r"\toprule", " & ".join(HEADER) + r" \\", r"\midrule"]
+    header = [_latex_escape(cell).replace("×", r"$\times$") for cell in _header(table)]
+    columns = "l" + "r" * (len(header) - 1)
+    lines += [rf"\begin{{tabular}}{{{columns}}}", r"\toprule", " & ".join(header) + r" \\", r"\midrule"]
     lines += [" & ".join((_latex_escape(row[0]), *row[1:])) + r" \\" for row in _rows(table, digits)]
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
     return "\n".join(lines) + "\n"

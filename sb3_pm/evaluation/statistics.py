@@ -26,7 +26,15 @@ from sb3_pm.evaluation.harness import EvaluationResult
 TABLE_METRICS = ("avg_uncertainty", "max_neglect")
 #: Also tabulated per graph when every result of a comparison has them: the worst uncertainty an
 #: episode reached (the neglect bound's benefit) and the uncertainty after an agent failure.
-EXTRA_TABLE_METRICS = ("peak_uncertainty", "avg_uncertainty_before_failure", "avg_uncertainty_after_failure")
+EXTRA_TABLE_METRICS = (
+    "peak_uncertainty",
+    "avg_uncertainty_before_failure",
+    "avg_uncertainty_after_failure",
+    "x_lower_bound",
+)
+#: The optimality gap: each episode's ``avg_uncertainty`` over its lower bound
+#: (:mod:`sb3_pm.evaluation.optimality`); a column of every results table when all results have it.
+GAP_METRIC = "x_lower_bound"
 
 
 @contextmanager

@@ -28,8 +28,9 @@ from sb3_pm.graphs import GraphSpec
 
 __all__ = ["coverable_targets", "lower_bound", "priced_bound", "stepwise_bound"]
 
-#: Golden-section steps of the price search; the dual is concave, so this brackets its maximum.
-_PRICE_STEPS = 40
+#: The price search: rounds of a grid, each zoomed in on the last one's best price.
+_PRICE_ROUNDS = 4
+_PRICE_GRID = 12
 
 
 def _checked(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) -> np.ndarray:
@@ -117,7 +118,7 @@ def stepwise_bound(
 
 
 def _priced_targets(
-    price: float,
+    prices: np.ndarray,
     max_cycles: int,
     u_max: int,
     initial: np.ndarray,
@@ -125,33 +126,38 @@ def _priced_targets(
     starts_on: np.ndarray,
     walk: np.ndarray,
     first_walk: np.ndarray,
-) -> float:
-    """Σ over targets of the least ``summed u + price × agent-steps`` of one target alone.
+) -> np.ndarray:
+    """Each target's least ``summed u + price × agent-steps``, the target alone, at each price.
 
-    A dynamic programme over ``(target, occupied before, visited before, u)``, all targets at once.
+    A dynamic programme over ``(price, target, occupied before, visited before, u)``, all prices and
+    targets at once.
 
+    :param prices: ``(P,)`` prices of an agent-step.
     :param initial: ``(T,)`` u at reset; :param earliest: ``(T,)`` the first step each can be
         occupied; :param starts_on: ``(T,)`` an agent starts on it; :param walk: ``(T,)`` the
         off-target agent-steps an arrival takes; :param first_walk: ``(T,)`` those of the first one.
+    :return: ``(P, T)``.
     """
     levels = np.arange(u_max + 1)
     grow, clear = np.minimum(levels + 1, u_max), np.maximum(levels - 1, 0)  # (U+1,)
     n_targets = initial.size
-    # value[i, p, v, u]: least cost of the remaining steps of target i, occupied at the step before
-    # (p), ever occupied (v), at u.
-    value = np.zeros((n_targets, 2, 2, u_max + 1))
-    arrive = price * (1.0 + np.stack([first_walk, walk], axis=1))  # (T, v)
+    price = np.asarray(prices, dtype=np.float64)[:, None, None, None]  # (P, 1, 1, 1)
+    # value[q, i, p, v, u]: least cost of the remaining steps of target i at price q, occupied at
+    # the step before (p), ever occupied (v), at u.
+    value = np.zeros((price.shape[0], n_targets, 2, 2, u_max + 1))
+    walks = np.stack([first_walk, walk], axis=1)[None, :, :, None]  # (1, T, v, 1)
+    arrive = price * (1.0 + walks)  # (P, T, v, 1)
     for k in range(max_cycles, 0, -1):
-        allowed = (k >= earliest)[:, None, None]  # (T, 1, 1)
-        empty = grow + value[:, 0][:, :, grow]  # (T, v, U+1)
-        stay = clear + price + value[:, 1, 1][:, None, clear]  # (T, 1, U+1): v is 1 once occupied
-        enter = clear + arrive[:, :, None] + value[:, 1, 1][:, None, clear]  # (T, v, U+1)
+        allowed = (k >= earliest)[None, :, None, None]  # (1, T, 1, 1)
+        empty = grow + value[:, :, 0][..., grow]  # (P, T, v, U+1)
+        then = value[:, :, 1, 1][:, :, None, clear]  # (P, T, 1, U+1): v is 1 once occupied
+        stay = clear + price + then
+        enter = clear + arrive + then
         occupied_before = np.where(allowed, np.minimum(empty, stay), empty)
         empty_before = np.where(allowed, np.minimum(empty, enter), empty)
-        value = np.stack([empty_before, occupied_before], axis=1)
+        value = np.stack([empty_before, occupied_before], axis=2)
     index = starts_on.astype(np.int64)
-    start = value[np.arange(n_targets), index, index, initial]
-    return float(start.sum())
+    return value[:, np.arange(n_targets), index, index, initial]
 
 
 def priced_bound(
@@ -187,27 +193,30 @@ def priced_bound(
     if off_target.any():
         first_walk = np.minimum(walk, distances[off_target].min(axis=0))
     capacity = starts.size * (max_cycles + 1)
+    # Targets alike in everything the programme reads share one solution: solve each kind once.
+    kinds, counts = np.unique(
+        np.stack([initial, earliest, starts_on, walk, first_walk], axis=1).astype(np.int64),
+        axis=0,
+        return_counts=True,
+    )
+    initial, earliest, walk, first_walk = kinds[:, 0], kinds[:, 1], kinds[:, 3], kinds[:, 4]
+    starts_on = kinds[:, 2].astype(bool)
 
-    def dual(price: float) -> float:
-        total = _priced_targets(price, max_cycles, u_max, initial, earliest, starts_on, walk, first_walk)
-        return total - price * capacity
+    def dual(prices: np.ndarray) -> np.ndarray:
+        per_kind = _priced_targets(prices, max_cycles, u_max, initial, earliest, starts_on, walk, first_walk)
+        return per_kind @ counts - prices * capacity
 
-    # An agent-step is worth at most 2 u per remaining step, so the best price lies below 2 K.
+    # The dual is concave in the price; an agent-step is worth at most 2 u per remaining step, so
+    # its best price lies in [0, 2 K]. Zoom a grid in on the best price.
     low, high = 0.0, 2.0 * max_cycles
-    ratio = (np.sqrt(5.0) - 1.0) / 2.0
-    a, b = high - ratio * (high - low), low + ratio * (high - low)
-    value_a, value_b = dual(a), dual(b)
-    best = max(dual(0.0), value_a, value_b)
-    for _ in range(_PRICE_STEPS):
-        if value_a < value_b:
-            low, a, value_a = a, b, value_b
-            b = low + ratio * (high - low)
-            value_b = dual(b)
-        else:
-            high, b, value_b = b, a, value_a
-            a = high - ratio * (high - low)
-            value_a = dual(a)
-        best = max(best, value_a, value_b)
+    best = -np.inf
+    for _ in range(_PRICE_ROUNDS):
+        prices = np.linspace(low, high, _PRICE_GRID)
+        values = dual(prices)
+        pick = int(np.argmax(values))
+        best = max(best, float(values[pick]))
+        step = prices[1] - prices[0]
+        low, high = max(0.0, prices[pick] - step), prices[pick] + step
     return best / max_cycles
 
 

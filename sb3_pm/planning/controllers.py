@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-from sb3_pm.planning.group_patrol import group_move
+from sb3_pm.planning.group_patrol import RULES
 from sb3_pm.planning.pair_schedule import PairSchedule
 
 __all__ = ["Controller", "GroupController", "PairController", "ViaController", "simulate"]
@@ -27,15 +27,23 @@ class Controller(Protocol):
 
 
 class GroupController:
-    """:func:`~sb3_pm.planning.group_patrol.group_move` on ``group``, the goal kept between steps."""
+    """A group rule (:data:`~sb3_pm.planning.group_patrol.RULES`) on ``group``, the goal kept
+    between steps (for ``tour``, ``group`` is in tour order)."""
 
-    def __init__(self, group: Sequence[int], distances: list[list[int]], next_hop: list[list[int]]) -> None:
+    def __init__(
+        self,
+        group: Sequence[int],
+        distances: list[list[int]],
+        next_hop: list[list[int]],
+        rule: str = "stalest",
+    ) -> None:
         self.group = [int(t) for t in group]
         self.distances, self.next_hop = distances, next_hop
+        self.rule = RULES[rule]
         self.goal: int | None = None
 
     def move(self, position: int, uncertainty: np.ndarray, remaining: int) -> int:
-        node, self.goal = group_move(
+        node, self.goal = self.rule(
             position, self.goal, self.group, uncertainty, self.distances, self.next_hop
         )
         return int(node)

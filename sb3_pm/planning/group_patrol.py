@@ -1,11 +1,15 @@
 """One agent patrolling a group of targets with the true uncertainties (docs/PLANNING.md "Plans").
 
-The rule, per step: on a group target with ``u > 0``, dwell; else keep walking to the goal chosen
-earlier; else choose the group's other target with the highest ``u`` (ties: nearest, then lowest
-node) and step along a shortest path. A group of one target is held once reached.
+Two rules, per step: on a group target with ``u > 0``, dwell; else keep walking to the goal chosen
+earlier; else choose the next goal and step along a shortest path to it:
 
-:func:`group_move` is the rule, written once; :func:`solo_cost` runs it for one agent alone on its
-group, which is what the plan search prices. Both work on plain Python ints, because a search
+* ``stalest`` (:func:`group_move`): the group's other target with the highest ``u`` (ties:
+  nearest, then lowest node);
+* ``tour`` (:func:`tour_move`): the next target of a closed tour through the group (from off the
+  group: the nearest).
+
+A group of one target is held once reached. :func:`solo_cost` runs a rule for one agent alone on
+its group, which is what the plan search prices. All work on plain Python ints, because a search
 prices thousands of (start, group) pairs and a few-target step is far cheaper without NumPy.
 """
 
@@ -13,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-__all__ = ["dropped_cost", "group_move", "solo_cost"]
+__all__ = ["RULES", "dropped_cost", "group_move", "solo_cost", "tour_move"]
 
 
 def group_move(
@@ -52,6 +56,35 @@ def group_move(
     return next_hop[position][best], best
 
 
+def tour_move(
+    position: int,
+    goal: int | None,
+    group: Sequence[int],
+    u: Sequence[int],
+    distances: Sequence[Sequence[int]],
+    next_hop: Sequence[Sequence[int]],
+) -> tuple[int, int | None]:
+    """The agent's next node by the tour rule (``group`` in tour order), and the goal it keeps;
+    arguments as :func:`group_move`."""
+    if not group:
+        return position, None
+    if position in group and u[position] > 0:
+        return position, None
+    if goal is not None and goal != position:
+        return next_hop[position][goal], goal
+    if position in group:
+        if len(group) == 1:
+            return position, None
+        following = group[(list(group).index(position) + 1) % len(group)]
+    else:
+        following = min(group, key=lambda target: (distances[position][target], target))
+    return next_hop[position][following], following
+
+
+#: The group rules by name.
+RULES = {"stalest": group_move, "tour": tour_move}
+
+
 def solo_cost(
     start: int,
     group: Sequence[int],
@@ -60,17 +93,20 @@ def solo_cost(
     u_max: int,
     distances: Sequence[Sequence[int]],
     next_hop: Sequence[Sequence[int]],
+    rule: str = "stalest",
 ) -> int:
     """The group's summed uncertainty over an episode with one agent from ``start`` on it alone.
 
     :param initial: the group targets' ``u`` at reset, in ``group`` order.
+    :param rule: a key of :data:`RULES` (for ``tour``, ``group`` is in tour order).
     :return: ``Σ_k Σ_group u`` over steps ``k = 1 .. max_cycles``.
     """
     group = list(group)
     values = {target: int(value) for target, value in zip(group, initial)}
+    move = RULES[rule]
     position, goal, total = start, None, 0
     for _ in range(max_cycles):
-        position, goal = group_move(position, goal, group, values, distances, next_hop)
+        position, goal = move(position, goal, group, values, distances, next_hop)
         for target in group:
             value = values[target]
             if target == position:

@@ -27,25 +27,31 @@ from scipy.optimize import linear_sum_assignment
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.territories import target_territories
+from sb3_pm.graphs.tours import approximate_tour
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
 
 __all__ = ["PatrolPlan", "plan_patrol"]
 
-#: The default wall-clock budget of the local search, in seconds: a plan for one episode.
-DEFAULT_SEARCH_SECONDS = 30.0
+#: The default wall-clock cap of the search, in seconds: a plan for one episode.
+DEFAULT_SEARCH_SECONDS = 60.0
+#: The default number of perturbed restarts of the local search.
+DEFAULT_RESTARTS = 20
 
 
 @dataclass(frozen=True)
 class PatrolPlan:
     """Each agent's group of targets.
 
-    :ivar groups: one tuple of target nodes per agent, in agent order (empty: the agent idles).
+    :ivar groups: one tuple of target nodes per agent, in agent order (empty: the agent idles), in
+        the order its rule reads them.
+    :ivar rules: each agent's group rule (:data:`~sb3_pm.planning.group_patrol.RULES`).
     :ivar dropped: the targets no agent patrols.
     :ivar predicted: the plan's decomposed ``avg_uncertainty`` (each agent alone on its group).
     :ivar searched: local-search rounds taken; ``complete`` is False if the time budget ran out.
     """
 
     groups: tuple[tuple[int, ...], ...]
+    rules: tuple[str, ...]
     dropped: tuple[int, ...]
     predicted: float
     searched: int = 0
@@ -64,15 +70,32 @@ class _Pricer:
         self.max_cycles, self.u_max = max_cycles, u_max
         self.distances = graph.hop_distances.astype(np.int64).tolist()
         self.next_hop = graph.next_hop.astype(np.int64).tolist()
+        self.hop_distances = graph.hop_distances
         self._cache: dict[tuple[int, tuple[int, ...]], int] = {}
+        #: (start, group) -> the cheaper rule and the group in that rule's order
+        self.rule: dict[tuple[int, tuple[int, ...]], tuple[str, tuple[int, ...]]] = {}
+        self._tours: dict[tuple[int, ...], tuple[int, ...]] = {}
+
+    def _tour(self, group: tuple[int, ...]) -> tuple[int, ...]:
+        if group not in self._tours:
+            order = approximate_tour(np.asarray(group, dtype=np.int64), self.hop_distances)
+            self._tours[group] = tuple(int(t) for t in order)
+        return self._tours[group]
 
     def solo(self, start: int, group: tuple[int, ...]) -> int:
+        """The agent's cost alone on ``group`` by the cheaper rule (``tour`` is tried from 3 targets)."""
         key = (start, group)
         if key not in self._cache:
-            initial = [self.initial[t] for t in group]
-            self._cache[key] = solo_cost(
-                start, group, initial, self.max_cycles, self.u_max, self.distances, self.next_hop
-            )
+            options = [("stalest", group)] + ([("tour", self._tour(group))] if len(group) >= 3 else [])
+            priced = []
+            for rule, ordered in options:
+                initial = [self.initial[t] for t in ordered]
+                cost = solo_cost(
+                    start, ordered, initial, self.max_cycles, self.u_max, self.distances, self.next_hop, rule
+                )
+                priced.append((cost, rule, ordered))
+            cost, rule, ordered = min(priced, key=lambda item: item[0])
+            self._cache[key], self.rule[key] = cost, (rule, ordered)
         return self._cache[key]
 
     def dropped(self, target: int) -> int:
@@ -123,6 +146,46 @@ def _neighbours(groups: list[tuple[int, ...]], dropped: tuple[int, ...]):
                     yield moved, dropped
 
 
+def _descend(
+    pricer: _Pricer, groups: list[tuple[int, ...]], dropped: tuple[int, ...], deadline: float
+) -> tuple[int, list[tuple[int, ...]], tuple[int, ...], list[int], int, bool]:
+    """Best-improvement local search from ``groups``: (cost, groups, dropped, order, rounds, complete)."""
+    best, order = pricer.total(groups, dropped)
+    rounds = 0
+    while True:
+        improved = None
+        for candidate, candidate_dropped in _neighbours(groups, dropped):
+            if time.monotonic() > deadline:
+                if improved is not None:
+                    groups, dropped, order = improved[1:]
+                    best = improved[0]
+                return best, groups, dropped, order, rounds, False
+            cost, candidate_order = pricer.total(candidate, candidate_dropped)
+            if cost < best and (improved is None or cost < improved[0]):
+                improved = (cost, candidate, candidate_dropped, candidate_order)
+        if improved is None:
+            return best, groups, dropped, order, rounds, True
+        best, groups, dropped, order = improved
+        rounds += 1
+
+
+def _perturbed(
+    groups: list[tuple[int, ...]], dropped: tuple[int, ...], rng: np.random.Generator, moves: int
+) -> tuple[list[tuple[int, ...]], tuple[int, ...]]:
+    """``groups`` with ``moves`` random targets moved to random groups (dropped ones come back)."""
+    groups = [list(group) for group in groups]
+    pool = list(dropped)
+    for _ in range(moves):
+        filled = [g for g, group in enumerate(groups) if group]
+        if not filled:
+            break
+        source = groups[int(rng.choice(filled))]
+        pool.append(source.pop(int(rng.integers(len(source)))))
+    for target in pool:
+        groups[int(rng.integers(len(groups)))].append(target)
+    return [tuple(sorted(group)) for group in groups], ()
+
+
 def plan_patrol(
     graph: GraphSpec,
     starts: np.ndarray,
@@ -130,21 +193,29 @@ def plan_patrol(
     u_max: int,
     initial_uncertainty: np.ndarray | None = None,
     search_seconds: float = DEFAULT_SEARCH_SECONDS,
+    restarts: int = DEFAULT_RESTARTS,
 ) -> PatrolPlan:
     """The best plan the search finds for one episode.
+
+    Local search from the territory split, then ``restarts`` times from the best plan so far with
+    a few targets moved at random (iterated local search; the random stream is seeded, so the plan
+    depends only on the arguments unless the time budget runs out first).
 
     :param graph: the site.
     :param starts: ``(n,)`` the agents' start nodes.
     :param max_cycles: ``K``, the episode's length.
     :param u_max: the uncertainty cap.
     :param initial_uncertainty: ``(N,)`` the uncertainties at reset (default: all 0).
-    :param search_seconds: the local search's wall-clock budget (it stops early at a local optimum).
+    :param search_seconds: a wall-clock cap on the search (``complete`` is False where it cut it).
+    :param restarts: perturbed restarts after the first local optimum.
     """
     starts = np.asarray(starts, dtype=np.int64)
     if starts.ndim != 1 or starts.size == 0:
         raise InputError(f"starts must be a non-empty list of nodes, got {starts.tolist()}")
     if search_seconds <= 0:
         raise InputError(f"search_seconds must be positive, got {search_seconds}")
+    if restarts < 0:
+        raise InputError(f"restarts must be >= 0, got {restarts}")
     initial = (
         np.zeros(graph.n_nodes, dtype=np.int64)
         if initial_uncertainty is None
@@ -154,28 +225,25 @@ def plan_patrol(
     n = starts.size
     owner = target_territories(graph.hop_distances, graph.target_indices, n)
     groups = [tuple(int(t) for t in graph.target_indices[owner == i]) for i in range(n)]
-    dropped: tuple[int, ...] = ()
-    best, order = pricer.total(groups, dropped)
-    first = best
+    first, _ = pricer.total(groups, ())
     deadline = time.monotonic() + search_seconds
-    rounds, complete = 0, True
-    while True:
-        improved = None
-        for candidate, candidate_dropped in _neighbours(groups, dropped):
-            if time.monotonic() > deadline:
-                complete = False
-                break
-            cost, candidate_order = pricer.total(candidate, candidate_dropped)
-            if cost < best:
-                best, improved = cost, (candidate, candidate_dropped, candidate_order)
-        if improved is None or not complete:
-            if improved is not None:
-                groups, dropped, order = improved
+    best, groups, dropped, order, rounds, complete = _descend(pricer, groups, (), deadline)
+    rng = np.random.default_rng(0)
+    for _ in range(restarts):
+        if not complete:
             break
-        groups, dropped, order = improved
-        rounds += 1
+        moves = int(rng.integers(1, 4))
+        start_groups, start_dropped = _perturbed(groups, dropped, rng, moves)
+        cost, found, found_dropped, found_order, more, complete = _descend(
+            pricer, start_groups, start_dropped, deadline
+        )
+        rounds += more
+        if cost < best:
+            best, groups, dropped, order = cost, found, found_dropped, found_order
+    chosen = [pricer.rule[(pricer.starts[agent], groups[order[agent]])] for agent in range(n)]
     return PatrolPlan(
-        groups=tuple(groups[order[agent]] for agent in range(n)),
+        groups=tuple(ordered for _, ordered in chosen),
+        rules=tuple(rule for rule, _ in chosen),
         dropped=dropped,
         predicted=best / max_cycles,
         searched=rounds,

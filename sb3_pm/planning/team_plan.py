@@ -34,9 +34,11 @@ WAYPOINT_SLACK = 1
 
 @dataclass(frozen=True)
 class AgentOrders:
-    """What one agent does: its group, whether it follows the exact pair schedule, and waypoints."""
+    """What one agent does: its group (in its rule's order), its group rule, whether it follows the
+    exact pair schedule instead, and the waypoints of its walk there."""
 
     group: tuple[int, ...]
+    rule: str = "stalest"
     exact_pair: bool = False
     entry_node: int | None = None
     waypoints: tuple[int, ...] = ()
@@ -56,12 +58,12 @@ class TeamPlan:
         """Fresh controllers for an episode (they keep state, so one set per run)."""
         made: list[Controller] = []
         for orders in self.orders:
-            rule: Controller
+            acting: Controller
             if orders.exact_pair:
-                rule = PairController(self.schedules[orders.group], orders.entry_node)  # type: ignore[index]
+                acting = PairController(self.schedules[orders.group], orders.entry_node)  # type: ignore[index]
             else:
-                rule = GroupController(orders.group, distances, next_hop)
-            made.append(ViaController(orders.waypoints, rule, next_hop) if orders.waypoints else rule)
+                acting = GroupController(orders.group, distances, next_hop, orders.rule)
+            made.append(ViaController(orders.waypoints, acting, next_hop) if orders.waypoints else acting)
         return made
 
 
@@ -89,8 +91,8 @@ def plan_team(
     next_hop = graph.next_hop.astype(np.int64).tolist()
     schedules: dict[tuple[int, int], PairSchedule] = {}
     orders: list[AgentOrders] = []
-    for start, group in zip(starts.tolist(), groups_plan.groups):
-        orders.append(AgentOrders(group))
+    for start, group, rule in zip(starts.tolist(), groups_plan.groups, groups_plan.rules):
+        orders.append(AgentOrders(group, rule))
         if len(group) != 2 or distances[group[0]][group[1]] > MAX_PATH_HOPS:
             continue
         schedule = PairSchedule(
