@@ -370,8 +370,9 @@ def reproduce(
     :param device: torch device of the learned teams (``cpu``, ``cuda``, ``auto``).
     :param update_device: torch device of the learned teams' update phases alone (e.g. ``cuda``
         with ``device="cpu"``: :attr:`~sb3_pm.agents.training.team.IndependentPPO.update_device`).
-    :param tracking: track each cell's training as one W&B run (:mod:`.tracking`), grouped under
-        the experiment's name unless it names a group; ``None``: no tracking.
+    :param tracking: track each cell's training as one W&B run
+        (:mod:`sb3_pm.experiments.tracking`), grouped under the experiment's name unless it names a
+        group; ``None``: no tracking.
     """
     out = Path(out)
     if tracking is not None:  # before anything is written

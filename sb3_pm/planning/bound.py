@@ -81,7 +81,7 @@ def stepwise_bound(
     u_max: int,
     initial_uncertainty: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``L_k`` for ``k = 1 .. K``: no team's summed target uncertainty after step ``k`` is lower.
+    """``L_k`` for every step ``k``: no team's summed target uncertainty after step ``k`` is lower.
 
     ``L_k = max(0, min over S >= L_{k-1} of f_k(S))`` with ``f_k(S) = S + T - m_k - min(m_k, S)
     - min(floor(S / u_max), C_k)``, where ``C_k`` counts the targets that could be at the cap before

@@ -30,7 +30,7 @@ MAX_PATH_HOPS = 6
 
 
 def shortest_path(next_hop: np.ndarray, source: int, target: int) -> list[int]:
-    """The nodes of the shortest path ``source .. target`` that ``next_hop`` follows."""
+    """The nodes of the shortest path from ``source`` to ``target`` that ``next_hop`` follows."""
     path = [int(source)]
     while path[-1] != target:
         path.append(int(next_hop[path[-1], target]))
