@@ -10,6 +10,7 @@ import pytest
 from sb3_pm.graphs import (
     ER_PRESETS,
     FAMILY_PRESETS,
+    LARGE_PRESETS,
     PRESETS,
     PUBLISHED,
     GraphError,
@@ -72,8 +73,9 @@ class TestPresets:
         assert spec.same_problem(load_graphml(published_graphs / PUBLISHED[name]))
 
     def test_every_preset_is_described_and_resolves(self) -> None:
-        assert set(PRESETS) == set(PUBLISHED) | set(ER_PRESETS) | set(FAMILY_PRESETS)
-        for name in PRESETS:
+        assert set(PRESETS) == set(PUBLISHED) | set(ER_PRESETS) | set(FAMILY_PRESETS) | set(LARGE_PRESETS)
+        # The large sites (up to 20,000 nodes, GBs to build dense) resolve in tests/test_large_sites.py.
+        for name in set(PRESETS) - set(LARGE_PRESETS):
             assert resolve_graph(name).name == name
 
     def test_published_and_er_presets_differ(self) -> None:

@@ -41,9 +41,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--graph",
         default="paper-50",
-        help="a preset (paper-50/100/200, er-50/100/200, rgg-60, rooms-4, cliques-6x8, karate) or a "
-        ".graphml path (default paper-50); a team trained on another graph runs if its parameters do "
-        "not depend on N",
+        help="a preset (paper-50/100/200, er-50/100/200, rgg-60, rooms-4, cliques-6x8, karate; large "
+        "sites city-1k/5k/20k, warehouse-1k/5k, campus-1k/5k) or a .graphml path (default paper-50); "
+        "a team trained on another graph runs if its parameters do not depend on N",
     )
     parser.add_argument(
         "--agents",

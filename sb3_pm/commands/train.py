@@ -65,7 +65,8 @@ def register(subparsers: Any) -> None:
         "--env",
         default=None,
         help="a preset (paper-50/100/200: the paper's published graphs; er-50/100/200: seeded "
-        "Erdős–Rényi draws; rgg-60, rooms-4, cliques-6x8, karate: other structures), a .graphml "
+        "Erdős–Rényi draws; rgg-60, rooms-4, cliques-6x8, karate: other structures; city-1k/5k/20k, "
+        "warehouse-1k/5k, campus-1k/5k: large sites), a .graphml "
         "path, or a graph family that draws a new graph each episode (family:er, family:rgg, "
         "family:rooms, family:mixed, or family:FOLDER of .graphml files). Default: the config's "
         "env, else paper-50",

@@ -1,11 +1,21 @@
-"""Graphs for persistent monitoring: one immutable :class:`GraphSpec`, its generators, GraphML I/O
-and seeded graph families to train on (:mod:`sb3_pm.graphs.distributions`)."""
+"""Graphs for persistent monitoring: one immutable :class:`GraphSpec`, its generators, GraphML I/O,
+seeded graph families to train on (:mod:`sb3_pm.graphs.distributions`) and large sites
+(:mod:`sb3_pm.graphs.large_sites`)."""
 
 from sb3_pm.graphs.distributions import FAMILY_NAMES, GraphFamily, family_from_record, resolve_family
 from sb3_pm.graphs.families import from_networkx, random_geometric, ring_of_cliques, rooms
 from sb3_pm.graphs.generators import erdos_renyi, hyperrectangle
 from sb3_pm.graphs.io import load_graphml, save_graphml
-from sb3_pm.graphs.presets import ER_PRESETS, FAMILY_PRESETS, PRESETS, PUBLISHED, preset, published_graph_path
+from sb3_pm.graphs.large_sites import campus, city_streets, suggested_agents, warehouse
+from sb3_pm.graphs.presets import (
+    ER_PRESETS,
+    FAMILY_PRESETS,
+    LARGE_PRESETS,
+    PRESETS,
+    PUBLISHED,
+    preset,
+    published_graph_path,
+)
 from sb3_pm.graphs.resolve import GraphLike, graph_label, resolve_graph, resolve_graph_or_family
 from sb3_pm.graphs.spec import GraphError, GraphSpec
 
@@ -13,12 +23,15 @@ __all__ = [
     "ER_PRESETS",
     "FAMILY_NAMES",
     "FAMILY_PRESETS",
+    "LARGE_PRESETS",
     "PRESETS",
     "PUBLISHED",
     "GraphError",
     "GraphFamily",
     "GraphLike",
     "GraphSpec",
+    "campus",
+    "city_streets",
     "erdos_renyi",
     "family_from_record",
     "from_networkx",
@@ -34,4 +47,6 @@ __all__ = [
     "ring_of_cliques",
     "rooms",
     "save_graphml",
+    "suggested_agents",
+    "warehouse",
 ]

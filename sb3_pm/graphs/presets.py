@@ -5,7 +5,9 @@ for their three experiment sizes, read from ``sb3_pm/graphs/data/``; nothing is 
 ``er-*`` presets are our own seeded Erdős–Rényi G(N, 0.2) draws with the paper's sizes and target
 counts (the paper's text asks for 32 targets at 200 nodes; the published 200-node graph has 41).
 The family presets (``rgg-60``, ``rooms-4``, ``cliques-6x8``, ``karate``) are our suite of other
-structures (:mod:`sb3_pm.graphs.families`).
+structures (:mod:`sb3_pm.graphs.families`). The large-site presets (``city-1k`` to
+``campus-5k``, :data:`LARGE_PRESETS`) are seeded sites of 1,000 to 20,000 nodes
+(:mod:`sb3_pm.graphs.large_sites`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 from sb3_pm.graphs.families import from_networkx, random_geometric, ring_of_cliques, rooms
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.graphs.io import load_graphml
+from sb3_pm.graphs.large_sites import campus, city_streets, warehouse
 from sb3_pm.graphs.spec import GraphError, GraphSpec
 
 #: Folder of the shipped GraphML files.
@@ -46,6 +49,23 @@ FAMILY_PRESETS: dict[str, Callable[[str], GraphSpec]] = {
 }
 
 
+#: Preset name -> builder of a large site (:mod:`sb3_pm.graphs.large_sites`), 1,000 nodes and more,
+#: one target per 10 nodes. Kept apart from :data:`FAMILY_PRESETS` because of their size: a
+#: :class:`GraphSpec` stores its adjacency as an ``(N, N)`` array (400 MB at 20,000 nodes; building
+#: ``city-20k`` peaks at about 1.3 GB) and an environment adds more ``(N, N)`` arrays (hop
+#: distances, next hops), so code that builds every preset in a loop (as the tests do) leaves these
+#: out. The seeds are ours.
+LARGE_PRESETS: dict[str, Callable[[str], GraphSpec]] = {
+    "city-1k": lambda name: city_streets(1000, seed=1000, name=name),
+    "city-5k": lambda name: city_streets(5000, seed=5000, name=name),
+    "city-20k": lambda name: city_streets(20000, seed=20000, name=name),
+    "warehouse-1k": lambda name: warehouse(1000, seed=1000, name=name),
+    "warehouse-5k": lambda name: warehouse(5000, seed=5000, name=name),
+    "campus-1k": lambda name: campus(1000, seed=1000, name=name),
+    "campus-5k": lambda name: campus(5000, seed=5000, name=name),
+}
+
+
 def _karate(name: str) -> GraphSpec:
     import networkx as nx
 
@@ -64,6 +84,13 @@ PRESETS: dict[str, str] = {
     "rooms-4": "4 rooms of 4x3 cells (Algorithm 1) joined in a row by single doors, 48 nodes, 8 targets",
     "cliques-6x8": "a ring of 6 cliques of 8 nodes joined by single edges, 8 targets",
     "karate": "Zachary's karate club (a real social network, 34 nodes), 6 targets",
+    "city-1k": "a seeded city street grid with parks and diagonal avenues, 1,000 nodes, 100 targets",
+    "city-5k": "a seeded city street grid with parks and diagonal avenues, 5,000 nodes, 500 targets",
+    "city-20k": "a seeded city street grid with parks and diagonal avenues, 20,000 nodes, 2,000 targets",
+    "warehouse-1k": "a seeded warehouse floor, 20 aisles of 45 places, 1,000 nodes, 100 targets",
+    "warehouse-5k": "a seeded warehouse floor, 48 aisles of 100 places, 5,000 nodes, 500 targets",
+    "campus-1k": "a seeded campus of buildings of rooms joined by footpaths, 1,000 nodes, 100 targets",
+    "campus-5k": "a seeded campus of buildings of rooms joined by footpaths, 5,000 nodes, 500 targets",
 }
 
 
@@ -93,4 +120,6 @@ def preset(name: str) -> GraphSpec:
         return erdos_renyi(n_nodes, edge_prob=0.2, n_targets=n_targets, seed=seed, name=name)
     if name in FAMILY_PRESETS:
         return FAMILY_PRESETS[name](name)
+    if name in LARGE_PRESETS:
+        return LARGE_PRESETS[name](name)
     raise GraphError(f"unknown graph preset {name!r}; presets are {sorted(PRESETS)}")
