@@ -20,6 +20,18 @@ from collections.abc import Sequence
 __all__ = ["RULES", "dropped_cost", "group_move", "solo_cost", "tour_move"]
 
 
+def _dwell_or_keep_going(
+    position: int, goal: int | None, group: Sequence[int], u: Sequence[int], next_hop: Sequence[Sequence[int]]
+) -> tuple[int, int | None] | None:
+    """The first steps every rule shares: stay put with no group, dwell on a group target with
+    ``u > 0``, keep walking to an unreached goal; ``None`` when the rule must choose a goal."""
+    if not group or (position in group and u[position] > 0):
+        return position, None
+    if goal is not None and goal != position:
+        return next_hop[position][goal], goal
+    return None
+
+
 def group_move(
     position: int,
     goal: int | None,
@@ -37,12 +49,9 @@ def group_move(
     :param distances: hop distances, ``distances[a][b]``.
     :param next_hop: ``next_hop[a][b]``, the first node of a shortest path from ``a`` to ``b``.
     """
-    if not group:
-        return position, None
-    if position in group and u[position] > 0:
-        return position, None
-    if goal is not None and goal != position:
-        return next_hop[position][goal], goal
+    settled = _dwell_or_keep_going(position, goal, group, u, next_hop)
+    if settled is not None:
+        return settled
     best: int | None = None
     best_key: tuple[int, int, int] | None = None
     for target in group:
@@ -66,12 +75,9 @@ def tour_move(
 ) -> tuple[int, int | None]:
     """The agent's next node by the tour rule (``group`` in tour order), and the goal it keeps;
     arguments as :func:`group_move`."""
-    if not group:
-        return position, None
-    if position in group and u[position] > 0:
-        return position, None
-    if goal is not None and goal != position:
-        return next_hop[position][goal], goal
+    settled = _dwell_or_keep_going(position, goal, group, u, next_hop)
+    if settled is not None:
+        return settled
     if position in group:
         if len(group) == 1:
             return position, None
