@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sb3_pm.baselines import make_team
+from sb3_pm.baselines import optimal_planner as planner_module
 from sb3_pm.cli import main
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.errors import InputError
@@ -218,3 +219,21 @@ def test_the_bound_command_brackets_each_episode(tmp_path, capsys) -> None:
     assert main([*argv, "--search-seconds", "0"]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert error[-1] == "sb3-pm bound: error: --search-seconds must be positive, got 0.0"
+
+
+def test_the_planner_falls_back_to_the_rule_where_the_rule_scores_lower(monkeypatch) -> None:
+    """The rule's score on a copy of the env is its real score; a plan priced above it is not used."""
+    kwargs = dict(episodes=1, seed=4, max_cycles=100)
+    rule = evaluate(make_team("territory_patrol"), "rooms-4", **kwargs).episodes[0].metrics["avg_uncertainty"]
+    planner = make_team("optimal_planner", search_seconds=5)
+    original = planner_module.plan_team
+
+    def worse_plan(*args, **kw):
+        plan = original(*args, **kw)
+        plan.simulated = float("inf")
+        return plan
+
+    monkeypatch.setattr(planner_module, "plan_team", worse_plan)
+    fallen_back = evaluate(planner, "rooms-4", **kwargs).episodes[0].metrics["avg_uncertainty"]
+    assert planner.acting == "territory_patrol"
+    assert fallen_back == pytest.approx(rule)

@@ -7,15 +7,21 @@ for two-target groups, refined by joint simulation), then acts each step by the 
 uncertainties. Its ``avg_uncertainty`` is an upper bound on the optimum; ``sb3-pm bound`` gives the
 lower one.
 
+A planner that scores worse than ``territory_patrol`` would be a bug of the search, not a fact
+about the site, so at an episode's first step the planner also plays ``territory_patrol`` on a copy
+of the env and, where the rule scores lower, acts as the rule for that episode (``acting``).
+
 It is the reference an optimality gap is measured against, not a deployable team: it reads the
 whole state and needs the episode's starts before the first step.
 """
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 from sb3_pm.baselines._common import agent_positions, env_graph
+from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.errors import InputError
 from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS
 from sb3_pm.planning.team_plan import TeamPlan, plan_team
@@ -47,11 +53,27 @@ class OptimalPlannerTeam(Team):
         next_hop = graph.next_hop.astype(int).tolist()
         self._controllers = self.plan.controllers(distances, next_hop)
         self._index = {agent: i for i, agent in enumerate(state.possible_agents)}
+        #: ``"plan"``, or ``"territory_patrol"`` where the rule scores lower on this episode (decided
+        #: at the first step, from the observations the rule reads)
+        self.acting = "plan"
+        self._rule: TerritoryPatrolTeam | None = None
+        self._rule_checked = False
+        self._seed = seed
 
     def predict_dict(
         self, observations: dict[str, Observation], deterministic: bool = True
     ) -> dict[str, int]:
         state = self.env.unwrapped
+        if not self._rule_checked:
+            self._rule_checked = True
+            if (
+                state.step_count == 0
+                and _territory_patrol_score(self.env, observations, self._seed) < self.plan.simulated
+            ):
+                self.acting, self._rule = "territory_patrol", TerritoryPatrolTeam()
+                self._rule.reset(self.env, self._seed)
+        if self._rule is not None:
+            return self._rule.predict_dict(observations, deterministic)
         uncertainty = state.uncertainty
         remaining = state.max_cycles - state.step_count
         agents, positions = agent_positions(observations)
@@ -59,3 +81,15 @@ class OptimalPlannerTeam(Team):
             agent: int(self._controllers[self._index[agent]].move(int(position), uncertainty, remaining))
             for agent, position in zip(agents, positions)
         }
+
+
+def _territory_patrol_score(env: Any, observations: dict[str, Observation], seed: int | None) -> float:
+    """``territory_patrol``'s ``avg_uncertainty`` from the env's current state (an episode's
+    start, with these observations), played on a copy of the env."""
+    trial = copy.deepcopy(env)
+    rule = TerritoryPatrolTeam()
+    rule.reset(trial, seed)
+    observations = copy.deepcopy(observations)
+    while trial.agents:
+        observations, *_ = trial.step(rule.predict_dict(observations))
+    return float(trial.unwrapped.episode_metrics()["avg_uncertainty"])
