@@ -1,0 +1,106 @@
+"""How the cost of an episode grows with the site: seconds per step and peak memory against N.
+
+Run: ``python benchmarks/scale.py [--sizes 250 500 1000 2000] [--policies random grazing
+territory_patrol] [--steps 100]``.
+
+Each cell runs in its own process (one torch thread), so its peak resident memory is its own: it
+builds a seeded ``city_streets`` site of N nodes (one target per 10 nodes) with one agent per 80
+nodes (``suggested_agents``), plays ``--steps`` steps of the policy, and reports the build time,
+the seconds per step and the process's peak memory. A fitted exponent ``b`` of ``seconds per step
+∝ N^b`` (least squares on the logarithms, over the sizes each policy ran) says how the cost grows.
+
+The environment stores each agent's map and the site's distances densely (N × N), so memory and
+time grow at least quadratically in N with this layout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+
+def cell(size: int, policy: str, steps: int, seed: int) -> dict[str, float]:
+    """One (size, policy) measurement, in this process."""
+    import torch
+
+    torch.set_num_threads(1)
+    from sb3_pm.evaluation import resolve_team
+    from sb3_pm.graphs.large_sites import city_streets, suggested_agents
+
+    start = time.perf_counter()
+    graph = city_streets(size, seed=seed)
+    team = resolve_team(policy)
+    env = team.make_env(graph, n_agents=suggested_agents(size), max_cycles=steps)
+    observations, _ = env.reset(seed=seed)
+    team.reset(env, seed=seed)
+    built = time.perf_counter() - start
+    start = time.perf_counter()
+    while env.agents:
+        observations, *_ = env.step(team.predict_dict(observations))
+    played = time.perf_counter() - start
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {
+        "nodes": size,
+        "agents": suggested_agents(size),
+        "build_s": built,
+        "seconds_per_step": played / steps,
+        "peak_mb": peak_mb,
+        "avg_uncertainty": float(env.unwrapped.episode_metrics()["avg_uncertainty"]),
+    }
+
+
+def exponent(sizes: list[int], seconds: list[float]) -> float:
+    """``b`` of ``seconds ∝ N^b``, least squares on the logarithms."""
+    slope, _ = np.polyfit(np.log(sizes), np.log(seconds), 1)
+    return float(slope)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[250, 500, 1000, 2000])
+    parser.add_argument("--policies", nargs="+", default=["random", "grazing", "territory_patrol"])
+    parser.add_argument("--steps", type=int, default=100, help="steps per cell (default 100)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", default=None, help="also write the rows to this file")
+    parser.add_argument("--cell", nargs=2, metavar=("SIZE", "POLICY"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.cell:
+        print(json.dumps(cell(int(args.cell[0]), args.cell[1], args.steps, args.seed)))
+        return
+    environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    rows = []
+    print(f"{'policy':>18} {'N':>6} {'agents':>6} {'build s':>8} {'ms/step':>9} {'peak MB':>8}")
+    for policy in args.policies:
+        for size in args.sizes:
+            command = [sys.executable, __file__, "--cell", str(size), policy, "--steps", str(args.steps)]
+            done = subprocess.run(
+                [*command, "--seed", str(args.seed)], capture_output=True, text=True, env=environment
+            )
+            if done.returncode != 0:
+                print(f"{policy:>18} {size:>6} failed: {done.stderr.strip().splitlines()[-1]}")
+                continue
+            row = {"policy": policy, **json.loads(done.stdout.strip().splitlines()[-1])}
+            rows.append(row)
+            print(
+                f"{policy:>18} {size:>6} {row['agents']:>6} {row['build_s']:>8.2f} "
+                f"{1000 * row['seconds_per_step']:>9.2f} {row['peak_mb']:>8.0f}"
+            )
+    for policy in args.policies:
+        mine = [row for row in rows if row["policy"] == policy]
+        if len(mine) >= 2:
+            b = exponent([row["nodes"] for row in mine], [row["seconds_per_step"] for row in mine])
+            print(f"{policy}: seconds per step grow as N^{b:.2f}")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as handle:
+            json.dump(rows, handle, indent=2)
+
+
+if __name__ == "__main__":
+    main()
