@@ -36,7 +36,7 @@ def cell(size: int, policy: str, steps: int, seed: int) -> dict[str, float]:
 
     start = time.perf_counter()
     graph = city_streets(size, seed=seed)
-    team = resolve_team(policy)
+    team = resolve_team(policy, graph=graph)
     env = team.make_env(graph, n_agents=suggested_agents(size), max_cycles=steps)
     observations, _ = env.reset(seed=seed)
     team.reset(env, seed=seed)
