@@ -9,7 +9,10 @@ lower one.
 
 A planner that scores worse than ``territory_patrol`` would be a bug of the search, not a fact
 about the site, so at an episode's first step the planner also plays ``territory_patrol`` on a copy
-of the env and, where the rule scores lower, acts as the rule for that episode (``acting``).
+of the env and, where the rule scores lower, acts as the rule for that episode (``acting``). The
+comparison is skipped where it would compare unlike things: with agent failures configured (the
+plan assumes every agent lasts, and it does not re-plan after a failure) and without map
+observations (the rule reads them).
 
 It is the reference an optimality gap is measured against, not a deployable team: it reads the
 whole state and needs the episode's starts before the first step.
@@ -66,8 +69,12 @@ class OptimalPlannerTeam(Team):
         state = self.env.unwrapped
         if not self._rule_checked:
             self._rule_checked = True
+            # The plan's score assumes no agent fails, and the rule reads map observations: compare
+            # only where both hold.
+            comparable = state.observation_mode == "map" and not (state.failures or state.failure_rate > 0)
             if (
-                state.step_count == 0
+                comparable
+                and state.step_count == 0
                 and _territory_patrol_score(self.env, observations, self._seed) < self.plan.simulated
             ):
                 self.acting, self._rule = "territory_patrol", TerritoryPatrolTeam()
@@ -86,7 +93,14 @@ class OptimalPlannerTeam(Team):
 def _territory_patrol_score(env: Any, observations: dict[str, Observation], seed: int | None) -> float:
     """``territory_patrol``'s ``avg_uncertainty`` from the env's current state (an episode's
     start, with these observations), played on a copy of the env."""
-    trial = copy.deepcopy(env)
+    state = env.unwrapped
+    # A renderer holds drawing buffers that cannot be copied, and the trial must not draw.
+    renderer, state._renderer = state._renderer, None
+    try:
+        trial = copy.deepcopy(env)
+    finally:
+        state._renderer = renderer
+    trial.unwrapped.render_mode = None
     rule = TerritoryPatrolTeam()
     rule.reset(trial, seed)
     observations = copy.deepcopy(observations)

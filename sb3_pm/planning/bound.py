@@ -33,8 +33,16 @@ _PRICE_ROUNDS = 4
 _PRICE_GRID = 12
 
 
+def _integers(values: object, what: str) -> np.ndarray:
+    """``values`` as int64, refusing non-integral numbers rather than truncating them."""
+    array = np.asarray(values)
+    if array.dtype.kind not in "iu" and not (array.dtype.kind == "f" and np.all(array == np.round(array))):
+        raise InputError(f"{what} must be integers, got {array.tolist()}")
+    return array.astype(np.int64)
+
+
 def _checked(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) -> np.ndarray:
-    starts = np.asarray(starts, dtype=np.int64)
+    starts = _integers(starts, "starts")
     if starts.ndim != 1 or starts.size == 0:
         raise InputError(f"starts must be a non-empty list of nodes, got {starts.tolist()}")
     if ((starts < 0) | (starts >= graph.n_nodes)).any():
@@ -44,11 +52,15 @@ def _checked(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) 
     return starts
 
 
-def _initial_targets(graph: GraphSpec, initial_uncertainty: np.ndarray | None) -> np.ndarray:
-    """``(T,)`` the targets' uncertainties at reset (zeros by default)."""
+def _initial_targets(graph: GraphSpec, initial_uncertainty: np.ndarray | None, u_max: int) -> np.ndarray:
+    """``(T,)`` the targets' uncertainties at reset (zeros by default), checked to be ``N``
+    integers in ``[0, u_max]``."""
     if initial_uncertainty is None:
         return np.zeros(graph.n_targets, dtype=np.int64)
-    return np.asarray(initial_uncertainty, dtype=np.int64)[graph.target_indices]
+    values = _integers(initial_uncertainty, "initial_uncertainty")
+    if values.shape != (graph.n_nodes,) or (values < 0).any() or (values > u_max).any():
+        raise InputError(f"initial_uncertainty must be {graph.n_nodes} integers in [0, {u_max}]")
+    return values[graph.target_indices]
 
 
 def coverable_targets(
@@ -96,7 +108,7 @@ def stepwise_bound(
     :return: ``(K,)`` int64.
     """
     starts = _checked(graph, starts, max_cycles, u_max)
-    initial = _initial_targets(graph, initial_uncertainty)
+    initial = _initial_targets(graph, initial_uncertainty, u_max)
     n_targets = int(initial.size)
     coverable = coverable_targets(graph.hop_distances, graph.target_indices, starts)
     # Before step k a target's u is at most u_0 + k - 1, so few can be at the cap early on.
@@ -110,7 +122,8 @@ def stepwise_bound(
     for k in range(1, max_cycles + 1):
         m = int(coverable[min(k, coverable.size - 1)])
         capped = int(np.searchsorted(first_capped, k, side="right"))
-        # f_k falls only where S < m (its -min(m, S) term); take its least value over S >= L_{k-1}.
+        # Below m, f_k is T - m less the cap term, which may fall as S grows; from m on it never
+        # falls. So its least value over S >= L_{k-1} is at L_{k-1}, m - 1 or m.
         candidates = [total] + ([m - 1, m] if total < m else [])
         total = max(0, min(step(s, m, capped) for s in candidates))
         bounds[k - 1] = total
@@ -170,17 +183,19 @@ def priced_bound(
     """The target-by-target bound on ``avg_uncertainty`` (arguments as :func:`stepwise_bound`).
 
     For any team, with ``A`` the agent-steps its occupancies and arrival walks take (at most
-    ``n (K + 1)``, one per agent and time ``0 .. K``), ``Σ_i cost_i >= Σ_i min (cost_i + λ A_i) -
-    λ n (K + 1)`` for every price ``λ >= 0``; the bound is the best such price's value. An agent
-    arriving at target ``i`` spent its steps since its last target (or since its start) off
-    targets: at least ``d_i - 1`` with ``d_i`` the hops to the nearest other target, and for the
-    first arrival at least ``min(d_i - 1, hops from an off-target start)``.
+    ``n (K + 1)``, one per agent and time ``0`` to ``K``), ``Σ_i cost_i >= Σ_i min (cost_i + λ A_i)
+    - λ n (K + 1)`` for every price ``λ >= 0``; the bound is the best such price's value. An
+    arrival at target ``i`` is charged ``d_i - 1`` walk steps (``d_i``: hops to the nearest other
+    target), the first one ``min(d_i - 1, hops from an off-target start)``. Where a real walk is
+    shorter (an agent returning to ``i``, or a fresh agent arriving where another has been), it
+    spans the whole gap since ``i`` was last occupied, and holding ``i`` through that gap is an
+    allowed schedule that costs no more (docs/PLANNING.md, "Lower bounds").
     """
     starts = _checked(graph, starts, max_cycles, u_max)
     targets = graph.target_indices
     if targets.size == 0:
         return 0.0
-    initial = np.minimum(_initial_targets(graph, initial_uncertainty), u_max)
+    initial = _initial_targets(graph, initial_uncertainty, u_max)
     distances = graph.hop_distances[np.ix_(starts, targets)]  # (n, T)
     earliest = distances.min(axis=0)
     starts_on = earliest == 0
