@@ -48,7 +48,7 @@ from sb3_pm.errors import InputError
 from sb3_pm.integrations.flat_env import Flattener, flat_parallel_env
 from sb3_pm.team_interface import Observation, Team, without_caller_keys
 
-#: The group TorchRL's wrapper forms from the agent names ``agent_0 ... agent_{n-1}``.
+#: The group TorchRL's wrapper forms from the agent names (``agent_0`` to ``agent_{n-1}``).
 GROUP = "agent"
 
 
