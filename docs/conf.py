@@ -48,6 +48,9 @@ autodoc_default_options = {
 # Only this package's docstrings: a method inherited from Gymnasium or SB3 without its own
 # docstring stays undocumented rather than carrying the other library's text.
 autodoc_inherit_docstrings = False
+# The optional extra ``benchmarl`` (sb3_pm.integrations.benchmarl_task) is not installed to build
+# the site: its libraries are stood in for, so that module's page still comes from its docstrings.
+autodoc_mock_imports = ["benchmarl", "tensordict", "torchrl"]
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"
 autodoc_typehints_format = "short"

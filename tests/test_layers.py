@@ -42,6 +42,8 @@ LAYERS: list[tuple[str, ...]] = [
     # ... below the training of a team, one learner per agent or one shared network
     ("sb3_pm.agents", "sb3_pm.agents.training", "sb3_pm.sharing"),
     ("sb3_pm.evaluation",),
+    # bridges to other MARL libraries: a task of theirs, their trained policies as teams
+    ("sb3_pm.integrations",),
     ("sb3_pm.experiments",),
     # The top: the package itself (``import sb3_pm``), the Gymnasium registration it runs, and the
     # command line.
