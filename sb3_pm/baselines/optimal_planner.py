@@ -93,14 +93,8 @@ class OptimalPlannerTeam(Team):
 def _territory_patrol_score(env: Any, observations: dict[str, Observation], seed: int | None) -> float:
     """``territory_patrol``'s ``avg_uncertainty`` from the env's current state (an episode's
     start, with these observations), played on a copy of the env."""
-    state = env.unwrapped
-    # A renderer holds drawing buffers that cannot be copied, and the trial must not draw.
-    renderer, state._renderer = state._renderer, None
-    try:
-        trial = copy.deepcopy(env)
-    finally:
-        state._renderer = renderer
-    trial.unwrapped.render_mode = None
+    trial = copy.deepcopy(env)
+    trial.unwrapped.render_mode = None  # the trial must not draw
     rule = TerritoryPatrolTeam()
     rule.reset(trial, seed)
     observations = copy.deepcopy(observations)

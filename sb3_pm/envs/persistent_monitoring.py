@@ -408,6 +408,17 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
             return None
         return frame
 
+    def __deepcopy__(self, memo: dict[int, Any]) -> PersistentMonitoringEnv:
+        """A copy of the episode's whole state without the renderer, whose drawing buffers cannot
+        be copied; the copy draws afresh if asked to render."""
+        import copy
+
+        duplicate = type(self).__new__(type(self))
+        memo[id(self)] = duplicate
+        for name, value in self.__dict__.items():
+            setattr(duplicate, name, None if name == "_renderer" else copy.deepcopy(value, memo))
+        return duplicate
+
     def close(self) -> None:
         if self._renderer is not None:
             self._renderer.close()
