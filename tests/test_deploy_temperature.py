@@ -243,7 +243,7 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
     and the regimes' transfer rows (zoo/ippo_transfer.yml's own rule) sample; the other transfer
     files pin the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
-    from sb3_pm.experiments.runner import experiment_record, team_rules
+    from sb3_pm.experiments.record import experiment_record, team_rules
 
     rules = {
         path.stem: team_rules(load_experiment(path)).get("deploy_temperature", {})

@@ -46,7 +46,7 @@ from sb3_pm.experiments.curves import plot_training_curves
 from sb3_pm.experiments.integrity import DONE, reopen_damaged_cell, write_done
 from sb3_pm.experiments.memory_needs import check_sweep_memory
 from sb3_pm.experiments.preflight import check_update_device_takers
-from sb3_pm.experiments.record import EVAL_SEED_OFFSET, experiment_record, team_rules
+from sb3_pm.experiments.record import EVAL_SEED_OFFSET, experiment_record
 from sb3_pm.experiments.report import code_version, write_report
 from sb3_pm.experiments.spec import Experiment, Variant, variant_config
 from sb3_pm.experiments.tracking import Tracking, check_wandb, wandb_run
@@ -442,10 +442,8 @@ __all__ = [
     "EVAL_SEED_OFFSET",
     "Cell",
     "cell_config",
-    "check_update_device_takers",
     "experiment_record",
     "plan_cells",
     "reproduce",
     "run_cell",
-    "team_rules",
 ]
