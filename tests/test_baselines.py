@@ -37,6 +37,7 @@ class TestRegistry:
             "local_greedy",
             "tour_patrol",
             "territory_patrol",
+            "planned_patrol",
             "optimal_planner",
         ]
         for name, cls in BASELINES.items():

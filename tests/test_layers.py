@@ -31,8 +31,8 @@ LAYERS: list[tuple[str, ...]] = [
         "sb3_pm.version",
     ),
     ("sb3_pm.graphs",),
+    ("sb3_pm.planning",),  # centralized plans, lower bounds and territory conventions, on the graph alone
     ("sb3_pm.envs",),  # the environment, with the mental maps it maintains
-    ("sb3_pm.planning",),  # centralized plans and lower bounds, on the graph alone
     ("sb3_pm.team_interface",),
     ("sb3_pm.policies", "sb3_pm.baselines"),
     ("sb3_pm.callbacks", "sb3_pm.ppo_dcbf"),

@@ -9,7 +9,7 @@ from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.baselines.optimal_planner import OptimalPlannerTeam
 from sb3_pm.baselines.random_walk import RandomTeam
 from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
-from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
+from sb3_pm.baselines.territory_patrol import PlannedPatrolTeam, TerritoryPatrolTeam
 from sb3_pm.baselines.tour_patrol import TourPatrolTeam
 from sb3_pm.errors import InputError
 from sb3_pm.team_interface import Team
@@ -24,6 +24,7 @@ BASELINES: dict[str, type[Team]] = {
         LocalGreedyTeam,
         TourPatrolTeam,
         TerritoryPatrolTeam,
+        PlannedPatrolTeam,
         OptimalPlannerTeam,
     )
 }

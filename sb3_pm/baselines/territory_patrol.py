@@ -13,6 +13,13 @@ positive, else head for the goal chosen earlier, else for its territory's most s
 own map. An agent with no territory (fewer targets than agents) acts as ``local_greedy`` does.
 
 Without a teammate's territory in its rule, an agent leaves a failed teammate's targets to nobody.
+
+``planned_patrol`` (:class:`PlannedPatrolTeam`) is the same rule on the territories of the
+``"planned"`` convention (:mod:`sb3_pm.planning.conventions`): the groups of the centralized plan
+for the episode's start positions, which every agent computes alike from where every agent
+starts, before the first move. It reads the starts, never another agent's state or an
+uncertainty, and nothing is communicated while it acts; targets the plan leaves out are patrolled
+by nobody.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from sb3_pm.envs.mental_map import AGE, U
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
 from sb3_pm.graphs.territories import target_territories
+from sb3_pm.planning.conventions import team_territory
 from sb3_pm.team_interface import Observation, Team
 
 
@@ -47,15 +55,19 @@ class TerritoryPatrolTeam(Team):
         self._fallback.reset(env, seed)
         graph = env_graph(env)
         agents = list(env.unwrapped.possible_agents)
-        key = (graph.fingerprint, len(agents))
-        if key not in self._owners:
-            self._owners[key] = target_territories(graph.hop_distances, graph.target_indices, len(agents))
-        owner = self._owners[key]
-        territory = np.zeros((len(agents), graph.n_nodes), dtype=bool)  # (n_agents, N)
-        territory[owner, graph.target_indices] = True
+        territory = self._territory(env, graph, len(agents))  # (n_agents, N)
         #: The rule, with each agent's goal kept between steps (the env's advice_input runs the same).
         self.rule = TerritoryAdvice(territory, graph.hop_distances, graph.next_hop, env.unwrapped.u_max)
         self._index = {agent: i for i, agent in enumerate(agents)}
+
+    def _territory(self, env: Any, graph: Any, n_agents: int) -> np.ndarray:
+        """``(n_agents, N)`` bool, each agent's territory: the split of the site."""
+        key = (graph.fingerprint, n_agents)
+        if key not in self._owners:
+            self._owners[key] = target_territories(graph.hop_distances, graph.target_indices, n_agents)
+        territory = np.zeros((n_agents, graph.n_nodes), dtype=bool)
+        territory[self._owners[key], graph.target_indices] = True
+        return territory
 
     def act(self, agent: str, obs: Observation) -> int:
         """One agent's destination from its own observation."""
@@ -73,3 +85,25 @@ class TerritoryPatrolTeam(Team):
         self, observations: dict[str, Observation], deterministic: bool = True
     ) -> dict[str, int]:
         return {agent: self.act(agent, obs) for agent, obs in observations.items()}
+
+
+class PlannedPatrolTeam(TerritoryPatrolTeam):
+    """The territory rule on the plan's groups for the episode's starts (module docstring)."""
+
+    name = "planned_patrol"
+    omniscient = False
+
+    def __init__(self) -> None:
+        super().__init__()
+        #: ``(graph fingerprint, starts)`` -> the planned territory, as the env caches it.
+        self._plans: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
+
+    def _territory(self, env: Any, graph: Any, n_agents: int) -> np.ndarray:
+        state = env.unwrapped
+        starts = tuple(int(node) for node in state.positions)
+        key = (graph.fingerprint, starts)
+        if key not in self._plans:
+            self._plans[key] = team_territory(
+                "planned", graph, np.asarray(starts), state.max_cycles, state.u_max
+            )
+        return self._plans[key]

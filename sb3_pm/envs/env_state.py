@@ -47,6 +47,9 @@ class EnvState:
         state["metrics"] = self.metrics.state_dict()
         state["rewards"] = self.rewards_computer.state_dict()
         state["advice"] = None if self._advice is None else self._advice.state_dict()
+        # the planned territories depend on the episode's starts; a split follows from the graph
+        planned = self.territories == "planned" and self._territory is not None
+        state["territory"] = self._territory.copy() if planned else None
         return state
 
     def load_state_dict(self: PersistentMonitoringEnv, state: dict[str, Any]) -> None:  # type: ignore[misc]
@@ -78,6 +81,11 @@ class EnvState:
             self.maps.load_state_dict(state["maps"])
             self.metrics.load_state_dict(state["metrics"])
             self.rewards_computer.load_state_dict(state["rewards"])
+            if state.get("territory") is not None:
+                territory = np.asarray(state["territory"], dtype=bool)
+                if territory.shape != (self.n_agents, self.graph.n_nodes):
+                    raise InputError(f"the saved territories have shape {territory.shape}, not this env's")
+                self._set_territory(territory)
             if (state["advice"] is None) != (self._advice is None):
                 raise InputError("the saved env state does not match the env's territory advice")
             if self._advice is not None:

@@ -19,6 +19,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 
 from sb3_pm.envs.core import DEFAULT_U_MAX, MonitoringCore
 from sb3_pm.envs.env_state import EnvState
+from sb3_pm.envs.env_territories import EnvTerritories
 from sb3_pm.envs.mental_map import MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.observations import EnvObservations
@@ -26,7 +27,7 @@ from sb3_pm.envs.rewards import RewardComputer, resolve_reward
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
-from sb3_pm.graphs.territories import territory_nodes
+from sb3_pm.planning.conventions import check_convention
 
 OBSERVATION_MODES = ("map", "local")
 INITIAL_UNCERTAINTY = ("zero", "random")
@@ -34,7 +35,7 @@ ILLEGAL_ACTION_MODES = ("raise", "stay")
 _FAMILY_POSITIONS = "initial_positions cannot be given with a graph family (each episode's graph differs)"
 
 
-class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
+class PersistentMonitoringEnv(EnvState, EnvObservations, EnvTerritories, ParallelEnv):
     """Agents patrol a graph to keep the uncertainty of its target nodes low.
 
     Its running state is saved and restored with ``state_dict()`` / ``load_state_dict()``
@@ -63,6 +64,7 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
         target_knowledge: str = "discovered",
         territory_input: bool = False,
         advice_input: bool = False,
+        territories: str = "split",
         illegal_action: str = "raise",
         shared_map: bool = False,
         failures: Mapping[str, int] | None = None,
@@ -106,6 +108,7 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
                 )
         self.territory_input = bool(territory_input)
         self.advice_input = bool(advice_input)
+        self.territories = check_convention(territories)
         assert isinstance(problem, GraphSpec)
         self.graph: GraphSpec = problem
         if max_cycles < 1:
@@ -139,6 +142,18 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
         self.initial_positions = initial_positions
         self.initial_uncertainty = initial_uncertainty
         self.reward_weights = resolve_reward(reward)
+        if self.territories == "planned":
+            if not self._uses_territory():
+                raise InputError(
+                    "territories: planned sets what the territory reward, territory_input and "
+                    "advice_input read, and none of them is on"
+                )
+            if "territory" in self.reward_weights and not self.territory_input:
+                # The same reason as for a family: the planned groups change with the starts.
+                raise InputError(
+                    "the territory reward with territories: planned needs territory_input: the "
+                    "groups change every episode, so no learner could settle in one unless told it"
+                )
         self.observation_mode = observation
         self.graph_knowledge = graph_knowledge
         self.target_knowledge = target_knowledge
@@ -185,25 +200,7 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
             self.n_agents, graph.adjacency, self.graph_knowledge, self.target_knowledge, graph.targets
         )
         self.maps.track_uncertainty_sum = "change" in self.reward_weights
-        #: ``(n_agents, N)`` bool, the targets of each agent's territory (``territory`` reward or
-        #: ``territory_input`` only).
-        self._territory = (
-            territory_nodes(hops, graph.target_indices, self.n_agents, graph.n_nodes)
-            if "territory" in self.reward_weights or self.territory_input or self.advice_input
-            else None
-        )
-        #: ``(n_agents, N, 1)`` float32, the ``territory_input`` feature column (``None`` without it).
-        self._territory_column = (
-            self._territory[:, :, None].astype(np.float32)
-            if self.territory_input and self._territory is not None
-            else None
-        )
-        #: The territory rule whose next move ``advice_input`` flags (``None`` without it).
-        self._advice = (
-            TerritoryAdvice(self._territory, hops, graph.next_hop, self.u_max)
-            if self.advice_input and self._territory is not None
-            else None
-        )
+        self._territories_for_graph()
         self.metrics = EpisodeMetrics(graph.target_indices, self.u_max, self.max_cycles, self.n_agents)
         self.metrics.track_failures = bool(self.failures) or self.failure_rate > 0
         self._last_outcome_counts = np.zeros(graph.n_nodes, dtype=np.int64)
@@ -281,6 +278,7 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, ParallelEnv):
         if self.initial_uncertainty == "random":
             initial_u = self._rng.integers(0, self.u_max, size=n_nodes, endpoint=True)
         self.core.reset(np.asarray(positions), initial_u)
+        self._territories_for_episode()
         self.agents = list(self.possible_agents)
         self._active[:] = True
         self._step_count = 0

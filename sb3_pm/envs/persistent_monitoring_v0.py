@@ -68,6 +68,13 @@ advice_input (``False``)
     decentralized as the map; the rule keeps its own goal from step to step whatever the agent
     did. An agent with no territory (fewer targets than agents) or a failed one gets an all-zero
     column. Same requirements as ``territory_input``.
+territories (``"split"``)
+    Which targets make each agent's territory, for the ``territory`` reward, ``territory_input``
+    and ``advice_input`` (:mod:`sb3_pm.planning.conventions`). ``"split"``: the balanced split by
+    hop distance, fixed for the graph. ``"planned"``: the groups of the centralized plan for the
+    episode's start positions (every agent knows where every agent starts; no uncertainty is read),
+    recomputed at each reset; targets the plan leaves out belong to nobody. ``"planned"`` needs one
+    of the three options on, and the ``territory`` reward with it needs ``territory_input``.
 illegal_action (``"raise"``)
     ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
     and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``

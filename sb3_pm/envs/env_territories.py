@@ -1,0 +1,76 @@
+"""Each agent's territory in the env: what the ``territory`` reward, ``territory_input`` and
+``advice_input`` read.
+
+:class:`EnvTerritories` is a part of :class:`~sb3_pm.envs.persistent_monitoring.PersistentMonitoringEnv`
+(its base class). The territories follow the env's ``territories`` convention
+(:mod:`sb3_pm.planning.conventions`): ``"split"`` is fixed per graph and set when the graph is;
+``"planned"`` depends on the start positions and is set at every reset, once the agents are placed.
+Plans are cached per start positions, since a plan depends on nothing else on one graph.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sb3_pm.envs.territory_rule import TerritoryAdvice
+from sb3_pm.planning.conventions import team_territory
+
+
+class EnvTerritories:
+    """The territory half of the environment (see the module docstring)."""
+
+    # Set by the environment's constructor.
+    territories: str
+    territory_input: bool
+    advice_input: bool
+    reward_weights: dict[str, float]
+    n_agents: int
+    max_cycles: int
+    u_max: int
+    graph: Any
+    core: Any
+
+    def _uses_territory(self) -> bool:
+        return "territory" in self.reward_weights or self.territory_input or self.advice_input
+
+    def _territories_for_graph(self) -> None:
+        """The graph changed: forget its plans, and set the territories a split fixes now."""
+        self._plans: dict[tuple[int, ...], np.ndarray] = {}
+        self._set_territory(None)
+        if self._uses_territory() and self.territories == "split":
+            starts = np.zeros(self.n_agents, dtype=np.int64)  # the split reads no start
+            self._set_territory(team_territory("split", self.graph, starts, self.max_cycles, self.u_max))
+
+    def _territories_for_episode(self) -> None:
+        """The agents are placed: under ``"planned"``, plan (or recall) the groups for their starts."""
+        if not self._uses_territory() or self.territories != "planned":
+            return
+        starts = tuple(int(node) for node in self.core.positions)
+        if starts not in self._plans:
+            self._plans[starts] = team_territory(
+                "planned", self.graph, np.asarray(starts), self.max_cycles, self.u_max
+            )
+        self._set_territory(self._plans[starts])
+
+    def _set_territory(self, territory: np.ndarray | None) -> None:
+        """Set ``(n_agents, N)`` bool ``territory`` (``None``: none) and what derives from it."""
+        #: ``(n_agents, N)`` bool, the targets of each agent's territory (``territory`` reward,
+        #: ``territory_input`` or ``advice_input`` only).
+        self._territory = territory
+        #: ``(n_agents, N, 1)`` float32, the ``territory_input`` feature column (``None`` without it).
+        self._territory_column = (
+            territory[:, :, None].astype(np.float32)
+            if self.territory_input and territory is not None
+            else None
+        )
+        #: The territory rule whose next move ``advice_input`` flags (``None`` without it).
+        self._advice = (
+            TerritoryAdvice(territory, self.graph.hop_distances, self.graph.next_hop, self.u_max)
+            if self.advice_input and territory is not None
+            else None
+        )
+
+
+__all__ = ["EnvTerritories"]

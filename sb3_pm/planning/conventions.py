@@ -1,0 +1,71 @@
+"""Territory conventions: which targets each agent of a team patrols (docs/PLANNING.md "Planned
+territories").
+
+A convention is fixed before the mission and computed by every agent alike, so it needs no
+communication while the team acts:
+
+* ``"split"``: the balanced split of the targets by hop distance
+  (:func:`sb3_pm.graphs.territories.territory_nodes`), from the site and the team size alone. Agent
+  ``i`` owns the territory with the ``i``-th lowest target node.
+* ``"planned"``: the groups of the centralized plan (:func:`sb3_pm.planning.planner.plan_patrol`)
+  for the episode's start positions. It reads where every agent starts (a pre-mission broadcast, as
+  a launch plan would give it) but no uncertainty, since no agent has observed any yet: it plans as
+  if every target started at 0. A target no group holds is left to nobody. The search is seeded and
+  its restarts are counted, so every agent derives the same groups from the same starts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sb3_pm.errors import InputError
+from sb3_pm.graphs import GraphSpec
+from sb3_pm.graphs.territories import territory_nodes
+from sb3_pm.planning.planner import plan_patrol
+
+__all__ = [
+    "PLAN_RESTARTS",
+    "TERRITORY_CONVENTIONS",
+    "check_convention",
+    "planned_territory",
+    "team_territory",
+]
+
+#: The conventions by name.
+TERRITORY_CONVENTIONS = ("split", "planned")
+#: The planned convention's perturbed restarts of the local search.
+PLAN_RESTARTS = 20
+#: A wall-clock cap on one plan, in seconds, so that a huge site cannot stall a reset; reaching it
+#: would make the groups depend on the machine's speed, and on the published graphs and families a
+#: plan takes seconds.
+PLAN_SECONDS = 600.0
+
+
+def check_convention(name: object) -> str:
+    """``name`` if it is a convention, else a one-line :class:`InputError`."""
+    if name not in TERRITORY_CONVENTIONS:
+        raise InputError(f"territories must be one of {TERRITORY_CONVENTIONS}, got {name!r}")
+    return str(name)
+
+
+def planned_territory(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) -> np.ndarray:
+    """``(n_agents, N)`` bool: ``[i, v]`` is True when target ``v`` is in the group the plan gives
+    agent ``i`` from these starts (``starts``: ``(n_agents,)`` nodes)."""
+    starts = np.asarray(starts, dtype=np.int64)
+    plan = plan_patrol(
+        graph, starts, max_cycles, u_max, search_seconds=PLAN_SECONDS, restarts=PLAN_RESTARTS
+    )
+    territory = np.zeros((starts.size, graph.n_nodes), dtype=bool)
+    for agent, group in enumerate(plan.groups):
+        territory[agent, list(group)] = True
+    return territory
+
+
+def team_territory(
+    convention: str, graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int
+) -> np.ndarray:
+    """``(n_agents, N)`` bool, each agent's territory by ``convention``."""
+    if check_convention(convention) == "planned":
+        return planned_territory(graph, starts, max_cycles, u_max)
+    n_agents = int(np.asarray(starts).size)
+    return territory_nodes(graph.hop_distances, graph.target_indices, n_agents, graph.n_nodes)
