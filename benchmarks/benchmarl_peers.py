@@ -41,7 +41,8 @@ from typing import Any  # noqa: E402
 import torch  # noqa: E402
 
 from sb3_pm.errors import InputError  # noqa: E402
-from sb3_pm.evaluation import evaluate  # noqa: E402
+from sb3_pm.evaluation import SEED_STRIDE, evaluate  # noqa: E402
+from sb3_pm.experiments.record import EVAL_SEED_OFFSET  # noqa: E402
 from sb3_pm.integrations.benchmarl_task import (  # noqa: E402
     ALGORITHMS,
     PPO_LOSS,
@@ -68,11 +69,21 @@ def run_one(algorithm: str, seed: int, args: argparse.Namespace, out: Path) -> d
     train_seconds = time.perf_counter() - start
     torch.set_num_threads(1)  # closing TorchRL's SerialEnv raises torch's thread count
     team = BenchMARLTeam.from_experiment(experiment, task, name=f"benchmarl_{algorithm}")
+    eval_seed = EVAL_SEED_OFFSET + seed * SEED_STRIDE if args.reproduce_episodes else args.eval_seed
     start = time.perf_counter()
     result = evaluate(
-        team, args.graph, episodes=args.episodes, seed=args.eval_seed, max_cycles=args.eval_steps
+        team, args.graph, episodes=args.episodes, seed=eval_seed, max_cycles=args.eval_steps
     )
     eval_seconds = time.perf_counter() - start
+    tuning = None
+    if args.tune_episodes:
+        tuning = evaluate(
+            team,
+            args.graph,
+            episodes=args.tune_episodes,
+            seed=args.tune_seed,
+            max_cycles=args.eval_steps,
+        ).to_dict()
     record = {
         "algorithm": algorithm,
         "seed": seed,
@@ -87,7 +98,9 @@ def run_one(algorithm: str, seed: int, args: argparse.Namespace, out: Path) -> d
         "train_seconds": round(train_seconds, 1),
         "eval_seconds": round(eval_seconds, 1),
         "command": " ".join([Path(sys.executable).name, *sys.argv]),
+        "eval_seed": eval_seed,
         "evaluation": result.to_dict(),
+        "tuning_evaluation": tuning,
     }
     path = out / f"{stem}.json"
     partial = path.with_suffix(".json.part")
@@ -106,6 +119,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--agents", type=int, default=4)
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--eval-seed", type=int, default=7)
+    parser.add_argument(
+        "--reproduce-episodes",
+        action="store_true",
+        help="evaluate seed S on sb3-pm reproduce's episodes for training seed S "
+        "(env seeds EVAL_SEED_OFFSET + S * SEED_STRIDE + e), not on --eval-seed",
+    )
+    parser.add_argument(
+        "--tune-episodes",
+        type=int,
+        default=0,
+        help="also evaluate on this many held-out tuning episodes (env seeds from --tune-seed), "
+        "recorded as tuning_evaluation: choose settings on these, report the others",
+    )
+    parser.add_argument("--tune-seed", type=int, default=900)
     parser.add_argument("--eval-steps", type=int, default=500)
     parser.add_argument("--out", type=Path, default=Path("results/benchmarl"))
     parser.add_argument(
@@ -125,9 +152,13 @@ def main(argv: list[str] | None = None) -> int:
                 record = run_one(algorithm, seed, args, args.out)
                 mean = record["evaluation"]["mean"]["avg_uncertainty"]
                 sd = record["evaluation"]["std"]["avg_uncertainty"]
+                tuning = record["tuning_evaluation"]
+                tuned = (
+                    f"; tuning episodes {tuning['mean']['avg_uncertainty']:.1f}" if tuning else ""
+                )
                 print(
                     f"{algorithm} seed {seed}: avg_uncertainty {mean:.1f} ± {sd:.1f} "
-                    f"({args.episodes} episodes); trained in {record['train_seconds']:.0f} s"
+                    f"({args.episodes} episodes){tuned}; trained in {record['train_seconds']:.0f} s"
                 )
     except InputError as error:
         print(f"error: {error}", file=sys.stderr)
