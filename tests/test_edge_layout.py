@@ -255,3 +255,18 @@ def test_the_config_schema_takes_the_layout() -> None:
 
     key = next(k for k in ENV.keys if k.name == "layout")
     assert key.default == "dense" and key.choices == ("dense", "edges")
+
+
+def test_sb3_pm_train_takes_the_edges_layout_from_a_config(tiny_train) -> None:
+    """The normal training entry: a YAML config's ``env_kwargs: {layout: edges}``, the DCBF policy."""
+    import yaml
+
+    from sb3_pm.cli import main
+
+    config, graph, out = tiny_train
+    lines = [line for line in config.read_text().splitlines() if "algo:" not in line]  # the DCBF default
+    config.write_text("\n".join(lines).replace("{max_cycles: 10}", "{max_cycles: 10, layout: edges}"))
+    argv = ["train", "--config", str(config), "--env", str(graph), "--timesteps", "200", "--out", str(out)]
+    assert main([*argv, "--no-progress"]) == 0
+    resolved = yaml.safe_load((out / "config.yml").read_text())
+    assert resolved["env_kwargs"]["layout"] == "edges"
