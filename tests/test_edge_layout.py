@@ -270,3 +270,19 @@ def test_sb3_pm_train_takes_the_edges_layout_from_a_config(tiny_train) -> None:
     assert main([*argv, "--no-progress"]) == 0
     resolved = yaml.safe_load((out / "config.yml").read_text())
     assert resolved["env_kwargs"]["layout"] == "edges"
+
+
+def test_the_memory_estimate_counts_edges_not_pairs() -> None:
+    from sb3_pm.zoo.memory import training_estimate
+
+    n, edges = 20_000, 60_000
+    dense = dict(training_estimate(n, 250, n_envs=1, n_steps=512, batch_size=64, dense_attention=False).parts)
+    sparse = dict(
+        training_estimate(
+            n, 250, n_envs=1, n_steps=512, batch_size=64, dense_attention=False, edges=edges, laplacian=False
+        ).parts
+    )
+    assert sparse["rollout buffers"] == 250 * 512 * (12 * edges + n * (4 * 7 + 1))
+    assert sparse["env copies"] == edges * 2 * 250 and sparse["largest minibatch"] == 0
+    assert sparse["graph"] == n * n  # the GraphSpec's own (N, N) bool adjacency stays
+    assert sum(sparse.values()) < sum(dense.values()) / 100
