@@ -286,3 +286,30 @@ def test_the_memory_estimate_counts_edges_not_pairs() -> None:
     assert sparse["env copies"] == edges * 2 * 250 and sparse["largest minibatch"] == 0
     assert sparse["graph"] == n * n  # the GraphSpec's own (N, N) bool adjacency stays
     assert sum(sparse.values()) < sum(dense.values()) / 100
+
+
+def test_local_greedy_acts_alike_on_both_layouts() -> None:
+    from sb3_pm.baselines.local_greedy import LocalGreedyTeam
+
+    moves = []
+    for layout in ("dense", "edges"):
+        env = persistent_monitoring_v0.parallel_env(graph=SMALL, n_agents=3, max_cycles=30, layout=layout)
+        team = LocalGreedyTeam()
+        observations, _ = env.reset(seed=2)
+        team.reset(env, seed=2)
+        chosen = []
+        while env.agents:
+            actions = team.predict_dict(observations)
+            chosen.append(actions)
+            observations, *_ = env.step(actions)
+        moves.append(chosen)
+    assert moves[0] == moves[1]
+
+
+def test_the_flat_views_adjacency_needs_the_dense_layout() -> None:
+    from sb3_pm.integrations.flat_env import Flattener
+
+    env = persistent_monitoring_v0.parallel_env(graph=SMALL, layout="edges")
+    Flattener(env.observation_space("agent_0"), adjacency=False)  # no adjacency entries: fine
+    with pytest.raises(InputError, match="layout='dense'"):
+        Flattener(env.observation_space("agent_0"), adjacency=True)
