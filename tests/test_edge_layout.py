@@ -233,6 +233,13 @@ def test_a_team_trains_on_the_edges_layout() -> None:
     assert "edge_mask" in buffer.observations and "adjacency" not in buffer.observations
     after = [p.detach() for a in team.agents for p in team.models[a].policy.parameters()]
     assert any(not th.equal(a, b) for a, b in zip(before, after))
+    env = persistent_monitoring_v0.parallel_env(graph=SPARSE, n_agents=2, max_cycles=20, layout="edges")
+    observations, _ = env.reset(seed=1)
+    team.reset(env, seed=1)
+    for _ in range(5):  # the trained team acts on edges-layout observations (one pass per learner)
+        actions = team.predict_dict(observations, deterministic=True)
+        assert all(observations[a]["action_mask"][node] == 1 for a, node in actions.items())
+        observations, *_ = env.step(actions)
 
 
 @pytest.mark.parametrize(
