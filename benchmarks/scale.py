@@ -1,7 +1,7 @@
 """How the cost of an episode grows with the site: seconds per step and peak memory against N.
 
 Run: ``python benchmarks/scale.py [--sizes 250 500 1000 2000] [--policies random grazing
-territory_patrol] [--steps 100]``.
+territory_patrol] [--steps 100] [--layout dense|edges]``.
 
 Each cell runs in its own process (one torch thread), so its peak resident memory is its own: it
 builds a seeded ``city_streets`` site of N nodes (one target per 10 nodes) with one agent per 80
@@ -9,8 +9,10 @@ nodes (``suggested_agents``), plays ``--steps`` steps of the policy, and reports
 the seconds per step and the process's peak memory. A fitted exponent ``b`` of ``seconds per step
 ∝ N^b`` (least squares on the logarithms, over the sizes each policy ran) says how the cost grows.
 
-The environment stores each agent's map and the site's distances densely (N × N), so memory and
-time grow at least quadratically in N with this layout.
+With ``--layout dense`` (the env's default) the environment stores each agent's map and the site's
+distances densely (N × N), so memory and time grow at least quadratically in N. ``--layout edges``
+runs the env's edges layout: maps and observations over the edge list, sensing tables as sparse
+rows (the ``GraphSpec`` itself, and a baseline that computes distances, stay N × N).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import time
 import numpy as np
 
 
-def cell(size: int, policy: str, steps: int, seed: int) -> dict[str, float]:
+def cell(size: int, policy: str, steps: int, seed: int, layout: str = "dense") -> dict[str, float]:
     """One (size, policy) measurement, in this process."""
     import torch
 
@@ -37,7 +39,7 @@ def cell(size: int, policy: str, steps: int, seed: int) -> dict[str, float]:
     start = time.perf_counter()
     graph = city_streets(size, seed=seed)
     team = resolve_team(policy, graph=graph)
-    env = team.make_env(graph, n_agents=suggested_agents(size), max_cycles=steps)
+    env = team.make_env(graph, n_agents=suggested_agents(size), max_cycles=steps, layout=layout)
     observations, _ = env.reset(seed=seed)
     team.reset(env, seed=seed)
     built = time.perf_counter() - start
@@ -68,11 +70,12 @@ def main() -> None:
     parser.add_argument("--policies", nargs="+", default=["random", "grazing", "territory_patrol"])
     parser.add_argument("--steps", type=int, default=100, help="steps per cell (default 100)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--layout", choices=("dense", "edges"), default="dense", help="the env's layout")
     parser.add_argument("--json", default=None, help="also write the rows to this file")
     parser.add_argument("--cell", nargs=2, metavar=("SIZE", "POLICY"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.cell:
-        print(json.dumps(cell(int(args.cell[0]), args.cell[1], args.steps, args.seed)))
+        print(json.dumps(cell(int(args.cell[0]), args.cell[1], args.steps, args.seed, args.layout)))
         return
     environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     rows = []
@@ -80,6 +83,7 @@ def main() -> None:
     for policy in args.policies:
         for size in args.sizes:
             command = [sys.executable, __file__, "--cell", str(size), policy, "--steps", str(args.steps)]
+            command += ["--layout", args.layout]
             done = subprocess.run(
                 [*command, "--seed", str(args.seed)], capture_output=True, text=True, env=environment
             )

@@ -30,6 +30,7 @@ CONFIGS = {
         "initial_uncertainty": "random",
     },
     "local_shared": {"graph": "paper-50", "observation": "local", "shared_map": True},
+    "edges_layout": {"graph": "paper-50", "layout": "edges"},
 }
 
 

@@ -63,6 +63,17 @@ class _KnownGraph:
         return int(closer[0])
 
 
+def _known_adjacency(obs: Observation, n_nodes: int) -> np.ndarray:
+    """The observation's known adjacency ``(N, N)``, built from ``edge_index`` ``(2, E)`` and
+    ``edge_mask`` ``(E,)`` in the env's edges layout (the all-pairs distances are ``(N, N)`` anyway)."""
+    if "adjacency" in obs:
+        return np.asarray(obs["adjacency"])
+    edge_index, known = np.asarray(obs["edge_index"]), np.asarray(obs["edge_mask"]) != 0
+    adjacency = np.zeros((n_nodes, n_nodes), dtype=bool)
+    adjacency[edge_index[0, known], edge_index[1, known]] = True
+    return adjacency
+
+
 class LocalGreedyTeam(Team):
     """Greedy on each agent's own mental map; decentralized.
 
@@ -115,7 +126,7 @@ class LocalGreedyTeam(Team):
         if is_target[position] and u[position] > 0:
             self._goals.pop(agent, None)
             return position
-        known = self.known_graph(agent, obs["adjacency"])
+        known = self.known_graph(agent, _known_adjacency(obs, len(nodes)))
         distance = known.dist[position]
         reachable = distance < UNREACHABLE
         goal = self._goals.pop(agent, None) if self.commit else None

@@ -67,7 +67,6 @@ class MonitoringCore:
         self.graph = graph
         self.n_agents = n_agents
         self.u_max = int(u_max)
-        self._reachable = graph.reachable
         self._target_idx = graph.target_indices
         self._build_tables()
         self.positions = np.zeros(n_agents, dtype=np.int64)
@@ -86,7 +85,10 @@ class MonitoringCore:
         """
         #: ``N``, a plain attribute: the per-step code reads it where a property call would cost more.
         self.n_nodes = self.graph.n_nodes
-        self._legal_sets = [frozenset(np.flatnonzero(row).tolist()) for row in self.graph.reachable]
+        # From the adjacency's rows, not ``graph.reachable``: no (N, N) table is built for a core.
+        self._legal_sets = [
+            frozenset(np.flatnonzero(row).tolist()) | {node} for node, row in enumerate(self.graph.adjacency)
+        ]
         levels = np.arange(self.u_max + 1, dtype=np.int64)
         # empty: u + 1 up to the cap; occupied: u - 1, and 0 stays 0
         self._next_u = np.concatenate([np.minimum(levels + 1, self.u_max), np.maximum(levels - 1, 0)])
@@ -123,7 +125,7 @@ class MonitoringCore:
 
     def reachable_from(self, agent: int) -> np.ndarray:
         """Node indices agent ``agent`` may move to now (its node and its neighbours)."""
-        return np.flatnonzero(self._reachable[self.positions[agent]])
+        return np.array(sorted(self._legal_sets[int(self.positions[agent])]), dtype=np.int64)
 
     def step(
         self,

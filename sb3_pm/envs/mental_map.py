@@ -33,6 +33,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from sb3_pm.envs.known_edges import LAYOUTS, KnownEdges
 from sb3_pm.errors import InputError
 
 FEATURES = ("u", "age", "target", "occupied", "self")
@@ -50,6 +51,9 @@ class MentalMaps:
     :param graph_knowledge: ``"discovered"`` or ``"known"``.
     :param target_knowledge: ``"discovered"`` or ``"known"`` (then ``targets`` is required).
     :param targets: ``(N,)`` bool true target flags, read only with ``target_knowledge="known"``.
+    :param layout: ``"dense"``: the known adjacency is :attr:`adjacency` ``(n_agents, N, N)``;
+        ``"edges"``: it is :attr:`known_edges` (:class:`~sb3_pm.envs.known_edges.KnownEdges`,
+        ``(n_agents, E)`` over the graph's edge list) and :attr:`adjacency` is ``None``.
     """
 
     def __init__(
@@ -59,7 +63,10 @@ class MentalMaps:
         graph_knowledge: str = "discovered",
         target_knowledge: str = "discovered",
         targets: np.ndarray | None = None,
+        layout: str = "dense",
     ) -> None:
+        if layout not in LAYOUTS:
+            raise InputError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         if graph_knowledge not in GRAPH_KNOWLEDGE:
             raise InputError(f"graph_knowledge must be one of {GRAPH_KNOWLEDGE}, got {graph_knowledge!r}")
         if target_knowledge not in TARGET_KNOWLEDGE:
@@ -78,8 +85,15 @@ class MentalMaps:
         # One contiguous ``(n_agents, N)`` float32 array per feature: the per-step updates run on
         # contiguous memory, and :attr:`features` stacks them only when an observation is made.
         self.channels = np.zeros((len(FEATURES), n_agents, self.n_nodes), dtype=np.float32)
-        #: ``(n_agents, N, N)`` bool known adjacency.
-        self.adjacency = np.zeros((n_agents, self.n_nodes, self.n_nodes), dtype=bool)
+        self.layout = layout
+        #: ``(n_agents, N, N)`` bool known adjacency (``layout="dense"``; ``None`` otherwise).
+        self.adjacency: np.ndarray | None = None
+        #: The known edges over the graph's edge list (``layout="edges"``; ``None`` otherwise).
+        self.known_edges: KnownEdges | None = None
+        if layout == "dense":
+            self.adjacency = np.zeros((n_agents, self.n_nodes, self.n_nodes), dtype=bool)
+        else:
+            self.known_edges = KnownEdges(n_agents, self._true_adjacency, graph_knowledge == "known")
         #: ``(n_agents, N)`` bool: nodes whose incident edges the agent has observed.
         self.explored = np.zeros((n_agents, self.n_nodes), dtype=bool)
         #: ``(n_agents,)`` running sum, this episode, of the map's uncertainties (reward term ``change``).
@@ -99,7 +113,8 @@ class MentalMaps:
         #: Keep :attr:`episode_uncertainty_sum` up to date (only the ``change`` reward needs it).
         self.track_uncertainty_sum = True
         if graph_knowledge == "known":
-            self.adjacency[:] = self._true_adjacency
+            if self.adjacency is not None:
+                self.adjacency[:] = self._true_adjacency
             self.explored[:] = True
             self._all_explored = True
 
@@ -126,15 +141,26 @@ class MentalMaps:
     )
 
     def state_dict(self) -> dict[str, Any]:
-        """The maps as plain values (a checkpoint's)."""
-        return {name: copy.deepcopy(getattr(self, name)) for name in self._STATE}
+        """The maps as plain values (a checkpoint's); in the edges layout ``adjacency`` is ``None``
+        and ``known_edges`` holds the ``(n_agents, E)`` bool known edges."""
+        state = {name: copy.deepcopy(getattr(self, name)) for name in self._STATE}
+        if self.known_edges is not None:
+            state["known_edges"] = self.known_edges.known.copy()
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Put back a :meth:`state_dict` of maps of the same size."""
+        """Put back a :meth:`state_dict` of maps of the same size and layout."""
+        if (state["adjacency"] is None) != (self.known_edges is not None):
+            raise InputError("the saved mental maps are of another layout than the env's")
         for name in self._STATE:
             setattr(self, name, copy.deepcopy(state[name]))
         if self.channels.shape != (len(FEATURES), self.n_agents, self.n_nodes):
             raise InputError("the saved mental maps do not match the env (other team size or graph)")
+        if self.known_edges is not None:
+            known = np.asarray(state["known_edges"])
+            if known.shape != self.known_edges.known.shape:
+                raise InputError("the saved mental maps do not match the env (other team size or graph)")
+            self.known_edges.load(known)
         self._folded_positions = [set(folded) for folded in self._folded_positions]
         self._adjacency_int8 = [None] * self.n_agents
         self._adjacency_cached = False
@@ -142,7 +168,10 @@ class MentalMaps:
     def forget_edges(self) -> None:
         """Start the known adjacency over (a new agent lifetime); no-op in ``"known"`` mode."""
         if self.graph_knowledge == "discovered":
-            self.adjacency[:] = False
+            if self.adjacency is not None:
+                self.adjacency[:] = False
+            if self.known_edges is not None:
+                self.known_edges.forget()
             self.explored[:] = False
             self._all_explored = False
             self._adjacency_int8 = [None] * self.n_agents
@@ -224,8 +253,12 @@ class MentalMaps:
             return
         for agent in np.flatnonzero(new.any(axis=1)):
             rows = np.flatnonzero(new[agent])
-            self.adjacency[agent, rows, :] |= self._true_adjacency[rows, :]
-            self.adjacency[agent, :, rows] |= self._true_adjacency[rows, :]
+            if self.known_edges is not None:
+                self.known_edges.discover(agent, rows)
+            else:
+                assert self.adjacency is not None
+                self.adjacency[agent, rows, :] |= self._true_adjacency[rows, :]
+                self.adjacency[agent, :, rows] |= self._true_adjacency[rows, :]
             self.explored[agent, rows] = True
             self._adjacency_int8[agent] = None
         self._adjacency_cached = False
@@ -239,6 +272,7 @@ class MentalMaps:
         """
         cached = self._adjacency_int8[agent]
         if cached is None:
+            assert self.adjacency is not None, "the edges layout has no dense adjacency"
             cached = self.adjacency[agent].astype(np.int8)
             cached.setflags(write=False)
             self._adjacency_int8[agent] = cached

@@ -32,6 +32,7 @@ class EnvObservations:
     territory_input: bool
     advice_input: bool
     shared_map: bool
+    layout: str
     possible_agents: list[str]
     core: Any
     maps: Any
@@ -49,7 +50,7 @@ class EnvObservations:
             return spaces.Dict(
                 {
                     "nodes": spaces.Box(0.0, high, dtype=np.float32),
-                    "adjacency": spaces.Box(0, 1, shape=(n, n), dtype=np.int8),
+                    **self._graph_spaces(n),
                     "position": spaces.Discrete(n),
                     "dwell": spaces.Box(0.0, float(self.max_cycles), shape=(1,), dtype=np.float32),
                     "action_mask": mask,
@@ -66,6 +67,18 @@ class EnvObservations:
                 "action_mask": mask,
             }
         )
+
+    def _graph_spaces(self, n: int) -> dict[str, spaces.Box]:
+        """The known graph's entries of a map observation: ``adjacency`` ``(N, N)`` int8
+        (``layout="dense"``), or ``edge_index`` ``(2, E)`` int64 and ``edge_mask`` ``(E,)`` int8
+        (``layout="edges"``, E the graph's directed edges: O(N + E) per observation)."""
+        if self.layout == "dense":
+            return {"adjacency": spaces.Box(0, 1, shape=(n, n), dtype=np.int8)}
+        edges = self.maps.known_edges.n_edges
+        return {
+            "edge_index": spaces.Box(0, max(n - 1, 0), shape=(2, edges), dtype=np.int64),
+            "edge_mask": spaces.Box(0, 1, shape=(edges,), dtype=np.int8),
+        }
 
     def _observe(self, counts: np.ndarray, presence: np.ndarray, advance_age: bool) -> None:
         """Fold this step's local views into the maps: ``counts`` ``(N,)`` agents per node and
@@ -110,6 +123,8 @@ class EnvObservations:
             if extra:  # one copy for every appended column
                 nodes = np.concatenate((nodes, *extra), axis=-1)
             dwell = self._dwell.astype(np.float32)[:, None]
+            if self.layout == "edges":
+                return self._edge_observations(nodes, masks, dwell, positions)
             adjacency: Sequence[np.ndarray] | np.ndarray
             if self.space_nodes > self.core.n_nodes:
                 nodes, adjacency, masks = self._padded(nodes, masks)
@@ -126,6 +141,26 @@ class EnvObservations:
                 for i, (agent, position) in enumerate(zip(self.possible_agents, positions.tolist()))
             }
         return {agent: self._local_observation(i, masks[i]) for i, agent in enumerate(self.possible_agents)}
+
+    def _edge_observations(
+        self, nodes: np.ndarray, masks: np.ndarray, dwell: np.ndarray, positions: np.ndarray
+    ) -> dict[str, dict[str, Any]]:
+        """Map observations in the edges layout: ``nodes`` ``(n_agents, N, F)``, ``masks``
+        ``(n_agents, N)``, ``dwell`` ``(n_agents, 1)``, the maps' edge masks ``(E,)`` each and the
+        graph's one read-only edge list ``(2, E)``, shared by every observation."""
+        known = self.maps.known_edges
+        edge_masks = known.mask_observations()
+        return {
+            agent: {
+                "nodes": nodes[i],
+                "edge_index": known.edge_index,
+                "edge_mask": edge_masks[i],
+                "position": position,
+                "dwell": dwell[i],
+                "action_mask": masks[i],
+            }
+            for i, (agent, position) in enumerate(zip(self.possible_agents, positions.tolist()))
+        }
 
     def _advice_column(self, positions: np.ndarray) -> np.ndarray:
         """``(n_agents, N, 1)`` float32: 1 on each agent's next move by the territory rule."""

@@ -20,6 +20,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from sb3_pm.envs.core import DEFAULT_U_MAX, MonitoringCore
 from sb3_pm.envs.env_state import EnvState
 from sb3_pm.envs.env_territories import EnvTerritories
+from sb3_pm.envs.known_edges import check_layout, sensing_tables
 from sb3_pm.envs.mental_map import MentalMaps
 from sb3_pm.envs.metrics import EpisodeMetrics
 from sb3_pm.envs.observations import EnvObservations
@@ -70,6 +71,7 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, EnvTerritories, Paralle
         failures: Mapping[str, int] | None = None,
         failure_rate: float = 0.0,
         render_mode: str | None = None,
+        layout: str = "dense",
     ) -> None:
         super().__init__()
         for flag, setting in (("territory_input", territory_input), ("advice_input", advice_input)):
@@ -78,6 +80,8 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, EnvTerritories, Paralle
         problem = resolve_graph_or_family(graph)
         #: The family each reset draws a graph from (``None``: one fixed graph).
         self.family: GraphFamily | None = problem if isinstance(problem, GraphFamily) else None
+        #: ``"dense"`` (an ``(N, N)`` adjacency per map observation) or ``"edges"`` (an edge list and mask).
+        self.layout = check_layout(layout, observation, self.family is not None)
         if self.family is not None:
             # A placeholder until the first reset draws the episode's graph from the seeded generator.
             problem = self.family.draw(np.random.default_rng(0))
@@ -191,13 +195,13 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, EnvTerritories, Paralle
         is unknown to every agent) and the metrics."""
         self.graph = graph
         self.core = MonitoringCore(graph, self.n_agents, self.u_max)
-        hops = graph.hop_distances
-        self._observes = hops <= self.obs_radius  # (N, N): node j is seen from node i
-        self._edge_nodes = hops <= self.obs_radius - 1  # incident edges of these are seen
-        self._reachable_i8 = graph.reachable.astype(np.int8)
+        # (N, N) or sparse rows: node j is seen from node i, edges of j are seen, j is a move
+        tables = sensing_tables(graph, self.obs_radius, self.layout)
+        self._observes, self._edge_nodes, self._reachable_i8 = tables
         self._targets = graph.targets
         self.maps = MentalMaps(
-            self.n_agents, graph.adjacency, self.graph_knowledge, self.target_knowledge, graph.targets
+            self.n_agents, graph.adjacency, self.graph_knowledge, self.target_knowledge, graph.targets,
+            self.layout,
         )
         self.maps.track_uncertainty_sum = "change" in self.reward_weights
         self._territories_for_graph()

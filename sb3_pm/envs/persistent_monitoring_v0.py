@@ -95,6 +95,11 @@ failure_rate (``0.0``)
     average uncertainty before and after the first failure (:mod:`sb3_pm.envs.metrics`).
 render_mode (``None``)
     ``"rgb_array"`` (a matplotlib frame), ``"human"`` (a window) or ``"ansi"`` (text).
+layout (``"dense"``)
+    How a map observation carries the agent's known graph: ``"dense"``, the ``adjacency``
+    below; ``"edges"``, ``edge_index`` and ``edge_mask`` instead, O(N + E) per observation
+    (:mod:`sb3_pm.envs.known_edges`). ``"edges"`` needs ``observation="map"`` and one graph
+    (not a family).
 
 Spaces
 ------
@@ -110,6 +115,9 @@ Observation with ``observation="map"`` (a ``Dict``):
     ``advice_input`` flags the territory rule's next move.
 ``adjacency``
     ``Box(N, N) int8``: the known adjacency.
+``edge_index`` and ``edge_mask`` (``layout="edges"``, in place of ``adjacency``)
+    ``Box(2, E) int64``: the graph's directed edges ``[i, j]`` (both directions, sorted by ``i``
+    then ``j``, the same array every step); ``Box(E,) int8``: 1 on the edges the map knows.
 ``position``
     ``Discrete(N)``: the agent's node.
 ``dwell``

@@ -130,10 +130,12 @@ class SingleAgentMonitoringEnv(gym.Env):
 
         The parallel env hands out one read-only adjacency array until the map gains an edge (a
         zero-copy fast path for the team). A Gymnasium env should return new data on every call,
-        so this single-agent view copies it.
+        so this single-agent view copies it (in the edges layout, the edge mask; the edge list is the
+        graph's, fixed and read-only).
         """
         observation = dict(self._observations[self.agent])
-        observation["adjacency"] = np.array(observation["adjacency"], copy=True)
+        key = "adjacency" if "adjacency" in observation else "edge_mask"
+        observation[key] = np.array(observation[key], copy=True)
         return observation
 
     def action_masks(self) -> np.ndarray:

@@ -47,6 +47,8 @@ class Flattener:
         self.scale = np.asarray(nodes.high, dtype=np.float32)  # (N, F), every entry >= 1
         self.max_dwell = float(observation_space["dwell"].high[0])
         self.adjacency = bool(adjacency)
+        if self.adjacency and "adjacency" not in observation_space.spaces:
+            raise InputError("the flat view's adjacency entries need the env's layout='dense'")
         self.size = self.scale.size + self.n_nodes + 1 + (self.n_nodes**2 if self.adjacency else 0)
 
     @property

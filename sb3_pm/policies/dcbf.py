@@ -45,6 +45,7 @@ import torch as th
 
 from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
 from sb3_pm.errors import InputError
+from sb3_pm.policies.edges import dense_adjacency
 from sb3_pm.policies.neglect_bound import neglect_deadline
 
 NEGLECT_SCOPES = ("known", "unserved", "territory")
@@ -278,7 +279,7 @@ def dcbf_filter_from_map(
             nodes[..., U],
             nodes[..., AGE],
             bounded,
-            observations["adjacency"],
+            dense_adjacency(observations, nodes.shape[1]),  # built from the edge keys in the edges layout
             position,
             reachable,
             config.neglect_bound,

@@ -13,6 +13,12 @@ into embeddings ``(B, N, hidden_dim)``, flattened for SB3 (docs/METHOD.md "Netwo
 One kernel choice (dense or sparse, :func:`~sb3_pm.policies.attention.use_dense`) is made per batch
 for all layers, and what depends only on the adjacency (encoding, attention mask) is computed once
 per distinct adjacency of the batch and shared by the layers.
+
+Maps in the env's edges layout (``edge_index`` and ``edge_mask`` in place of ``adjacency``,
+:mod:`sb3_pm.policies.edges`) run the sparse kernel straight on their edge lists when the batch is
+sparse and ``laplacian="none"``; otherwise (the dense kernel, or the Laplacian encoding, both
+``(N, N)`` per map anyway) their dense adjacencies are built and the batch runs as a dense-layout
+one. Either way the results are those of the same maps in the dense layout.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from torch import nn
 
 from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import BACKENDS, UNIQUE_MIN_BATCH, attention_bias, unique_graphs, use_dense
+from sb3_pm.policies.edges import batched_edges, dense_adjacency, is_edge_layout, use_dense_edges
 from sb3_pm.policies.encodings import LAPLACIAN_MODES, encoding_dim, positional_encoding
 from sb3_pm.policies.layers import GraphAttention
 
@@ -103,7 +110,9 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
     def node_inputs(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         """Node features with the positional encoding, ``(B, N, F + encoding)``."""
         x = self.node_features(observations)
-        encoding = self.encoding(observations["adjacency"])
+        if self.laplacian == "none":
+            return x
+        encoding = self.encoding(dense_adjacency(observations, self.n_nodes))
         return x if encoding is None else th.cat((x, encoding), dim=-1)
 
     def _graph_inputs(self, graphs: th.Tensor, dense: bool) -> tuple[th.Tensor | None, th.Tensor | None]:
@@ -138,7 +147,12 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
         then runs on them, with no decision or search that depends on the values (a team's acting
         pass maps this method over its learners' parameters with ``torch.func.vmap``,
         :mod:`sb3_pm.agents.team_forward`, where such branches cannot run).
+
+        In the edges layout ``observations`` carry ``edge_index`` ``(B, 2, E)`` and ``edge_mask``
+        ``(B, E)`` instead of ``adjacency`` (module docstring).
         """
+        if is_edge_layout(observations):
+            return self._edge_embeddings(observations)
         adjacency = observations["adjacency"]
         x = self.node_features(observations)
         if "attention_bias" in observations:
@@ -157,6 +171,18 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             x = self.activation(
                 layer(x, adjacency, dense=dense, bias=bias, encoding=encoding if i == 0 else None)
             )
+        return x
+
+    def _edge_embeddings(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        """:meth:`node_embeddings` of edges-layout maps, ``(B, N, hidden_dim)``."""
+        edge_index, edge_mask = observations["edge_index"], observations["edge_mask"]
+        if use_dense_edges(edge_mask, self.n_nodes, self.backend) or self.laplacian != "none":
+            adjacency = dense_adjacency(observations, self.n_nodes)
+            return self.node_embeddings({**observations, "adjacency": adjacency})
+        x = self.node_features(observations)
+        edges = batched_edges(edge_index, edge_mask, self.n_nodes)  # shared by every GAT layer
+        for layer in self.gat:
+            x = self.activation(layer(x, None, dense=False, edge_index=edges))
         return x
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:  # type: ignore[override]

@@ -75,10 +75,11 @@ class GraphAttention(nn.Module):
     def forward(
         self,
         x: th.Tensor,
-        adjacency: th.Tensor,
+        adjacency: th.Tensor | None,
         dense: bool | None = None,
         bias: th.Tensor | tuple[th.Tensor, th.Tensor] | None = None,
         encoding: tuple[th.Tensor, th.Tensor] | None = None,
+        edge_index: th.Tensor | None = None,
     ) -> th.Tensor:
         """Attend over ``adjacency`` (plus self loops).
 
@@ -88,11 +89,19 @@ class GraphAttention(nn.Module):
         :param encoding: extra input columns given per distinct adjacency, ``((U, N, E), (B,))``:
             the layer's input is then ``[x, encoding[0][encoding[1]]]`` (``in_channels = F + E``),
             and its linear map of the encoding is computed once per distinct adjacency.
+        :param edge_index: sparse kernel: the batch's edges ``(2, E)`` long as
+            :func:`~sb3_pm.policies.attention.batched_edge_index` gives them (``adjacency`` may
+            then be ``None``: maps in the env's edges layout, :mod:`sb3_pm.policies.edges`).
         """
         if dense is None:
-            dense = use_dense(adjacency, self.backend)
+            # an edge list is the sparse kernel's input; an adjacency decides by its density
+            sparse_input = edge_index is not None or adjacency is None
+            dense = False if sparse_input else use_dense(adjacency, self.backend)  # type: ignore[arg-type]
+        if adjacency is None and (edge_index is None if not dense else bias is None):
+            raise InputError("GraphAttention needs an adjacency, or an edge_index for the sparse kernel")
         if dense:
             if bias is None:
+                assert adjacency is not None
                 graphs, index = unique_graphs(adjacency)
                 bias = (attention_bias(graphs), index)
             elif isinstance(bias, th.Tensor):
@@ -101,7 +110,10 @@ class GraphAttention(nn.Module):
         if encoding is not None:
             x = th.cat((x, encoding[0][encoding[1]]), dim=-1)
         batch, n, _ = x.shape
-        out = self.conv(x.reshape(batch * n, -1), batched_edge_index(adjacency))
+        if edge_index is None:
+            assert adjacency is not None
+            edge_index = batched_edge_index(adjacency)
+        out = self.conv(x.reshape(batch * n, -1), edge_index)
         return out.view(batch, n, -1)
 
     def _project(self, x: th.Tensor, encoding: tuple[th.Tensor, th.Tensor] | None) -> th.Tensor:

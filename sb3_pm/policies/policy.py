@@ -38,13 +38,15 @@ from torch import nn
 from sb3_pm.envs.mental_map import U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import check_bound_below_cap, dcbf_filter_from_map
+from sb3_pm.policies.edges import DENSE_MAP_KEYS, EDGE_MAP_KEYS, is_edge_layout
 from sb3_pm.policies.estimator import StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.heads import ActorCriticHeads, masked_mode
 from sb3_pm.policies.sampling import check_temperature, tempered_logits
 from sb3_pm.policies.settings import FilterSettings, PolicySettings, check_advice_prior
 
-MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
+#: The keys of a map observation in the env's dense layout (the edges layout's: ``EDGE_MAP_KEYS``).
+MAP_KEYS = DENSE_MAP_KEYS
 #: Logit given to masked-out actions, sb3-contrib's ``MaskableCategorical`` value.
 _HUGE_NEG = th.tensor(-1e8)
 
@@ -97,10 +99,12 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         **settings: Any,
     ) -> None:
         if not isinstance(observation_space, spaces.Dict) or any(
-            k not in observation_space.spaces for k in MAP_KEYS
+            k not in observation_space.spaces
+            for k in (EDGE_MAP_KEYS if is_edge_layout(observation_space.spaces) else MAP_KEYS)
         ):
             raise InputError(
-                f"DCBFActorCriticPolicy needs the mental-map Dict observation with keys {MAP_KEYS}"
+                f"DCBFActorCriticPolicy needs the mental-map Dict observation with keys {MAP_KEYS} "
+                f"(or {EDGE_MAP_KEYS} in the edges layout)"
             )
         if not isinstance(action_space, spaces.Discrete):
             raise InputError(f"DCBFActorCriticPolicy needs a Discrete action space, got {action_space}")
@@ -218,7 +222,8 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         """SB3's preprocessing of the map, written out for its five keys (it runs on every env step).
 
         The result is what :func:`~stable_baselines3.common.preprocessing.preprocess_obs` gives,
-        except that ``adjacency`` keeps its dtype (the env's int8 at collection time; the extractor
+        except that ``adjacency`` (or, in the edges layout, ``edge_index`` and ``edge_mask``) keeps
+        its dtype (the env's int8 at collection time; the extractor
         reads it as ``!= 0`` and converts only the distinct graphs it needs as floats), and
         ``position_index`` ``(B,)`` long is added next to the one-hot ``position``.
         """
@@ -227,9 +232,14 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         batch = nodes.shape[0]
         # A Discrete entry sampled from a rollout buffer is stored as (B, 1) float; a fresh one is (B,).
         position = obs["position"].reshape(batch).long()
+        graph = (
+            {"edge_index": obs["edge_index"], "edge_mask": obs["edge_mask"]}
+            if "adjacency" not in obs
+            else {"adjacency": obs["adjacency"]}
+        )
         return {
             "nodes": nodes,
-            "adjacency": obs["adjacency"],
+            **graph,
             "position": nn.functional.one_hot(position, self.n_nodes).float(),
             "position_index": position,
             "dwell": obs["dwell"].float().reshape(batch, 1),

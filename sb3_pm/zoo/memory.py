@@ -8,6 +8,9 @@ policy took 9.3 GB and 168 s for 20 steps, and a training run died after 253 s a
 rollout buffer. :func:`check_memory` refuses such a run with one line before any folder is created
 or any env allocated, and warns when the estimate is within reach of the limit.
 
+With the env's ``layout: edges`` the maps, observations and stored steps count edges instead of
+node pairs (:func:`training_estimate`'s ``edges``); only the graph's own adjacency stays ``N**2``.
+
 The estimates count only the ``N**2`` terms (and the rollout buffer's ``N``-sized node features),
 from sizes: nothing is allocated. They are a floor, measured close on a 20,000-node cycle
 (estimated 9.6 GB for the 9.3 GB the random-policy evaluation used): the interpreter, torch and
@@ -70,9 +73,15 @@ def format_bytes(size: float) -> str:
     return f"{size:.1f} TiB"
 
 
-def env_parts(n_nodes: int, n_agents: int, copies: int) -> list[tuple[str, int]]:
-    """The graph's matrices (once) and ``copies`` env copies with ``n_agents`` maps and observations."""
+def env_parts(n_nodes: int, n_agents: int, copies: int, edges: int | None = None) -> list[tuple[str, int]]:
+    """The graph's matrices (once) and ``copies`` env copies with ``n_agents`` maps and observations.
+
+    :param edges: the graph's directed edges with the env's ``layout: edges``: the graph keeps only
+        its ``(N, N)`` bool adjacency, and each map and observation one byte per edge.
+    """
     pairs = n_nodes * n_nodes
+    if edges is not None:
+        return [("graph", pairs), ("env copies", copies * edges * AGENT_BYTES_PER_PAIR * n_agents)]
     per_copy = pairs * (ENV_BYTES_PER_PAIR + AGENT_BYTES_PER_PAIR * n_agents)
     return [("graph", pairs * GRAPH_BYTES_PER_PAIR), ("env copies", copies * per_copy)]
 
@@ -97,6 +106,8 @@ def training_estimate(
     dense_attention: bool = True,
     flat_policy: bool = False,
     learners: int | None = None,
+    edges: int | None = None,
+    laplacian: bool = True,
 ) -> MemoryEstimate:
     """What training a team needs: the graph, ``n_envs`` env copies, a rollout buffer per learner
     (``learners``, default one per agent) and the largest minibatch's forward pass.
@@ -104,17 +115,21 @@ def training_estimate(
     :param flat_policy: SB3's ``MultiInputPolicy`` instead of ``DCBFPolicy``: it flattens the
         ``(N, N)`` adjacency into its first layers, ``N**2 x 64`` weights for the actor and for the
         critic of every learner (with gradients and Adam's moments), and has no attention.
+    :param edges: the graph's directed edges with the env's ``layout: edges``: a stored step holds
+        the edge list and mask (three float32 per edge) instead of the adjacency, and the minibatch
+        builds no ``(N, N)`` adjacency unless the dense kernel or the Laplacian encoding
+        (``laplacian``) needs one.
     """
     learners = n_agents if learners is None else learners
-    per_step = n_nodes * n_nodes + n_nodes * (4 * NODE_FEATURES + 1)  # adjacency int8, features, mask
-    parts = env_parts(n_nodes, n_agents, n_envs)
+    graph_entries = n_nodes * n_nodes if edges is None else 3 * 4 * edges  # adjacency int8, or edges
+    per_step = graph_entries + n_nodes * (4 * NODE_FEATURES + 1)  # features, mask
+    parts = env_parts(n_nodes, n_agents, n_envs, edges)
     parts.append(("rollout buffers", learners * n_steps * n_envs * per_step))
-    parts.append(
-        (
-            "largest minibatch",
-            forward_bytes(n_nodes, batch_size, heads, layers, dense_attention and not flat_policy, True),
-        )
-    )
+    dense = dense_attention and not flat_policy
+    minibatch = forward_bytes(n_nodes, batch_size, heads, layers, dense, True)
+    if edges is not None and not dense and not laplacian:
+        minibatch = 0  # the sparse kernel on the edge list: nothing of N x N
+    parts.append(("largest minibatch", minibatch))
     if flat_policy:
         weights = 2 * FLAT_WIDTH * n_nodes * n_nodes * 4 * OPTIMIZER_COPIES
         parts.append(("flat policy layers", learners * weights))
@@ -174,6 +189,9 @@ def config_estimate(config: Any, graph: Any) -> MemoryEstimate:
     batch_size = max(int(s.get("batch_size", algorithm["batch_size"].default)) for s in learner_settings)
     policy_kwargs = config.hyperparams.get("policy_kwargs") or {}
     flat = config.policy != "DCBFPolicy"
+    edges = None
+    if config.env_kwargs.get("layout") == "edges" and getattr(graph, "n_edges", None) is not None:
+        edges = 2 * int(graph.n_edges)
     return training_estimate(
         graph_nodes(graph),
         config.n_agents,
@@ -184,6 +202,8 @@ def config_estimate(config: Any, graph: Any) -> MemoryEstimate:
         layers=int(policy_kwargs.get("gat_layers", encoder["gat_layers"].default)),
         dense_attention=not flat and dense_attention(graph, policy_kwargs),
         flat_policy=flat,
+        edges=edges,
+        laplacian=policy_kwargs.get("laplacian", encoder["laplacian"].default) != "none",
     )
 
 

@@ -318,6 +318,9 @@ ENV = Section('env', 'Environment keys (`env_kwargs`)', 'env_kwargs', keys=(
         'last one never fails)'),
     Key('render_mode', 'str', None, choices=('rgb_array', 'human', 'ansi'), nullable=True,
         help='how the env renders'),
+    Key('layout', 'str', 'dense', choices=('dense', 'edges'),
+        help="a map observation's known graph: `dense`, an `(N, N)` adjacency; `edges`, the graph's edge "
+        'list and a known-edge mask, O(N + E) (one graph, `observation: map`; see docs/environment.md)'),
 ))
 
 REWARD = Section('reward', 'Reward terms (`env_kwargs.reward`)', 'reward', keys=(

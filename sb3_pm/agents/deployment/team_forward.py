@@ -227,6 +227,11 @@ class TeamForward:
         first: DCBFActorCriticPolicy = policies[0]
         batch = 1 if maps is None else maps
         space = first.observation_space
+        if "adjacency" not in space.spaces:  # type: ignore[attr-defined]
+            # The mapped pass runs the dense kernel on each map's adjacency; an edges-layout map
+            # takes the sparse kernel on its edge list, one pass per policy.
+            self.refusal = "maps in the env's edges layout take one pass per policy"
+            return None
         arrays = {}
         for key in MAP_KEYS:
             shape = space[key].shape  # type: ignore[index]
