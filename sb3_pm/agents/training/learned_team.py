@@ -148,6 +148,11 @@ class LearnedTeam(DeploymentRule):
         (:meth:`~sb3_pm.agents.deployment.rule.DeploymentRule.set_filter`)."""
         from sb3_pm.graphs.territories import agent_territories
 
+        if self.env_kwargs.get("territories") == "planned":
+            raise InputError(
+                "neglect_scope='territory' bounds the split territories, not the planned ones this "
+                "team acts on (territories: planned): use neglect_scope 'known' or 'unserved'"
+            )
         files = list(self.model_files())
         if len(files) != self.n_agents:
             raise InputError(
