@@ -33,12 +33,13 @@ def cell(size: int, policy: str, steps: int, seed: int, layout: str = "dense") -
     import torch
 
     torch.set_num_threads(1)
+    from sb3_pm.baselines import BASELINES
     from sb3_pm.evaluation import resolve_team
     from sb3_pm.graphs.large_sites import city_streets, suggested_agents
 
     start = time.perf_counter()
     graph = city_streets(size, seed=seed)
-    team = resolve_team(policy, graph=graph)
+    team = resolve_team(policy, graph=graph, layout=None if policy in BASELINES else layout)
     env = team.make_env(graph, n_agents=suggested_agents(size), max_cycles=steps, layout=layout)
     observations, _ = env.reset(seed=seed)
     team.reset(env, seed=seed)
