@@ -233,6 +233,24 @@ def test_allowed_logits_equal_the_full_pass(transfer_on_small_city) -> None:
     assert compared > 100
 
 
+def test_the_shared_edge_list_finds_the_edges_a_full_scan_finds(transfer_on_small_city) -> None:
+    from sb3_pm.policies.local_pass import _all_edges, _shared_edges
+
+    team, graph = transfer_on_small_city
+    env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=5, max_cycles=10, layout="edges")
+    observations, _ = env.reset(seed=0)  # discovered edges: each map knows a few
+    for _ in range(8):
+        last = {a: int(np.flatnonzero(observations[a]["action_mask"])[-1]) for a in env.agents}
+        observations, *_ = env.step(last)
+    keys = observations["agent_0"]
+    pre = {k: th.as_tensor(np.stack([observations[a][k] for a in env.agents])) for k in keys}
+    pre["nodes"] = pre["nodes"].float()
+    nodes = th.unique(th.randint(0, 5 * graph.n_nodes, (400,), generator=th.Generator().manual_seed(1)))
+    shared, scanned = _shared_edges(pre)(nodes), _all_edges(pre, graph.n_nodes)(nodes)
+    assert scanned[0].numel() > 0
+    assert th.equal(shared[0], scanned[0]) and th.equal(shared[1], scanned[1])
+
+
 EPISODE = textwrap.dedent(
     """
     import json, resource, sys

@@ -22,6 +22,7 @@ its bit-for-bit full pass.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch as th
@@ -60,26 +61,20 @@ def allowed_logits(policy: Any, pre: dict[str, th.Tensor], u_hat: th.Tensor, mas
     extractor = policy.features_extractor
     batch, n = masks.shape
     device = masks.device
-    # Every known edge of every map, as global node ids: target i attends to source j.
-    b, k = (pre["edge_mask"] != 0).nonzero(as_tuple=True)
-    index = pre["edge_index"].long()
-    target, source = b * n + index[b, 0, k], b * n + index[b, 1, k]
     own = th.arange(batch, device=device) * n + own_positions(pre)  # (B,)
     rows = masks.reshape(-1).nonzero().squeeze(-1)  # (R,) the allowed nodes, global ids
-    need = th.zeros(batch * n, dtype=th.bool, device=device)
-    need[rows] = True
-    need[own] = True
+    need = th.unique(th.cat((rows, own)))  # sorted global ids whose last-layer output is used
+    edges_of = _shared_edges(pre) if _one_edge_list(pre["edge_index"]) else _all_edges(pre, n)
     # need_l: the nodes whose layer-(L - l) output is used; the edges into need_(L-1) are every
     # edge a used output reads.
-    kept = th.zeros_like(target, dtype=th.bool)
     for _ in extractor.gat:
-        kept = need[target]
-        need = need.clone()
-        need[source[kept]] = True
-    nodes = need.nonzero().squeeze(-1)  # (M,) global ids of the subgraph, in the full pass's order
+        target, source = edges_of(need)
+        kept_target, kept_source = target, source
+        need = th.unique(th.cat((need, source)))
+    nodes = need  # (M,) global ids of the subgraph, sorted: the full pass's order
     local = th.full((batch * n,), -1, dtype=th.long, device=device)
     local[nodes] = th.arange(nodes.numel(), device=device)
-    edges = th.stack((local[source[kept]], local[target[kept]]))  # (2, K'), PyG's [source, target]
+    edges = th.stack((local[kept_source], local[kept_target]))  # (2, K'), PyG's [source, target]
     x = extractor.node_features(pre).reshape(batch * n, -1)[nodes]  # (M, F)
     for layer in extractor.gat:  # GraphAttention's sparse kernel on the subgraph
         x = extractor.activation(layer.conv(x, edges))
@@ -93,6 +88,58 @@ def allowed_logits(policy: Any, pre: dict[str, th.Tensor], u_hat: th.Tensor, mas
     logits = th.zeros(batch * n, dtype=hidden.dtype, device=device)
     logits[rows] = policy._actor_output(hidden).reshape(-1)
     return policy._with_advice(logits.reshape(batch, n), pre)  # type: ignore[no-any-return]
+
+
+def _one_edge_list(edge_index: th.Tensor) -> bool:
+    """Whether every map of the batch carries the same edge list ``(B, 2, E)`` (the env's: the
+    graph's own, sorted by source then target)."""
+    return bool((edge_index == edge_index[:1]).all())
+
+
+EdgeFinder = Callable[[th.Tensor], tuple[th.Tensor, th.Tensor]]
+
+
+def _shared_edges(pre: dict[str, th.Tensor]) -> EdgeFinder:
+    """The known edges into given nodes, found through the shared edge list's row pointers: the
+    work grows with the nodes asked about, not with the batch's ``B * E`` edges.
+
+    The returned function maps sorted global node ids ``(S,)`` to the ``(target, source)`` global
+    ids of every known edge into them, ``(K,)`` each, sorted by map then edge (the full pass's
+    order, :func:`~sb3_pm.policies.edges.batched_edges`).
+    """
+    index = pre["edge_index"][0].long()  # (2, E), sorted by its first row
+    mask = pre["edge_mask"]
+    n = pre["nodes"].shape[1]
+    pointer = th.searchsorted(index[0].contiguous(), th.arange(n + 1, device=index.device))  # (N + 1,)
+
+    def find(nodes: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        maps, node = nodes // n, nodes % n
+        start, count = pointer[node], pointer[node + 1] - pointer[node]
+        owner = th.repeat_interleave(th.arange(nodes.numel(), device=nodes.device), count)
+        offset = th.arange(owner.numel(), device=nodes.device) - (th.cumsum(count, 0) - count)[owner]
+        edge, of_map = start[owner] + offset, maps[owner]
+        known = mask[of_map, edge] != 0
+        edge, of_map = edge[known], of_map[known]
+        # sorted nodes give edges sorted by map, then node, then edge: the full pass's order
+        return of_map * n + index[0, edge], of_map * n + index[1, edge]
+
+    return find
+
+
+def _all_edges(pre: dict[str, th.Tensor], n: int) -> EdgeFinder:
+    """:func:`_shared_edges` for maps with edge lists of their own: every known edge of the batch,
+    filtered by its target (``O(B * E)`` per call)."""
+    b, k = (pre["edge_mask"] != 0).nonzero(as_tuple=True)
+    index = pre["edge_index"].long()
+    target, source = b * n + index[b, 0, k], b * n + index[b, 1, k]
+
+    def find(nodes: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        wanted = th.zeros(pre["edge_mask"].shape[0] * n, dtype=th.bool, device=nodes.device)
+        wanted[nodes] = True
+        kept = wanted[target]
+        return target[kept], source[kept]
+
+    return find
 
 
 __all__ = ["LOCAL_MIN_NODES", "allowed_logits", "applies"]
