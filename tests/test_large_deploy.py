@@ -81,6 +81,22 @@ def test_the_split_from_target_routes_is_the_dense_split(
     assert np.array_equal(site_territories(graph, n_agents), dense)
 
 
+@pytest.mark.parametrize("name", GRAPHS)
+def test_the_lower_bounds_from_target_routes_equal_the_dense_ones(
+    name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from sb3_pm.planning.bound import priced_bound, stepwise_bound
+
+    starts = np.array([0, 3, 7])
+    dense = fresh(name)
+    expected = stepwise_bound(dense, starts, 60, 100), priced_bound(dense, starts, 60, 100)
+    monkeypatch.setattr(routes_module, "DENSE_ROUTES_MAX", 0)
+    graph = fresh(name)
+    assert np.array_equal(stepwise_bound(graph, starts, 60, 100), expected[0])
+    assert priced_bound(graph, starts, 60, 100) == expected[1]
+    assert "hop_distances" not in graph.__dict__
+
+
 def _territory_patrol_moves(graph: GraphSpec, steps: int = 60) -> list[dict[str, int]]:
     team = make_team("territory_patrol")
     env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=4, max_cycles=steps)

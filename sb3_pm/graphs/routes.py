@@ -47,6 +47,9 @@ class Routes(Protocol):
     def between_targets(self) -> np.ndarray:
         """``(T, T)`` hop distances between the targets, in ``target_indices`` order."""
 
+    def to_targets(self, nodes: np.ndarray) -> np.ndarray:
+        """``(len(nodes), T)`` hop distances from each of ``nodes`` to each target."""
+
 
 class DenseRoutes:
     """:class:`Routes` read from the all-pairs tables.
@@ -67,6 +70,9 @@ class DenseRoutes:
 
     def between_targets(self) -> np.ndarray:
         return self.hop_distances[np.ix_(self.target_indices, self.target_indices)]  # type: ignore[no-any-return]
+
+    def to_targets(self, nodes: np.ndarray) -> np.ndarray:
+        return self.hop_distances[np.ix_(np.asarray(nodes, dtype=np.int64), self.target_indices)]  # type: ignore[no-any-return]
 
 
 class TargetRoutes:
@@ -108,6 +114,9 @@ class TargetRoutes:
 
     def between_targets(self) -> np.ndarray:
         return self.from_target[:, self.target_indices]  # type: ignore[no-any-return]
+
+    def to_targets(self, nodes: np.ndarray) -> np.ndarray:
+        return self.from_target[:, np.asarray(nodes, dtype=np.int64)].T  # type: ignore[no-any-return]
 
 
 def site_routes(graph: GraphSpec) -> Routes:
