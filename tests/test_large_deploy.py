@@ -307,3 +307,27 @@ def test_a_transfer_episode_on_a_1000_node_site_in_the_edges_layout() -> None:
     assert result["moves"] == 12 * 20 and result["legal"] == result["moves"]
     assert not result["all_pairs"]  # 1,000 nodes: above DENSE_ROUTES_MAX, per-target routes
     assert result["peak_mb"] < 1500, result  # measured 480 MB (importing torch alone: about 300)
+
+
+def test_sb3_pm_evaluate_takes_the_layout(capsys, tmp_path) -> None:
+    from sb3_pm.cli import main
+
+    out = tmp_path / "run.json"
+    argv = ["evaluate", "--policy", "pretrained:transfer", "--graph", "city-1k", "--agents", "12"]
+    argv += ["--layout", "edges", "--steps", "5", "--episodes", "1", "--neglect-bound", "off"]
+    assert main([*argv, "--json", str(out), "--no-progress"]) == 0
+    assert json.loads(out.read_text())["mean"]["steps"] == 5
+    code = main(["evaluate", "--policy", "territory_patrol", "--graph", "rooms-4", "--layout", "edges",
+                 "--steps", "5", "--episodes", "1", "--no-progress"])
+    assert code == 0
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--policy", "random", "--layout", "sparse"])
+    assert "invalid choice: 'sparse'" in capsys.readouterr().err
+
+
+def test_the_memory_estimate_of_an_edges_layout_evaluation_counts_edges() -> None:
+    from sb3_pm.zoo.memory import evaluation_estimate
+
+    dense = evaluation_estimate(5000, 64, True, dense_attention=False).total
+    edges = evaluation_estimate(5000, 64, True, dense_attention=False, edges=37_000).total
+    assert edges < dense / 20 and edges < 2 * 1024**3
