@@ -97,8 +97,8 @@ def test_the_lower_bounds_from_target_routes_equal_the_dense_ones(
     assert "hop_distances" not in graph.__dict__
 
 
-def _territory_patrol_moves(graph: GraphSpec, steps: int = 60) -> list[dict[str, int]]:
-    team = make_team("territory_patrol")
+def _moves(graph: GraphSpec, policy: str, steps: int = 60) -> list[dict[str, int]]:
+    team = make_team(policy)
     env = persistent_monitoring_v0.parallel_env(graph=graph, n_agents=4, max_cycles=steps)
     observations, _ = env.reset(seed=5)
     team.reset(env, seed=5)
@@ -111,13 +111,14 @@ def _territory_patrol_moves(graph: GraphSpec, steps: int = 60) -> list[dict[str,
 
 
 @pytest.mark.parametrize("name", GRAPHS)
-def test_territory_patrol_moves_alike_on_either_routes(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("policy", ["territory_patrol", "grazing", "sit_on_nodes"])
+def test_baselines_move_alike_on_either_routes(name: str, policy: str, monkeypatch) -> None:
     dense_graph = fresh(name)
-    expected = _territory_patrol_moves(dense_graph)
+    expected = _moves(dense_graph, policy)
     assert isinstance(dense_graph.routes, DenseRoutes)
     monkeypatch.setattr(routes_module, "DENSE_ROUTES_MAX", 0)
     sparse_graph = fresh(name)
-    assert _territory_patrol_moves(sparse_graph) == expected
+    assert _moves(sparse_graph, policy) == expected
     assert isinstance(sparse_graph.routes, TargetRoutes)
     assert "next_hop" not in sparse_graph.__dict__  # no all-pairs table was built
 
