@@ -111,7 +111,7 @@ def _moves(graph: GraphSpec, policy: str, steps: int = 60) -> list[dict[str, int
 
 
 @pytest.mark.parametrize("name", GRAPHS)
-@pytest.mark.parametrize("policy", ["territory_patrol", "grazing", "sit_on_nodes"])
+@pytest.mark.parametrize("policy", ["territory_patrol", "grazing", "sit_on_nodes", "tour_patrol"])
 def test_baselines_move_alike_on_either_routes(name: str, policy: str, monkeypatch) -> None:
     dense_graph = fresh(name)
     expected = _moves(dense_graph, policy)
