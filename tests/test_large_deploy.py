@@ -332,3 +332,25 @@ def test_the_memory_estimate_of_an_edges_layout_evaluation_counts_edges() -> Non
     dense = evaluation_estimate(5000, 64, True, dense_attention=False).total
     edges = evaluation_estimate(5000, 64, True, dense_attention=False, edges=37_000).total
     assert edges < dense / 20 and edges < 2 * 1024**3
+
+
+def test_a_team_on_its_own_graph_is_rebuilt_for_another_layout_and_acts_alike() -> None:
+    from sb3_pm.evaluation import resolve_team
+
+    graph = resolve_graph("paper-50")
+    dense = resolve_team("pretrained:paper-50", graph=graph)
+    edges = resolve_team("pretrained:paper-50", graph=graph, layout="edges")
+    assert edges is not dense and edges.env_settings()["layout"] == "edges"
+    assert resolve_team("pretrained:paper-50", graph=graph, layout="dense").env_settings().get(
+        "layout", "dense"
+    ) == "dense"
+    envs = [team.make_env(graph, max_cycles=40) for team in (dense, edges)]
+    observations = [env.reset(seed=6)[0] for env in envs]
+    for team, env in zip((dense, edges), envs):
+        team.reset(env, seed=6)
+    assert "edge_index" in observations[1]["agent_0"] and "adjacency" in observations[0]["agent_0"]
+    teams = (dense, edges)
+    for _ in range(40):
+        actions = [team.predict_dict(obs, deterministic=True) for team, obs in zip(teams, observations)]
+        assert actions[0] == actions[1]
+        observations = [env.step(action)[0] for env, action in zip(envs, actions)]
