@@ -12,7 +12,14 @@ the seconds per step and the process's peak memory. A fitted exponent ``b`` of `
 With ``--layout dense`` (the env's default) the environment stores each agent's map and the site's
 distances densely (N × N), so memory and time grow at least quadratically in N. ``--layout edges``
 runs the env's edges layout: maps and observations over the edge list, sensing tables as sparse
-rows (the ``GraphSpec`` itself, and a baseline that computes distances, stay N × N).
+rows, and a trained team rebuilt for it (``resolve_team(..., layout="edges")``), whose actor reads
+the allowed nodes' neighbourhoods on large sites; the territory rule reads per-target routes above
+500 nodes, as do ``grazing``, ``sit_on_nodes`` and ``tour_patrol`` (the ``GraphSpec`` keeps its
+N × N bool adjacency; the planners still build all-pairs distances).
+
+``--agents`` fixes the team size; ``--neglect-bound B|off`` sets a trained team's bound (scope
+``territory``). ``pretrained:transfer``'s ``deploy_filter: auto`` is calibrated only by
+``sb3-pm evaluate``, and only for its own 4 agents, so without ``--neglect-bound`` it acts with none.
 """
 
 from __future__ import annotations
@@ -28,18 +35,34 @@ import time
 import numpy as np
 
 
-def cell(size: int, policy: str, steps: int, seed: int, layout: str = "dense") -> dict[str, float]:
-    """One (size, policy) measurement, in this process."""
+def cell(
+    size: int,
+    policy: str,
+    steps: int,
+    seed: int,
+    layout: str = "dense",
+    agents: int | None = None,
+    bound: str | None = None,
+) -> dict[str, float]:
+    """One (size, policy) measurement, in this process (``agents``: the team size, default
+    ``suggested_agents``; ``bound``: a trained team's neglect bound, a number or ``off``)."""
     import torch
 
     torch.set_num_threads(1)
+    from sb3_pm.baselines import BASELINES
     from sb3_pm.evaluation import resolve_team
     from sb3_pm.graphs.large_sites import city_streets, suggested_agents
 
     start = time.perf_counter()
     graph = city_streets(size, seed=seed)
-    team = resolve_team(policy, graph=graph)
-    env = team.make_env(graph, n_agents=suggested_agents(size), max_cycles=steps, layout=layout)
+    team = resolve_team(policy, graph=graph, layout=None if policy in BASELINES else layout)
+    if bound is not None and policy not in BASELINES:  # else a deploy_filter auto acts with none
+        if bound == "off":
+            team.set_filter(neglect_bound=None)
+        else:
+            team.set_filter(neglect_bound=float(bound), neglect_scope="territory")
+    n_agents = agents or suggested_agents(size)
+    env = team.make_env(graph, n_agents=n_agents, max_cycles=steps, layout=layout)
     observations, _ = env.reset(seed=seed)
     team.reset(env, seed=seed)
     built = time.perf_counter() - start
@@ -50,7 +73,7 @@ def cell(size: int, policy: str, steps: int, seed: int, layout: str = "dense") -
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return {
         "nodes": size,
-        "agents": suggested_agents(size),
+        "agents": n_agents,
         "build_s": built,
         "seconds_per_step": played / steps,
         "peak_mb": peak_mb,
@@ -71,11 +94,21 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100, help="steps per cell (default 100)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--layout", choices=("dense", "edges"), default="dense", help="the env's layout")
+    parser.add_argument("--agents", type=int, default=None, help="team size (default: one per 80 nodes)")
+    parser.add_argument(
+        "--neglect-bound",
+        default=None,
+        metavar="B",
+        help="a trained team's neglect bound (territory scope): a number, or off (default: the team's "
+        "own, which for a deploy_filter auto means none here, as nothing calibrates it)",
+    )
     parser.add_argument("--json", default=None, help="also write the rows to this file")
     parser.add_argument("--cell", nargs=2, metavar=("SIZE", "POLICY"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.cell:
-        print(json.dumps(cell(int(args.cell[0]), args.cell[1], args.steps, args.seed, args.layout)))
+        size, policy = int(args.cell[0]), args.cell[1]
+        row = cell(size, policy, args.steps, args.seed, args.layout, args.agents, args.neglect_bound)
+        print(json.dumps(row))
         return
     environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     rows = []
@@ -84,6 +117,8 @@ def main() -> None:
         for size in args.sizes:
             command = [sys.executable, __file__, "--cell", str(size), policy, "--steps", str(args.steps)]
             command += ["--layout", args.layout]
+            command += [] if args.agents is None else ["--agents", str(args.agents)]
+            command += [] if args.neglect_bound is None else ["--neglect-bound", args.neglect_bound]
             done = subprocess.run(
                 [*command, "--seed", str(args.seed)], capture_output=True, text=True, env=environment
             )

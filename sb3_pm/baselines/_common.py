@@ -9,8 +9,16 @@ import numpy as np
 
 from sb3_pm.envs.territory_rule import nearest_first
 from sb3_pm.graphs import GraphSpec
+from sb3_pm.graphs.routes import Routes
 
-__all__ = ["agent_positions", "env_graph", "nearest_first", "own_uncertainty", "step_towards"]
+__all__ = [
+    "agent_positions",
+    "env_graph",
+    "nearest_first",
+    "nearest_target",
+    "own_uncertainty",
+    "step_towards",
+]
 
 
 def agent_positions(observations: Mapping[str, Mapping[str, Any]]) -> tuple[list[str], np.ndarray]:
@@ -32,6 +40,18 @@ def step_towards(
 ) -> np.ndarray:
     """One move along a shortest path for every agent (``next_hop[i, i] == i``, so goal reached = stay)."""
     return next_hop[positions, np.asarray(goals, dtype=np.int64)]
+
+
+def nearest_target(
+    routes: Routes, position: int, candidates: np.ndarray, keys: np.ndarray | None = None
+) -> int:
+    """:func:`nearest_first`'s first candidate (highest ``keys`` ``(N,)`` if given, then nearest,
+    then lowest index) among the targets ``candidates``, from the site's routes (``graph.routes``:
+    no all-pairs table on a large site)."""
+    order_keys: list[np.ndarray] = [candidates, routes.distances(position, candidates)]
+    if keys is not None:
+        order_keys.append(-keys[candidates])
+    return int(candidates[np.lexsort(order_keys)[0]])
 
 
 def own_uncertainty(observation: Any, node: int) -> float:

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pm.baselines._common import agent_positions, env_graph, nearest_first
+from sb3_pm.baselines._common import agent_positions, env_graph, nearest_target
 from sb3_pm.team_interface import Observation, Team
 
 
@@ -77,7 +77,7 @@ class GrazingTeam(Team):
                     self.goals.pop(agent, None)
                     actions[agent] = int(position)
                     continue
-                goal = int(nearest_first(free, self.graph.hop_distances[position], u.astype(float))[0])
+                goal = nearest_target(self.graph.routes, int(position), free, u.astype(float))
             self.goals[agent] = goal
-            actions[agent] = int(self.graph.next_hop[position, goal])
+            actions[agent] = self.graph.routes.next_hop(int(position), goal)
         return actions

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pm.baselines._common import agent_positions, env_graph, nearest_first, step_towards
+from sb3_pm.baselines._common import agent_positions, env_graph, nearest_target
 from sb3_pm.team_interface import Observation, Team
 
 
@@ -39,7 +39,7 @@ class SitOnNodesTeam(Team):
         claims: dict[str, int] = {}
         for agent, position in zip(agents, positions):
             pool = targets[free] if free.any() else targets
-            choice = int(nearest_first(pool, self.graph.hop_distances[position])[0])
+            choice = nearest_target(self.graph.routes, int(position), pool)
             claims[agent] = choice
             free &= targets != choice
         return claims
@@ -51,5 +51,5 @@ class SitOnNodesTeam(Team):
         if self.claims is None:
             self.claims = self.claim(agents, positions)
         goals = [self.claims[a] for a in agents]
-        moves = step_towards(self.graph.next_hop, positions, goals)
-        return {agent: int(move) for agent, move in zip(agents, moves)}
+        routes = self.graph.routes  # the claims are targets: no all-pairs table on a large site
+        return {agent: routes.next_hop(int(p), goal) for agent, p, goal in zip(agents, positions, goals)}

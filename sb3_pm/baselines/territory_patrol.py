@@ -33,7 +33,7 @@ from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.envs.mental_map import AGE, U
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
-from sb3_pm.graphs.territories import target_territories
+from sb3_pm.graphs.territories import site_territories
 from sb3_pm.planning.conventions import team_territory
 from sb3_pm.team_interface import Observation, Team
 
@@ -57,14 +57,14 @@ class TerritoryPatrolTeam(Team):
         agents = list(env.unwrapped.possible_agents)
         territory = self._territory(env, graph, len(agents))  # (n_agents, N)
         #: The rule, with each agent's goal kept between steps (the env's advice_input runs the same).
-        self.rule = TerritoryAdvice(territory, graph.hop_distances, graph.next_hop, env.unwrapped.u_max)
+        self.rule = TerritoryAdvice(territory, graph.routes, None, env.unwrapped.u_max)
         self._index = {agent: i for i, agent in enumerate(agents)}
 
     def _territory(self, env: Any, graph: Any, n_agents: int) -> np.ndarray:
         """``(n_agents, N)`` bool, each agent's territory: the split of the site."""
         key = (graph.fingerprint, n_agents)
         if key not in self._owners:
-            self._owners[key] = target_territories(graph.hop_distances, graph.target_indices, n_agents)
+            self._owners[key] = site_territories(graph, n_agents)
         territory = np.zeros((n_agents, graph.n_nodes), dtype=bool)
         territory[self._owners[key], graph.target_indices] = True
         return territory

@@ -40,7 +40,9 @@ class TourPatrolTeam(Team):
         """The cached tour of ``graph``'s targets."""
         key = graph.fingerprint
         if key not in self._tours:
-            self._tours[key] = approximate_tour(graph.target_indices, graph.hop_distances)
+            # the tour of the targets' rows of the (T, T) distances: no all-pairs table on a large site
+            rows = approximate_tour(np.arange(graph.n_targets), graph.routes.between_targets())
+            self._tours[key] = graph.target_indices[rows]
         return self._tours[key]
 
     def reset(self, env: Any, seed: int | None = None) -> None:
@@ -53,7 +55,8 @@ class TourPatrolTeam(Team):
         """Match agents to evenly spaced tour slots, minimizing the total hop distance."""
         t, n = len(self.tour), len(agents)
         slots = (np.arange(n) * t) // n
-        cost = self.graph.hop_distances[np.ix_(positions, self.tour[slots])]
+        columns = np.searchsorted(self.graph.target_indices, self.tour[slots])  # the slots' targets
+        cost = self.graph.routes.to_targets(positions)[:, columns]
         rows, cols = linear_sum_assignment(cost)
         return {agents[r]: int(slots[c]) for r, c in zip(rows, cols)}
 
@@ -72,5 +75,5 @@ class TourPatrolTeam(Team):
                     continue
                 self.pointer[agent] = (self.pointer[agent] + 1) % len(self.tour)
                 goal = int(self.tour[self.pointer[agent]])
-            actions[agent] = int(self.graph.next_hop[position, goal])
+            actions[agent] = self.graph.routes.next_hop(int(position), goal)
         return actions

@@ -121,6 +121,14 @@ def register(subparsers: Any) -> None:
         "the steps after the first SINCE; default: the second half) and which targets nobody "
         "holds; saved in --json",
     )
+    parser.add_argument(
+        "--layout",
+        choices=["dense", "edges"],
+        default=None,
+        help="the env's observation layout: dense (N x N adjacencies) or edges (edge lists, for sites "
+        "of thousands of nodes); a trained team's policies are rebuilt for it (default: the team's own, "
+        "else dense)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
     add_compute_options(parser)
     parser.set_defaults(func=run)
@@ -144,11 +152,14 @@ def check_counts(args: argparse.Namespace) -> None:
         )
 
 
-def check_evaluation_memory(policy: str, graph: Any, n_agents: int | None, name: str) -> None:
+def check_evaluation_memory(
+    policy: str, graph: Any, n_agents: int | None, name: str, layout: str | None = None
+) -> None:
     """Refuse, from sizes alone, an evaluation too large for this host's memory, before the team
     loads (a saved team builds its training env copies as it loads) and before any env is built.
 
     :param n_agents: the team size asked for (``None``: a saved team's own, else the default).
+    :param layout: ``--layout`` (``edges``: the env and the forward pass count edges, not pairs).
     """
     from sb3_pm.agents.deployment.saved_teams import MANIFEST, read_manifest
     from sb3_pm.baselines import BASELINES
@@ -171,6 +182,7 @@ def check_evaluation_memory(policy: str, graph: Any, n_agents: int | None, name:
         policy not in BASELINES,
         dense_attention=dense_attention(graph, None),
         team_envs=int(manifest.get("n_envs") or 0),
+        edges=2 * graph.n_edges if layout == "edges" else None,
     )
     check_memory(estimate, f"evaluating {policy} ({agents} agents) on {name}")
 
@@ -195,6 +207,8 @@ def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
             raise UsageError(f"--fail names {agent} twice")
         failures[agent] = int(step)
     kwargs: dict[str, Any] = {}
+    if getattr(args, "layout", None) is not None:  # over the team's own (a trained team was rebuilt for it)
+        kwargs["layout"] = args.layout
     if failures:
         kwargs["failures"] = failures
     if args.failure_rate:
@@ -277,8 +291,8 @@ def run(args: argparse.Namespace) -> int:
             check_temperature(args.temperature)  # before the team loads
         except InputError:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
-    check_evaluation_memory(args.policy, graph, args.agents, str(args.graph))
-    team = resolve_team(args.policy, graph=graph, device=args.device)
+    check_evaluation_memory(args.policy, graph, args.agents, str(args.graph), args.layout)
+    team = resolve_team(args.policy, graph=graph, device=args.device, layout=args.layout)
     if args.agents is None:  # a trained team deploys as it was trained unless told otherwise
         args.agents = team.n_agents or DEFAULT_AGENTS
     calibration = None
@@ -368,7 +382,7 @@ def run(args: argparse.Namespace) -> int:
         write_atomic(args.json, json.dumps(result.to_dict(), indent=2))
         print(f"wrote {args.json}", file=sys.stderr)
     if args.gif is not None:
-        gif_team = resolve_team(args.policy, graph=graph, device=args.device)
+        gif_team = resolve_team(args.policy, graph=graph, device=args.device, layout=args.layout)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
         apply_temperature(gif_team, args.temperature, args.stochastic)
         with sigterm_as_interrupt():  # a stopped GIF leaves the previous file, and no temporary one

@@ -67,7 +67,7 @@ class EnvTerritories:
         )
         #: The territory rule whose next move ``advice_input`` flags (``None`` without it).
         self._advice = (
-            TerritoryAdvice(territory, self.graph.hop_distances, self.graph.next_hop, self.u_max)
+            TerritoryAdvice(territory, self.graph.routes, None, self.u_max)
             if self.advice_input and territory is not None
             else None
         )

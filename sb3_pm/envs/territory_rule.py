@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sb3_pm.graphs.routes import DenseRoutes, Routes
+
 
 def nearest_first(
     candidates: np.ndarray, distances: np.ndarray, keys: np.ndarray | None = None
@@ -47,8 +49,7 @@ def territory_move(
     age: np.ndarray,
     goal: int | None,
     u_max: float,
-    distances: np.ndarray,
-    next_hop: np.ndarray,
+    routes: Routes,
 ) -> tuple[int, int | None]:
     """One agent's move by the territory rule, and the goal it keeps for its next step.
 
@@ -58,8 +59,8 @@ def territory_move(
     :param age: ``(N,)`` its own map's steps since each node was last observed.
     :param goal: the goal it kept from the previous step (``None``: none).
     :param u_max: the uncertainty cap.
-    :param distances: ``(N, N)`` hop distances of the road network.
-    :param next_hop: ``(N, N)`` the first node of a shortest path (``next_hop[i, i] == i``).
+    :param routes: the road network's distances to targets and next hops towards them
+        (:mod:`sb3_pm.graphs.routes`; ``graph.routes``).
     :return: ``(destination node, goal to keep or None)``.
     """
     if position in own and u[position] > 0:
@@ -69,8 +70,11 @@ def territory_move(
         if others.size == 0:
             return position, goal  # a territory of one target: hold it
         estimate = np.minimum(u + age, u_max)
-        goal = int(nearest_first(others, distances[position], estimate)[0])
-    return int(next_hop[position, goal]), goal
+        # nearest_first's order (stalest, then nearest, then lowest index) on the targets'
+        # distances alone: the routes of a large site hold no (N, N) row to index
+        order = np.lexsort((others, routes.distances(position, others), -estimate[others]))
+        goal = int(others[order[0]])
+    return routes.next_hop(position, goal), goal
 
 
 class TerritoryAdvice:
@@ -81,17 +85,27 @@ class TerritoryAdvice:
     it, or while it dwells on one of its targets).
 
     :param territory: ``(n_agents, N)`` bool, each agent's territory.
-    :param distances: ``(N, N)`` hop distances; ``next_hop``: ``(N, N)`` first hop of a shortest path.
+    :param distances: the site's :class:`~sb3_pm.graphs.routes.Routes` (``graph.routes``), or its
+        ``(N, N)`` hop distances with ``next_hop`` ``(N, N)``, the first hop of a shortest path.
     :param u_max: the uncertainty cap.
     """
 
     def __init__(
-        self, territory: np.ndarray, distances: np.ndarray, next_hop: np.ndarray, u_max: float
+        self,
+        territory: np.ndarray,
+        distances: Routes | np.ndarray,
+        next_hop: np.ndarray | None,
+        u_max: float,
     ) -> None:
         #: Each agent's own targets, ``(T_i,)`` int node indices (empty: no territory, no advice).
         self.own = [np.flatnonzero(row) for row in territory]
-        self.distances = distances
-        self.next_hop = next_hop
+        if isinstance(distances, np.ndarray):
+            if next_hop is None:
+                raise ValueError("TerritoryAdvice takes (N, N) distances with an (N, N) next_hop")
+            targets = np.flatnonzero(np.asarray(territory).any(axis=0))
+            distances = DenseRoutes(distances, next_hop, targets)
+        #: distances to the targets and next hops towards them
+        self.routes: Routes = distances
         self.u_max = float(u_max)
         self.goals: list[int | None] = [None] * len(self.own)
 
@@ -111,7 +125,7 @@ class TerritoryAdvice:
         """Agent ``i``'s move by the rule (it must own a target), keeping its goal for the next
         step. ``u``, ``age``: ``(N,)`` its own map."""
         move, self.goals[i] = territory_move(
-            position, self.own[i], u, age, self.goals[i], self.u_max, self.distances, self.next_hop
+            position, self.own[i], u, age, self.goals[i], self.u_max, self.routes
         )
         return move
 

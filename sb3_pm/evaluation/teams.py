@@ -17,7 +17,9 @@ class PolicyError(InputError):
     """A ``--policy`` that names no baseline and no loadable trained team."""
 
 
-def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **kwargs: Any) -> Team:
+def resolve_team(
+    policy: str | Path, graph: Any = None, device: str = "cpu", layout: str | None = None, **kwargs: Any
+) -> Team:
     """A team for ``policy``.
 
     :param policy: a baseline name (a key of :data:`~sb3_pm.baselines.BASELINES`), a shipped
@@ -26,6 +28,9 @@ def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **k
     :param graph: for a trained team, the graph it will run on; its loader checks that the team
         was trained on the same problem. Ignored for baselines.
     :param device: torch device of a trained team (``cpu``, ``cuda``, ``auto``); ignored for baselines.
+    :param layout: for a trained team, the env's observation layout it will act in (``"dense"``,
+        ``"edges"``; ``None``: its own): its policies are rebuilt for another one. A baseline reads
+        either; the env's ``layout`` setting is the caller's.
     :param kwargs: constructor arguments for a baseline; ignored for a trained team.
     :raises PolicyError: an unknown name, or a directory that cannot be loaded.
     :raises FileNotFoundError: a path-like policy that does not exist.
@@ -34,10 +39,10 @@ def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **k
     if text in BASELINES:
         return make_team(text, **kwargs)
     if text.startswith(PREFIX):  # a team that ships with the package
-        return load_trained_team(pretrained_path(text), graph, device=device)
+        return load_trained_team(pretrained_path(text), graph, device=device, layout=layout)
     path = Path(text).expanduser()
     if path.is_dir():
-        return load_trained_team(path, graph, device=device)
+        return load_trained_team(path, graph, device=device, layout=layout)
     if path.exists():
         raise PolicyError(f"policy {text!r} is a file; a trained team is a directory written by its save()")
     if "/" in text or "\\" in text or text.startswith("."):
@@ -48,9 +53,11 @@ def resolve_team(policy: str | Path, graph: Any = None, device: str = "cpu", **k
     )
 
 
-def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") -> Team:
+def load_trained_team(
+    path: str | Path, graph: Any = None, device: str = "cpu", layout: str | None = None
+) -> Team:
     """``IndependentPPO.load(path)`` (or ``CentralizedPPO.load`` for a centralized team's folder),
-    imported lazily so that baselines never need torch."""
+    imported lazily so that baselines never need torch; ``layout``: as :func:`resolve_team`'s."""
     path = Path(path)
     try:
         from sb3_pm.agents.training.team import IndependentPPO
@@ -82,7 +89,13 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
     other_graph = graph is not None and trained_on not in (None, resolve_graph(graph).fingerprint)
     try:
         if not other_graph:
-            return team_class.load(path, graph=graph, device=device)  # type: ignore[no-any-return]
+            own = team_class.load(path, graph=graph, device=device)
+            if layout is None or layout == (getattr(own, "env_kwargs", None) or {}).get("layout", "dense"):
+                return own  # type: ignore[no-any-return]
+            if team_class is CentralizedPPO:
+                own.close()
+                raise InputError(f"a centralized team acts only in its training layout, not {layout!r}")
+            return own.on_graph(own.graph if graph is None else graph, layout)  # type: ignore[no-any-return]
         # Another graph: load the team on its own, then rebuild its policies for this one, or
         # refuse with the reason (sb3_pm.agents.deployment.transfer).
         team = team_class.load(path, device=device)
@@ -92,7 +105,7 @@ def load_trained_team(path: str | Path, graph: Any = None, device: str = "cpu") 
                     f"the team was trained on graph {team.graph.name!r}; "
                     "a centralized team cannot act on another graph"
                 )
-            return team.on_graph(graph)  # type: ignore[no-any-return]
+            return team.on_graph(graph, layout)  # type: ignore[no-any-return]
         except BaseException:
             team.close()  # its env copies' workers, before the refusal goes on
             raise

@@ -20,6 +20,8 @@ from sb3_pm.errors import InputError
 if TYPE_CHECKING:
     import networkx as nx
 
+    from sb3_pm.graphs.routes import Routes
+
 
 class GraphError(InputError):
     """A graph that cannot be used for persistent monitoring (the message names why)."""
@@ -147,6 +149,21 @@ class GraphSpec:
             result[i] = neighbours[np.argmax(closer, axis=0)]
             result[i, i] = i
         return _read_only(result)
+
+    @cached_property
+    def sparse_adjacency(self) -> csr_matrix:
+        """``(N, N)`` CSR adjacency (int8, each row's neighbours in increasing order)."""
+        from sb3_pm.graphs.routes import sparse_adjacency
+
+        return sparse_adjacency(self.adjacency)
+
+    @cached_property
+    def routes(self) -> Routes:
+        """Distances to the targets and next hops towards them (:mod:`sb3_pm.graphs.routes`):
+        from the all-pairs tables on small graphs, from one search per target on large ones."""
+        from sb3_pm.graphs.routes import site_routes
+
+        return site_routes(self)
 
     @cached_property
     def fingerprint(self) -> str:

@@ -46,6 +46,19 @@ def target_territories(hop_distances: np.ndarray, target_indices: np.ndarray, n_
     :param n_agents: ``K``, the number of territories (>= 1).
     :return: ``(T,)`` int, the agent that owns each target of ``target_indices`` (in ``0..K-1``).
     """
+    targets = np.asarray(target_indices, dtype=np.int64)
+    return split_targets(np.asarray(hop_distances)[np.ix_(targets, targets)], targets, n_agents)
+
+
+def site_territories(graph: GraphSpec, n_agents: int) -> np.ndarray:
+    """:func:`target_territories` of ``graph``'s targets, from the distances between its targets
+    alone (``graph.routes``: no all-pairs table on a large site). ``(T,)`` int."""
+    return split_targets(graph.routes.between_targets(), graph.target_indices, n_agents)
+
+
+def split_targets(between: np.ndarray, target_indices: np.ndarray, n_agents: int) -> np.ndarray:
+    """:func:`target_territories` from ``between`` ``(T, T)``, the hop distances between the
+    targets ``target_indices`` ``(T,)`` (in that order). ``(T,)`` int."""
     if n_agents < 1:
         raise GraphError(f"territories need at least one agent, got {n_agents}")
     targets = np.asarray(target_indices, dtype=np.int64)
@@ -53,7 +66,7 @@ def target_territories(hop_distances: np.ndarray, target_indices: np.ndarray, n_
     if n_targets == 0:
         return np.zeros(0, dtype=np.int64)
     k = min(n_agents, n_targets)
-    distances = np.asarray(hop_distances, dtype=np.float64)[np.ix_(targets, targets)]  # (T, T)
+    distances = np.asarray(between, dtype=np.float64)  # (T, T)
     medoids = _farthest_points(distances, k)
     capacity, required = math.ceil(n_targets / k), n_targets // k
     owner = np.full(n_targets, -1, dtype=np.int64)
@@ -84,8 +97,15 @@ def territory_nodes(
 def agent_territories(graph: GraphSpec, n_agents: int) -> list[tuple[int, ...]]:
     """Each agent's territory on ``graph`` as its target nodes in increasing order: agent ``i``'s
     at index ``i`` (what the neglect bound's scope ``territory`` takes as a policy setting)."""
-    owns = territory_nodes(graph.hop_distances, graph.target_indices, n_agents, graph.n_nodes)
+    owns = site_territory_nodes(graph, n_agents)
     return [tuple(int(node) for node in np.flatnonzero(row)) for row in owns]
+
+
+def site_territory_nodes(graph: GraphSpec, n_agents: int) -> np.ndarray:
+    """:func:`territory_nodes` of ``graph`` by :func:`site_territories`: ``(K, N)`` bool."""
+    owns = np.zeros((n_agents, graph.n_nodes), dtype=bool)
+    owns[site_territories(graph, n_agents), graph.target_indices] = True
+    return owns
 
 
 def _farthest_points(distances: np.ndarray, k: int) -> list[int]:

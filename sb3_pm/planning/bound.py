@@ -75,6 +75,11 @@ def coverable_targets(
         targets at most ``k`` hops away); entry ``D`` holds for every ``k >= D``.
     """
     distances = np.asarray(hop_distances)[np.ix_(np.asarray(starts), np.asarray(target_indices))]  # (n, T)
+    return coverable_from(distances)
+
+
+def coverable_from(distances: np.ndarray) -> np.ndarray:
+    """:func:`coverable_targets` from the ``(n, T)`` hop distances of the starts to the targets."""
     if distances.size == 0:
         return np.zeros(1, dtype=np.int64)
     counts = np.empty(int(distances.max()) + 1, dtype=np.int64)
@@ -110,7 +115,7 @@ def stepwise_bound(
     starts = _checked(graph, starts, max_cycles, u_max)
     initial = _initial_targets(graph, initial_uncertainty, u_max)
     n_targets = int(initial.size)
-    coverable = coverable_targets(graph.hop_distances, graph.target_indices, starts)
+    coverable = coverable_from(graph.routes.to_targets(starts))  # no all-pairs table on a large site
     # Before step k a target's u is at most u_0 + k - 1, so few can be at the cap early on.
     first_capped = np.sort(np.maximum(u_max - initial, 0) + 1)  # (T,) the earliest step each may be
 
@@ -196,11 +201,11 @@ def priced_bound(
     if targets.size == 0:
         return 0.0
     initial = _initial_targets(graph, initial_uncertainty, u_max)
-    distances = graph.hop_distances[np.ix_(starts, targets)]  # (n, T)
+    distances = graph.routes.to_targets(starts)  # (n, T)
     earliest = distances.min(axis=0)
     starts_on = earliest == 0
     earliest = np.maximum(earliest, 1)
-    between = graph.hop_distances[np.ix_(targets, targets)].astype(np.float64)  # (T, T)
+    between = graph.routes.between_targets().astype(np.float64)  # (T, T)
     np.fill_diagonal(between, np.inf)
     walk = np.minimum(between.min(axis=1) - 1, max_cycles)  # (T,) inf (one target) -> K
     off_target = ~graph.targets.astype(bool)[starts]

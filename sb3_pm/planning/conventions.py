@@ -20,7 +20,7 @@ import numpy as np
 
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
-from sb3_pm.graphs.territories import territory_nodes
+from sb3_pm.graphs.territories import site_territory_nodes
 from sb3_pm.planning.planner import plan_patrol
 
 __all__ = [
@@ -68,4 +68,4 @@ def team_territory(
     if check_convention(convention) == "planned":
         return planned_territory(graph, starts, max_cycles, u_max)
     n_agents = int(np.asarray(starts).size)
-    return territory_nodes(graph.hop_distances, graph.target_indices, n_agents, graph.n_nodes)
+    return site_territory_nodes(graph, n_agents)

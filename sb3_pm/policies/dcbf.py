@@ -45,7 +45,7 @@ import torch as th
 
 from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
 from sb3_pm.errors import InputError
-from sb3_pm.policies.edges import dense_adjacency
+from sb3_pm.policies.edges import is_edge_layout
 from sb3_pm.policies.neglect_bound import neglect_deadline
 
 NEGLECT_SCOPES = ("known", "unserved", "territory")
@@ -279,7 +279,10 @@ def dcbf_filter_from_map(
             nodes[..., U],
             nodes[..., AGE],
             bounded,
-            dense_adjacency(observations, nodes.shape[1]),  # built from the edge keys in the edges layout
+            # the edges layout's known edges are searched as they are, never as (B, N, N)
+            (observations["edge_index"], observations["edge_mask"])
+            if is_edge_layout(observations)
+            else observations["adjacency"],
             position,
             reachable,
             config.neglect_bound,

@@ -9,7 +9,8 @@ here turn a batch of them into what the graph layers read:
   :func:`~sb3_pm.policies.attention.batched_edge_index` lists the same maps' dense adjacencies
   (so the two layouts give the same sums, bit for bit);
 * :func:`edges_to_adjacency`: the dense adjacency, for what needs one (the dense kernel, the
-  Laplacian encoding, the neglect bound's breadth-first search);
+  Laplacian encoding; the neglect bound searches the edge list itself,
+  :func:`~sb3_pm.policies.neglect_bound.edge_hop_distances`);
 * :func:`use_dense_edges`: :func:`~sb3_pm.policies.attention.use_dense`'s decision from the mask.
 """
 

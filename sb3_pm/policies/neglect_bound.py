@@ -62,11 +62,57 @@ def hop_distances(adjacency: th.Tensor, sources: th.Tensor) -> th.Tensor:
     return th.where(distance < 0, UNREACHABLE, distance)
 
 
+#: The known edges of a batch of edges-layout maps: ``edge_index`` ``(B, 2, E)`` and ``edge_mask``
+#: ``(B, E)`` (:mod:`sb3_pm.policies.edges`), read in place of a dense ``(B, N, N)`` adjacency.
+EdgeMaps = tuple[th.Tensor, th.Tensor]
+
+
+def edge_hop_distances(edges: EdgeMaps, rows: th.Tensor, sources: th.Tensor, n_nodes: int) -> th.Tensor:
+    """:func:`hop_distances` over the known edges of maps ``rows`` of an edges-layout batch: one
+    breadth-first search per map (scipy's, on the CPU), ``O(N + E)`` each, where the dense search
+    costs ``O(N^2)`` per hop. Maps with the same known edges (all of them, with a known road
+    network) share one sparse matrix and one call.
+
+    Shapes:
+        - edges: ``(B, 2, E)``, ``(B, E)``; rows, sources: ``(b,)`` long
+        - output: ``(b, N)`` long, :data:`UNREACHABLE` where no path exists
+    """
+    import numpy as np
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import shortest_path
+
+    edge_index, edge_mask = edges
+    known = (edge_mask[rows] != 0).cpu().numpy()  # (b, E)
+    index = edge_index[rows].long().cpu().numpy()  # (b, 2, E)
+    starts = sources.long().cpu().numpy()
+    result = np.empty((len(starts), n_nodes), dtype=np.int64)
+    done = np.zeros(len(starts), dtype=bool)
+    for first in range(len(starts)):
+        if done[first]:
+            continue
+        same = ~done & (known == known[first]).all(axis=1) & (index == index[first]).all(axis=(1, 2))
+        keep = known[first]
+        i, j = index[first, 0, keep], index[first, 1, keep]
+        # edge [i, j] is a step from i to j, as the dense search's frontier-times-adjacency takes it
+        matrix = csr_matrix((np.ones(i.size, dtype=np.int8), (i, j)), shape=(n_nodes, n_nodes))
+        hops = shortest_path(matrix, directed=True, unweighted=True, indices=starts[same])
+        result[same] = np.where(np.isinf(hops), UNREACHABLE, hops).astype(np.int64)
+        done |= same
+    return th.as_tensor(result, device=sources.device)
+
+
+def _distances(graph: th.Tensor | EdgeMaps, rows: th.Tensor, sources: th.Tensor, n_nodes: int) -> th.Tensor:
+    """``(b, N)`` hops from ``sources`` on maps ``rows``: a dense adjacency or an edges-layout batch."""
+    if isinstance(graph, tuple):
+        return edge_hop_distances(graph, rows, sources, n_nodes)
+    return hop_distances(graph[rows], sources)
+
+
 def neglect_deadline(
     u_last: th.Tensor,
     age: th.Tensor,
     known_target: th.Tensor,
-    adjacency: th.Tensor,
+    adjacency: th.Tensor | EdgeMaps,
     position: th.Tensor,
     reachable: th.Tensor,
     bound: float,
@@ -77,7 +123,8 @@ def neglect_deadline(
     :param u_last: last observed uncertainty per node (the map's ``u``).
     :param age: steps since each node was last observed.
     :param known_target: the map's target flags (bool).
-    :param adjacency: the known adjacency.
+    :param adjacency: the known adjacency ``(B, N, N)``, or an edges-layout batch's known edges
+        (:data:`EdgeMaps`: searched without building the adjacency).
     :param position: the agent's node ``φ``.
     :param reachable: the reachable set ``R`` (bool).
     :param bound: ``B``, in units of ``u``.
@@ -100,7 +147,7 @@ def neglect_deadline(
     if not bool(candidates.any()):
         return forced, allowed
     rows = candidates.nonzero().squeeze(-1)
-    distance = hop_distances(adjacency[rows], position[rows])  # (b, N) from the agent
+    distance = _distances(adjacency, rows, position[rows], n)  # (b, N) from the agent
     reachable_target = known[rows] & (distance < UNREACHABLE)
     arrival = projected[rows] + distance.to(projected.dtype)  # bound on u at arrival
     due = reachable_target & (arrival >= bound - 1)
@@ -117,7 +164,7 @@ def neglect_deadline(
     chosen = key.argmax(-1)  # (b,)
     rows, chosen = rows[due_rows], chosen[due_rows]
     # Hop distances from the chosen target give, for each neighbour, whether it is one hop closer.
-    from_target = hop_distances(adjacency[rows], chosen)
+    from_target = _distances(adjacency, rows, chosen, n)
     here = position[rows]
     picked = th.arange(len(rows), device=u_last.device)
     own_distance = from_target[picked, here]  # (k,), the agent's distance to its target
@@ -131,4 +178,4 @@ def neglect_deadline(
     return forced, allowed
 
 
-__all__ = ["UNREACHABLE", "hop_distances", "neglect_deadline"]
+__all__ = ["UNREACHABLE", "EdgeMaps", "edge_hop_distances", "hop_distances", "neglect_deadline"]

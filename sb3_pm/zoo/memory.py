@@ -143,15 +143,22 @@ def evaluation_estimate(
     heads: int = 4,
     dense_attention: bool = True,
     team_envs: int = 0,
+    edges: int | None = None,
 ) -> MemoryEstimate:
     """What evaluating a team needs: the graph, one env, and for a learned team one forward pass on
     every agent's map.
 
     :param team_envs: env copies a saved team builds as it loads (its training ``n_envs``).
+    :param edges: the graph's directed edges with the env's ``layout: edges``: maps, observations
+        and a forward pass (the sparse kernel, one map at a time) count edges, not node pairs.
     """
-    parts = env_parts(n_nodes, n_agents, 1 + team_envs)
+    parts = env_parts(n_nodes, n_agents, 1 + team_envs, edges)
     if learned:
-        parts.append(("forward pass", forward_bytes(n_nodes, n_agents, heads, 1, dense_attention, False)))
+        if edges is None:
+            forward = forward_bytes(n_nodes, n_agents, heads, 1, dense_attention, False)
+        else:  # an edge list (int64) and per-edge scores of every head, per map
+            forward = n_agents * edges * 8 * (2 + heads)
+        parts.append(("forward pass", forward))
     return MemoryEstimate(tuple(parts))
 
 

@@ -95,6 +95,12 @@ class DeploymentRule(Team):
             together = self._forward_pass().actions(policies, batch, deterministic)
             if together is not None:
                 return {agent: int(action) for agent, action in zip(agents, together)}
+        if not self.shares_one_network:
+            grouped = _grouped_actions([self.policy_for(agent) for agent in agents], [
+                observations[agent] for agent in agents
+            ], deterministic)
+            if grouped is not None:
+                return dict(zip(agents, grouped))
         groups = [agents] if self.shares_one_network else [[agent] for agent in agents]
         actions: dict[str, int] = {}
         for group in groups:
@@ -283,6 +289,62 @@ class DeploymentRule(Team):
         :raises InputError: where the team has no territories (one per agent, on one graph).
         """
         raise NotImplementedError
+
+
+def _grouped_actions(
+    policies: Sequence[Any], observations: Sequence[Observation], deterministic: bool
+) -> list[int] | None:
+    """The actions of ``policies[k]`` on ``observations[k]`` for every ``k``, as one pass per agent
+    decides them, from one forward pass per distinct policy on all of its agents' maps; ``None``
+    (one pass per agent) unless the maps are in the env's edges layout and every policy is a DCBF
+    policy.
+
+    The edges layout is where the team's stacked pass (:mod:`.team_forward`) declines: a 5,000-node
+    site's 64 agents share four learners, and 64 passes of one map each cost 16 times the
+    per-pass overhead of four passes of 16 maps. Each agent's action is still decided on its own
+    row, in the team's order (sampled ones drawn one row at a time, as one pass per agent draws
+    them), and rule 8's decisions are counted per policy as its own pass counts them. On a large
+    site the logits come from the allowed nodes' neighbourhoods (:mod:`sb3_pm.policies.local_pass`:
+    the same up to rounding).
+    """
+    import torch as th
+
+    from sb3_pm.policies import local_pass
+    from sb3_pm.policies.edges import is_edge_layout
+    from sb3_pm.policies.heads import masked_mode
+
+    if not observations or not all(hasattr(policy, "draw") for policy in policies):
+        return None
+    if not all(isinstance(obs, Mapping) and is_edge_layout(obs) for obs in observations):
+        return None
+    rows: dict[int, list[int]] = {}  # id(policy) -> the agents it acts for, in the team's order
+    for k, policy in enumerate(policies):
+        rows.setdefault(id(policy), []).append(k)
+    decided: dict[int, tuple[th.Tensor, th.Tensor, int]] = {}  # agent -> (logits, masks, its row)
+    for members in rows.values():
+        policy = policies[members[0]]
+        keys = observations[members[0]]
+        batch = {key: np.stack([np.asarray(observations[k][key]) for k in members]) for key in keys}
+        policy.set_training_mode(False)  # as SB3's predict does
+        tensors, _ = policy.obs_to_tensor(batch)
+        with th.no_grad():
+            pre = policy._preprocess(tensors)
+            u_hat = policy.uncertainty(pre)
+            masks = policy._masks(pre, u_hat, np.asarray(batch["action_mask"], dtype=bool))
+            if local_pass.applies(policy, pre):  # a large site: the allowed nodes' neighbourhoods
+                logits = local_pass.allowed_logits(policy, pre, u_hat, masks)
+            else:
+                logits = policy._logits(pre, u_hat, masks)
+        for row, k in enumerate(members):
+            decided[k] = (logits, masks, row)
+    actions = []
+    with th.no_grad():
+        for k, policy in enumerate(policies):  # the team's order: sampled draws as one pass per agent
+            logits, masks, row = decided[k]
+            one = (logits[row : row + 1], masks[row : row + 1])
+            chosen = masked_mode(*one) if deterministic else policy.draw(*one)
+            actions.append(int(chosen.reshape(-1)[0]))
+    return actions
 
 
 def _policy_actions(policy: Any, observations: Sequence[Observation], deterministic: bool) -> list[int]:

@@ -122,13 +122,15 @@ class TransferredTeam(DeploymentRule):
     omniscient = False
     resizable = True
 
-    def __init__(self, source: Any, graph: GraphSpec) -> None:
+    def __init__(self, source: Any, graph: GraphSpec, layout: str | None = None) -> None:
         from sb3_pm.envs import persistent_monitoring_v0
 
         self.source, self.graph = source, graph
         self.name = f"{getattr(source, 'name', 'team')} on {graph.name}"
         self.n_agents, self.algo = source.n_agents, source.algo
         self.env_kwargs = dict(source.env_kwargs)
+        if layout is not None:  # the observations' layout is the env's: the spaces follow it
+            self.env_kwargs["layout"] = layout
         self.agents = list(source.agents)
         # The spaces of the new graph with the training env's settings (u_max, episode length),
         # so observations are checked and scaled as the team was trained.
@@ -179,21 +181,27 @@ class TransferredTeam(DeploymentRule):
             th.manual_seed(seed)
 
 
-def on_graph(team: Any, graph: GraphLike) -> Team:
+def on_graph(team: Any, graph: GraphLike, layout: str | None = None) -> Team:
     """``team`` itself on its own graph, else its policies rebuilt for ``graph``.
 
+    :param layout: the env's observation layout to act in (``"dense"`` or ``"edges"``,
+        :mod:`sb3_pm.envs.known_edges`); ``None``: the team's own. Another layout than the team's
+        rebuilds its policies on that layout's spaces, on its own graph too.
     :raises InputError: a team that cannot transfer, with the reason (:func:`transfer_problem`).
     """
     spec = resolve_graph(graph)
+    own_layout = team.env_kwargs.get("layout", "dense")
     if spec.fingerprint == team.graph.fingerprint:
-        return team  # type: ignore[no-any-return]
+        if layout is None or layout == own_layout:
+            return team  # type: ignore[no-any-return]
+        return TransferredTeam(team, spec, layout)  # same size: nothing ties it to the layout
     problem = transfer_problem(team)
     if problem is not None:
         raise InputError(
             f"the team was trained on graph {team.graph.name!r} and cannot act on graph "
             f"{spec.name!r}: {problem}"
         )
-    return TransferredTeam(team, spec)
+    return TransferredTeam(team, spec, layout)
 
 
 __all__ = ["TransferredTeam", "on_graph", "policy_territories", "rebuild_policy", "transfer_problem"]

@@ -306,13 +306,14 @@ class IndependentPPO(LearnedTeam):
         """The policy of the learner that acts for ``agent`` (:meth:`learner_for`)."""
         return self.models[self.learner_for(agent)].policy
 
-    def on_graph(self, graph: GraphLike) -> Team:
+    def on_graph(self, graph: GraphLike, layout: str | None = None) -> Team:
         """This team on ``graph``: itself on its own graph, else its policies rebuilt for ``graph``
-        (zero-shot transfer, :mod:`sb3_pm.agents.deployment.transfer`).
+        (zero-shot transfer, :mod:`sb3_pm.agents.deployment.transfer`); ``layout``: the env's
+        observation layout to act in (``None``: the team's own).
 
         :raises InputError: if its policies are tied to the training graph's size, saying why.
         """
-        return on_graph(self, graph)
+        return on_graph(self, graph, layout)
 
     # ---------------------------------------------------------- save / load
     def manifest(self) -> dict[str, Any]:
