@@ -4,8 +4,9 @@ What a large site computes without the all-pairs tables must be what the small s
 them: per-target routes (:mod:`sb3_pm.graphs.routes`) against ``GraphSpec``'s ``hop_distances``
 and ``next_hop``, the territory split, rule and advice on either, the neglect bound's search over
 edge lists against its dense search, and the actor's logits from the allowed nodes'
-neighbourhoods (:mod:`sb3_pm.policies.local_pass`) against the full pass. Then a short episode of
-the transfer team on a 1,000-node site, in a process of its own, with its peak memory.
+neighbourhoods (:mod:`sb3_pm.policies.local_pass`) against the full pass. Then short episodes of
+the transfer team on a 1,000-node site and on the 5,000-node city with 64 agents, each in a process
+of its own, with its peak memory.
 """
 
 from __future__ import annotations
