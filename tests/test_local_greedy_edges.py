@@ -58,3 +58,18 @@ def test_the_edge_searches_give_the_all_pairs_distances_and_hops() -> None:
         assert np.array_equal(distance, dense.dist[node])
         for goal in np.flatnonzero(distance < dense.dist.max())[:15]:
             assert edges.step_towards(int(node), int(goal)) == dense.step_towards(int(node), int(goal))
+
+
+def test_the_edge_searches_are_rebuilt_only_when_a_map_gains_edges(monkeypatch: pytest.MonkeyPatch) -> None:
+    from sb3_pm.baselines import local_greedy
+
+    builds: list[int] = []
+
+    class Counting(_KnownEdges):
+        def __init__(self, *args: object) -> None:
+            builds.append(1)
+            super().__init__(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(local_greedy, "_KnownEdges", Counting)
+    moves = _moves("city-300", "edges", "discovered")
+    assert 0 < len(builds) < len(moves) * 5 / 2  # 5 agents: not every agent-step

@@ -132,17 +132,25 @@ class LocalGreedyTeam(Team):
         self._goals: dict[str, int] = {}
         self.u_max = float(self.u_max_override if self.u_max_override is not None else env.unwrapped.u_max)
 
-    def known_graph(self, agent: str, obs: Observation, n_nodes: int) -> _KnownGraph | _KnownEdges:
-        """The cached searches over ``agent``'s known graph, rebuilt only if its known adjacency
-        (dense layout) or edge mask (edges layout) changed."""
-        dense = "adjacency" in obs
-        source = np.asarray(obs["adjacency"] if dense else obs["edge_mask"])
+    def known_graph(self, agent: str, adjacency: np.ndarray) -> _KnownGraph:
+        """The cached BFS for ``agent``, rebuilt only if its adjacency array changed (dense layout)."""
         cached = self._known.get(agent)
-        if cached is None or (cached.source is not source and not np.array_equal(cached.source, source)):
-            if dense:
-                cached = _KnownGraph(source)
-            else:
-                cached = _KnownEdges(np.asarray(obs["edge_index"]), source, n_nodes)
+        if not isinstance(cached, _KnownGraph) or (
+            cached.source is not adjacency and not np.array_equal(cached.source, adjacency)
+        ):
+            cached = _KnownGraph(adjacency)
+            self._known[agent] = cached
+        return cached
+
+    def known_edges(
+        self, agent: str, edge_index: np.ndarray, edge_mask: np.ndarray, n_nodes: int
+    ) -> _KnownEdges:
+        """The cached searches for ``agent``, rebuilt only if its edge mask changed (edges layout)."""
+        cached = self._known.get(agent)
+        if not isinstance(cached, _KnownEdges) or (
+            cached.source is not edge_mask and not np.array_equal(cached.source, edge_mask)
+        ):
+            cached = _KnownEdges(edge_index, edge_mask, n_nodes)
             self._known[agent] = cached
         return cached
 
@@ -165,8 +173,14 @@ class LocalGreedyTeam(Team):
         if is_target[position] and u[position] > 0:
             self._goals.pop(agent, None)
             return position
-        known = self.known_graph(agent, obs, len(nodes))
-        distance = known.dist[position] if isinstance(known, _KnownGraph) else known.distances(position)
+        known: _KnownGraph | _KnownEdges
+        if "adjacency" in obs:
+            known = self.known_graph(agent, np.asarray(obs["adjacency"]))
+            distance = known.dist[position]
+        else:
+            edges = np.asarray(obs["edge_index"]), np.asarray(obs["edge_mask"])
+            known = self.known_edges(agent, *edges, len(nodes))
+            distance = known.distances(position)
         reachable = distance < UNREACHABLE
         goal = self._goals.pop(agent, None) if self.commit else None
         if goal is not None and (goal == position or (age[goal] == 0 and (u[goal] == 0 or occupied[goal]))):
