@@ -14,8 +14,9 @@ distances densely (N × N), so memory and time grow at least quadratically in N.
 runs the env's edges layout: maps and observations over the edge list, sensing tables as sparse
 rows, and a trained team rebuilt for it (``resolve_team(..., layout="edges")``), whose actor reads
 the allowed nodes' neighbourhoods on large sites; the territory rule reads per-target routes above
-500 nodes, as do ``grazing``, ``sit_on_nodes`` and ``tour_patrol`` (the ``GraphSpec`` keeps its
-N × N bool adjacency; the planners still build all-pairs distances).
+500 nodes, as do ``grazing``, ``sit_on_nodes`` and ``tour_patrol``, and ``local_greedy`` searches
+each agent's known edges (the ``GraphSpec`` keeps its N × N bool adjacency; the planners still
+build all-pairs distances).
 
 ``--agents`` fixes the team size; ``--neglect-bound B|off`` sets a trained team's bound (scope
 ``territory``). ``pretrained:transfer``'s ``deploy_filter: auto`` is calibrated only by

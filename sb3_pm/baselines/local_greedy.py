@@ -24,9 +24,14 @@ Rule, per agent and step:
    is what reveals its edges. The agent remembers its own past positions, nothing else.
 
 Nodes the agent has never observed have target flag 0, so they are never taken for targets.
-Shortest paths: one all-pairs BFS (``scipy.sparse.csgraph``) per agent, cached and recomputed
-only when that agent's known adjacency changes (the environment hands out the same read-only
-array object until then). ``u_max`` is a problem parameter read once at :meth:`reset`.
+Shortest paths: in the env's dense layout, one all-pairs BFS (``scipy.sparse.csgraph``) per agent,
+cached and recomputed only when that agent's known adjacency changes (the environment hands out the
+same read-only array object until then). In the edges layout (``edge_index`` and ``edge_mask``
+instead of ``adjacency``) an ``(N, N)`` table per agent would cost ``O(N^2)`` memory and time on a
+site of thousands of nodes, so :class:`_KnownEdges` searches from the agent's position and from
+its goal only, over the known edges as a sparse matrix: ``O(E)`` a step, and the same moves (the
+distances are the same hop counts and the next hop is the same smallest-index neighbour).
+``u_max`` is a problem parameter read once at :meth:`reset`.
 """
 
 from __future__ import annotations
@@ -63,15 +68,45 @@ class _KnownGraph:
         return int(closer[0])
 
 
-def _known_adjacency(obs: Observation, n_nodes: int) -> np.ndarray:
-    """The observation's known adjacency ``(N, N)``, built from ``edge_index`` ``(2, E)`` and
-    ``edge_mask`` ``(E,)`` in the env's edges layout (the all-pairs distances are ``(N, N)`` anyway)."""
-    if "adjacency" in obs:
-        return np.asarray(obs["adjacency"])
-    edge_index, known = np.asarray(obs["edge_index"]), np.asarray(obs["edge_mask"]) != 0
-    adjacency = np.zeros((n_nodes, n_nodes), dtype=bool)
-    adjacency[edge_index[0, known], edge_index[1, known]] = True
-    return adjacency
+class _KnownEdges:
+    """Hop distances over one agent's known edges, from a few sources at a time (edges layout).
+
+    :param edge_index: ``(2, E)`` the graph's directed edges, sorted by source then destination
+        (:func:`sb3_pm.envs.known_edges.edge_list`); ``edge_mask``: ``(E,)`` the agent's known
+        ones (symmetric: an edge and its reverse are known together); ``n_nodes``: ``N``.
+    """
+
+    def __init__(self, edge_index: np.ndarray, edge_mask: np.ndarray, n_nodes: int) -> None:
+        self.source = edge_mask
+        known = np.asarray(edge_mask) != 0
+        rows, cols = np.asarray(edge_index)[:, known]
+        # The edge list is sorted row-major, so its known part already is a CSR's rows with sorted
+        # columns: the first closer neighbour found is the smallest-index one, as the dense path's.
+        indptr = np.zeros(n_nodes + 1, dtype=np.int64)
+        np.cumsum(np.bincount(rows, minlength=n_nodes), out=indptr[1:])
+        self.matrix = csr_matrix((np.ones(rows.size, dtype=np.int8), cols, indptr), shape=(n_nodes, n_nodes))
+        self._from: dict[int, np.ndarray] = {}  # source node -> (N,) int64 distances, this graph only
+
+    def distances(self, node: int) -> np.ndarray:
+        """``(N,)`` int64 hop distances from ``node`` (``UNREACHABLE`` off its known component);
+        the last few sources are kept, since a committed goal is asked for step after step."""
+        cached = self._from.get(node)
+        if cached is None:
+            hops = shortest_path(self.matrix, directed=False, unweighted=True, indices=node)
+            cached = np.where(np.isinf(hops), UNREACHABLE, hops).astype(np.int64)
+            if len(self._from) >= 4:
+                self._from.pop(next(iter(self._from)))
+            self._from[node] = cached
+        return cached
+
+    def step_towards(self, position: int, goal: int) -> int:
+        """The lowest-index known neighbour of ``position`` one hop closer to ``goal``."""
+        if goal == position:
+            return position
+        to_goal = self.distances(goal)  # undirected: d(v, goal) = d(goal, v)
+        neighbours = self.matrix.indices[self.matrix.indptr[position] : self.matrix.indptr[position + 1]]
+        closer = neighbours[to_goal[neighbours] == to_goal[position] - 1]
+        return int(closer[0])
 
 
 class LocalGreedyTeam(Team):
@@ -87,7 +122,7 @@ class LocalGreedyTeam(Team):
     def __init__(self, u_max: float | None = None, commit: bool = True) -> None:
         self.u_max_override = u_max
         self.commit = commit
-        self._known: dict[str, _KnownGraph] = {}
+        self._known: dict[str, _KnownGraph | _KnownEdges] = {}
 
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
@@ -98,12 +133,24 @@ class LocalGreedyTeam(Team):
         self.u_max = float(self.u_max_override if self.u_max_override is not None else env.unwrapped.u_max)
 
     def known_graph(self, agent: str, adjacency: np.ndarray) -> _KnownGraph:
-        """The cached BFS for ``agent``, rebuilt only if its adjacency array changed."""
+        """The cached BFS for ``agent``, rebuilt only if its adjacency array changed (dense layout)."""
         cached = self._known.get(agent)
-        if cached is None or (
+        if not isinstance(cached, _KnownGraph) or (
             cached.source is not adjacency and not np.array_equal(cached.source, adjacency)
         ):
             cached = _KnownGraph(adjacency)
+            self._known[agent] = cached
+        return cached
+
+    def known_edges(
+        self, agent: str, edge_index: np.ndarray, edge_mask: np.ndarray, n_nodes: int
+    ) -> _KnownEdges:
+        """The cached searches for ``agent``, rebuilt only if its edge mask changed (edges layout)."""
+        cached = self._known.get(agent)
+        if not isinstance(cached, _KnownEdges) or (
+            cached.source is not edge_mask and not np.array_equal(cached.source, edge_mask)
+        ):
+            cached = _KnownEdges(edge_index, edge_mask, n_nodes)
             self._known[agent] = cached
         return cached
 
@@ -126,8 +173,14 @@ class LocalGreedyTeam(Team):
         if is_target[position] and u[position] > 0:
             self._goals.pop(agent, None)
             return position
-        known = self.known_graph(agent, _known_adjacency(obs, len(nodes)))
-        distance = known.dist[position]
+        known: _KnownGraph | _KnownEdges
+        if "adjacency" in obs:
+            known = self.known_graph(agent, np.asarray(obs["adjacency"]))
+            distance = known.dist[position]
+        else:
+            edges = np.asarray(obs["edge_index"]), np.asarray(obs["edge_mask"])
+            known = self.known_edges(agent, *edges, len(nodes))
+            distance = known.distances(position)
         reachable = distance < UNREACHABLE
         goal = self._goals.pop(agent, None) if self.commit else None
         if goal is not None and (goal == position or (age[goal] == 0 and (u[goal] == 0 or occupied[goal]))):

@@ -46,6 +46,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_pm.callbacks import EstimatorCallback
 from sb3_pm.errors import InputError
+from sb3_pm.machine import release_freed_memory
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
 from sb3_pm.ppo_dcbf.buffers import OrderedRolloutBuffer
 from sb3_pm.ppo_dcbf.policies import DCBFPolicy
@@ -99,9 +100,14 @@ class DCBFPPO(MaskablePPO):
         super().__init__(*args, **kwargs)
 
     def train(self) -> None:
-        """PPO's update, on :attr:`update_device` when one is set."""
-        with on_update_device(self, self.update_device):
-            super().train()
+        """PPO's update, on :attr:`update_device` when one is set; what it freed goes back to the
+        system (:func:`~sb3_pm.machine.release_freed_memory`), since each learner updates in a
+        thread of its own and glibc would keep every thread's freed activations."""
+        try:
+            with on_update_device(self, self.update_device):
+                super().train()
+        finally:
+            release_freed_memory()
 
     def _setup_model(self) -> None:
         if self.rollout_buffer_class in (None, MaskableDictRolloutBuffer):  # also a zip saved before
