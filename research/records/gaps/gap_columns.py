@@ -7,8 +7,8 @@ Usage::
     python research/records/gaps/gap_columns.py --label "transfer team" \
         research/records/transfer_advice_family/family_rgg-60_s*.json
 
-Reads every ``<graph>[_a<agents>]_s<seed>.json`` of ``sb3-pm bound --planner --json`` beside this
-file, and the record files named: a report's ``results.json`` (every row, per graph) or single
+Reads every ``<graph>_s<seed>.json`` of ``sb3-pm bound --planner --json`` beside this file (and
+``bound_only_<graph>_s<seed>.json`` of ``sb3-pm bound --json``, the bound alone), and the record files named: a report's ``results.json`` (every row, per graph) or single
 evaluations (``sb3-pm evaluate --json``, grouped under ``--label``). Prints one line per (row,
 graph): the mean avg_uncertainty, the mean of the per-episode ratios to the planner and to the
 lower bound, and how many episodes had both. An episode without a planner row is left out of
@@ -42,7 +42,8 @@ def bound_rows() -> dict[tuple[str, int, int], dict]:
         data = json.loads(path.read_text())
         name = graph_key(data["graph"])
         for row in data["rows"]:
-            rows[(name, int(data["agents"]), int(row["env_seed"]))] = row
+            # a bound-only file (no --planner) adds the bound where no planner row is known
+            rows.setdefault((name, int(data["agents"]), int(row["env_seed"])), {}).update(row)
     return rows
 
 
@@ -69,7 +70,7 @@ def main() -> None:
             for episode in run["episodes"]:
                 row = bounds.get((name, int(config["n_agents"]), int(episode["seed"])))
                 value = float(episode["avg_uncertainty"])
-                planner = value / row["planner"] if row else None
+                planner = value / row["planner"] if row and "planner" in row else None
                 bound = value / row["lower_bound"] if row and row["lower_bound"] > 0 else None
                 table[(label, name)].append((value, planner, bound))
     for (label, graph), values in table.items():
