@@ -850,12 +850,15 @@ CURRENT_DEFAULT_FILES = (HEADLINE, "fewer_epochs")
 #: Files measured on the default of its time with the topology known and staggered rates, before
 #: the territory reward: they pin only the reward.
 STAGGERED_DEFAULT_FILES = ("territory_reward",)
+#: Files that vary today's default: their variants name env settings on top of it, nothing pinned.
+VARIES_TODAYS_DEFAULT_FILES = ("planned_territories",)
 PREVIOUS_DEFAULT_FILES = sorted(
     path.stem
     for path in every_experiment_file()
     if trains_the_default(path)
     and path.stem not in CURRENT_DEFAULT_FILES
     and path.stem not in STAGGERED_DEFAULT_FILES
+    and path.stem not in VARIES_TODAYS_DEFAULT_FILES
 )
 REWARD_BEFORE_TERRITORY = {"clearing": 0.04, "collision": 0.001}
 #: The default's passes over each rollout before n_epochs 5: every file measured before pins it.
@@ -877,6 +880,29 @@ def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path, n
         expected["hyperparams"] = {**expected["hyperparams"], **cell.variant["hyperparams"]}
         assert config.team_kwargs() == expected
         assert config.env_kwargs == default.env_kwargs
+
+
+@pytest.mark.parametrize("name", VARIES_TODAYS_DEFAULT_FILES)
+def test_a_file_that_varies_todays_default_changes_only_what_its_variants_name(
+    tmp_path: Path, name: str
+) -> None:
+    experiment = load_experiment(experiment_file(name))
+    assert not experiment.env_kwargs and not experiment.hyperparams
+    default = load_config("ippo", "paper-50")
+    learned = [cell for cell in plan_cells(experiment, tmp_path) if cell.variant["kind"] != "baseline"]
+    assert learned
+    for cell in learned:
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        expected = {
+            **default.team_kwargs(),
+            "env_kwargs": {**default.env_kwargs, **cell.variant["env_kwargs"]},
+        }
+        named = dict(cell.variant["hyperparams"])
+        expected["deploy_filter"] = named.pop("deploy_filter", expected["deploy_filter"])  # a team key
+        expected["hyperparams"] = {**expected["hyperparams"], **named}
+        policy_kwargs = {**expected["hyperparams"]["policy_kwargs"], **cell.variant["policy_kwargs"]}
+        expected["hyperparams"]["policy_kwargs"] = policy_kwargs
+        assert config.team_kwargs() == expected
 
 
 @pytest.mark.parametrize("quick", [False, True])
