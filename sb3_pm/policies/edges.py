@@ -18,12 +18,7 @@ from __future__ import annotations
 
 import torch as th
 
-from sb3_pm.policies.attention import (
-    DENSE_MAX_SMALL,
-    DENSE_MAX_SMALL_BATCH,
-    SPARSE_DENSITY,
-    UNIQUE_MIN_BATCH,
-)
+from sb3_pm.policies.attention import dense_by_counts
 
 #: The keys of a map observation in the dense and in the edges layout.
 DENSE_MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
@@ -78,14 +73,7 @@ def edges_to_adjacency(edge_index: th.Tensor, edge_mask: th.Tensor, n_nodes: int
 def use_dense_edges(edge_mask: th.Tensor, n_nodes: int, backend: str) -> bool:
     """:func:`~sb3_pm.policies.attention.use_dense` for the maps whose known edges are
     ``edge_mask`` ``(B, E)``: the same decision, from the same counts, without the adjacency."""
-    if backend != "auto":
-        return backend == "dense"
-    if n_nodes <= DENSE_MAX_SMALL:
-        return True
-    if edge_mask.shape[0] <= UNIQUE_MIN_BATCH and n_nodes <= DENSE_MAX_SMALL_BATCH:
-        return True
-    density = float(th.count_nonzero(edge_mask)) / max(1, edge_mask.shape[0] * n_nodes * (n_nodes - 1))
-    return density >= SPARSE_DENSITY
+    return dense_by_counts(backend, edge_mask.shape[0], n_nodes, lambda: float(th.count_nonzero(edge_mask)))
 
 
 def dense_adjacency(observations: dict[str, th.Tensor], n_nodes: int) -> th.Tensor:
