@@ -33,7 +33,6 @@ from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.envs.mental_map import AGE, U
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
-from sb3_pm.graphs.territories import site_territories
 from sb3_pm.planning.conventions import team_territory
 from sb3_pm.team_interface import Observation, Team
 
@@ -43,12 +42,15 @@ class TerritoryPatrolTeam(Team):
 
     name = "territory_patrol"
     omniscient = False
+    #: the territory convention (:mod:`sb3_pm.planning.conventions`)
+    convention = "split"
 
     def __init__(self) -> None:
         self._fallback = LocalGreedyTeam()
-        #: ``(graph fingerprint, team size)`` -> each target's territory (the split depends on nothing
-        #: else, so it is computed once per graph, as ``tour_patrol`` caches its tour).
-        self._owners: dict[tuple[str, int], np.ndarray] = {}
+        #: ``(graph fingerprint, team size or starts)`` -> ``(n_agents, N)`` territories: a split
+        #: depends on the site and team size alone, a plan on the starts too, so each is computed
+        #: once (as ``tour_patrol`` caches its tour, and the env its plans).
+        self._territories: dict[tuple[str, Any], np.ndarray] = {}
 
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
@@ -61,13 +63,15 @@ class TerritoryPatrolTeam(Team):
         self._index = {agent: i for i, agent in enumerate(agents)}
 
     def _territory(self, env: Any, graph: Any, n_agents: int) -> np.ndarray:
-        """``(n_agents, N)`` bool, each agent's territory: the split of the site."""
-        key = (graph.fingerprint, n_agents)
-        if key not in self._owners:
-            self._owners[key] = site_territories(graph, n_agents)
-        territory = np.zeros((n_agents, graph.n_nodes), dtype=bool)
-        territory[self._owners[key], graph.target_indices] = True
-        return territory
+        """``(n_agents, N)`` bool, each agent's territory by :attr:`convention`."""
+        state = env.unwrapped
+        starts = state.positions
+        key = (graph.fingerprint, n_agents if self.convention == "split" else tuple(starts.tolist()))
+        if key not in self._territories:
+            self._territories[key] = team_territory(
+                self.convention, graph, starts, state.max_cycles, state.u_max
+            )
+        return self._territories[key]
 
     def act(self, agent: str, obs: Observation) -> int:
         """One agent's destination from its own observation."""
@@ -92,18 +96,4 @@ class PlannedPatrolTeam(TerritoryPatrolTeam):
 
     name = "planned_patrol"
     omniscient = False
-
-    def __init__(self) -> None:
-        super().__init__()
-        #: ``(graph fingerprint, starts)`` -> the planned territory, as the env caches it.
-        self._plans: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
-
-    def _territory(self, env: Any, graph: Any, n_agents: int) -> np.ndarray:
-        state = env.unwrapped
-        starts = tuple(int(node) for node in state.positions)
-        key = (graph.fingerprint, starts)
-        if key not in self._plans:
-            self._plans[key] = team_territory(
-                "planned", graph, np.asarray(starts), state.max_cycles, state.u_max
-            )
-        return self._plans[key]
+    convention = "planned"
