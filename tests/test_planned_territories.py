@@ -126,3 +126,31 @@ def test_bad_territory_settings_are_refused_in_one_line(options: dict, message: 
     with pytest.raises(InputError, match=message) as error:
         make_env(**options)
     assert "\n" not in str(error.value)
+
+
+def test_a_territory_bound_guards_each_episodes_planned_territory() -> None:
+    from sb3_pm.agents.training.team import IndependentPPO
+
+    env_kwargs = {"max_cycles": 30, "territories": "planned", "territory_input": True, **KNOWN}
+    team = IndependentPPO(
+        "rooms-4",
+        n_agents=4,
+        seed=0,
+        env_kwargs=env_kwargs,
+        hyperparams={"n_steps": 10, "batch_size": 10, "n_epochs": 1},
+    )
+    team.set_filter(neglect_bound=60.0, neglect_scope="territory")
+    # Before an episode there is no plan, so the bound guards nothing yet.
+    assert all(team.models[a].policy.dcbf_config.territory == () for a in team.agents)
+    env = team.make_env()
+    seen = set()
+    for seed in range(4):
+        observations, _ = env.reset(seed=seed)
+        team.reset(env, seed=seed)
+        planned = env.unwrapped._territory
+        guarded = tuple(team.models[a].policy.dcbf_config.territory for a in team.agents)
+        assert guarded == tuple(tuple(np.flatnonzero(row).tolist()) for row in planned)
+        seen.add(guarded)
+        actions = team.predict_dict(observations)
+        assert all(observations[a]["action_mask"][actions[a]] for a in actions)  # legal moves
+    assert len(seen) > 1  # the starts changed the groups, and the bound followed them

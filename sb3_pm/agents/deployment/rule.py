@@ -290,6 +290,30 @@ class DeploymentRule(Team):
         """
         raise NotImplementedError
 
+    def _planned_territories(self) -> list[tuple[int, ...]]:
+        """Each agent's planned territory (its target nodes) in the episode the team was last
+        reset on, in the team's agent order; all empty before the first reset, since planned
+        territories depend on the episode's start positions (``territories: planned``)."""
+        env = getattr(getattr(self, "env", None), "unwrapped", None)
+        territory = getattr(env, "_territory", None)
+        n_agents = int(getattr(self, "n_agents", 0))
+        if territory is None or getattr(env, "territories", None) != "planned":
+            return [()] * n_agents
+        return [tuple(int(node) for node in np.flatnonzero(row)) for row in territory]
+
+    def _episode_territories(self) -> None:
+        """Under ``territories: planned`` and a neglect bound of scope ``territory``, point each
+        policy's bound at its agent's territory for the episode just reset (the groups follow the
+        start positions, so a bound set once would guard another episode's territory)."""
+        settings = self.filter_settings
+        if settings.get("neglect_scope") != "territory" or settings.get("neglect_bound") is None:
+            return
+        if getattr(getattr(getattr(self, "env", None), "unwrapped", None), "territories", None) != "planned":
+            return
+        for name, territory in self._filter_territories().items():
+            policy = self.acting_policies()[name]
+            policy.dcbf_config = replace(policy.dcbf_config, territory=territory)
+
 
 def _grouped_actions(
     policies: Sequence[Any], observations: Sequence[Observation], deterministic: bool

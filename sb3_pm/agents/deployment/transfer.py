@@ -170,6 +170,14 @@ class TransferredTeam(DeploymentRule):
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
         self._warn_if_site_bound_pending()
+        bound = self.filter_settings
+        if getattr(getattr(env, "unwrapped", env), "territories", None) == "planned" and (
+            bound.get("neglect_bound") is not None and bound.get("neglect_scope") == "territory"
+        ):
+            raise InputError(
+                "a moved team's neglect bound guards the split territories, but this env plans them "
+                "(territories: planned): set_filter(neglect_bound=None) or neglect_scope 'known'"
+            )
         other = getattr(getattr(env, "unwrapped", env), "graph", None)
         if isinstance(other, GraphSpec):
             try:

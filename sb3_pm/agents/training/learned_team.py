@@ -126,6 +126,7 @@ class LearnedTeam(DeploymentRule):
         """
         super().reset(env, seed)
         self._warn_if_site_bound_pending()
+        self._episode_territories()
         other = getattr(getattr(env, "unwrapped", env), "graph", None)
         if isinstance(self.graph, GraphFamily) and isinstance(other, GraphSpec):
             raise InputError(
@@ -148,11 +149,6 @@ class LearnedTeam(DeploymentRule):
         (:meth:`~sb3_pm.agents.deployment.rule.DeploymentRule.set_filter`)."""
         from sb3_pm.graphs.territories import agent_territories
 
-        if self.env_kwargs.get("territories") == "planned":
-            raise InputError(
-                "neglect_scope='territory' bounds the split territories, not the planned ones this "
-                "team acts on (territories: planned): use neglect_scope 'known' or 'unserved'"
-            )
         files = list(self.model_files())
         if len(files) != self.n_agents:
             raise InputError(
@@ -164,6 +160,9 @@ class LearnedTeam(DeploymentRule):
                 "neglect_scope='territory' needs the team on one graph, not a graph family: "
                 "deploy it with team.on_graph(graph) first"
             )
+        if self.env_kwargs.get("territories") == "planned":
+            # Each episode's own groups, set at every reset (DeploymentRule._episode_territories).
+            return dict(zip(files, self._planned_territories()))
         return dict(zip(files, agent_territories(self.graph, self.n_agents)))
 
     @property
