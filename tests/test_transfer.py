@@ -138,3 +138,22 @@ def test_evaluate_deploys_a_moved_team_under_a_bound(saved_transferable: Path, t
     config = json.loads(out.read_text())["config"]
     assert (config["neglect_bound"], config["neglect_scope"]) == (20.0, "territory")
     assert config["filter_activity"]["masks"] == 120
+
+
+def test_a_moved_team_refuses_a_territory_bound_in_an_env_that_plans_territories(
+    saved_transferable: Path,
+) -> None:
+    from sb3_pm.errors import InputError
+
+    team = resolve_team(saved_transferable, graph=BOUND_GRAPH)
+    team.set_filter(neglect_bound=20.0, neglect_scope="territory")
+    env = persistent_monitoring_v0.parallel_env(
+        graph=BOUND_GRAPH, n_agents=2, max_cycles=20, territories="planned", advice_input=True,
+        graph_knowledge="known", target_knowledge="known",
+    )
+    env.reset(seed=0)
+    with pytest.raises(InputError, match="guards the split territories") as error:
+        team.reset(env, seed=0)
+    assert "\n" not in str(error.value)
+    team.set_filter(neglect_bound=None)
+    team.reset(env, seed=0)  # without the bound it acts there
