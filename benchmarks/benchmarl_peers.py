@@ -7,9 +7,10 @@ Usage (needs the extra ``benchmarl``)::
 
 Each (algorithm, seed) trains with :func:`sb3_pm.integrations.benchmarl_task.make_experiment`
 on the task :func:`~sb3_pm.integrations.benchmarl_task.monitoring_task` (the env of the
-project's training config, ``zoo/ippo.yml``, for the graph), for ``--frames`` env steps: one frame
-moves the whole team, so each agent gets ``--frames`` transitions, the budget ``n_timesteps``
-gives each learner of the project's team (50,000 on ``paper-50``). The trained policy then acts as
+project's training config as these runs measured it, ``zoo/ippo_split.yml``, for the graph),
+for ``--frames`` env steps: one frame moves the whole team, so each agent gets ``--frames``
+transitions, the budget ``n_timesteps`` gives each learner of the project's team (50,000 on
+``paper-50``). The trained policy then acts as
 a :class:`~sb3_pm.team_interface.Team` (:class:`~sb3_pm.integrations.benchmarl_task.BenchMARLTeam`,
 deterministic: the most likely legal move) in :func:`sb3_pm.evaluation.evaluate` on env seeds
 ``--eval-seed .. --eval-seed + --episodes - 1``: with the defaults, the episodes of

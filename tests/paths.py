@@ -27,7 +27,18 @@ def every_experiment_file() -> list[Path]:
     )
 
 
-def trains_the_default(path: Path) -> bool:
-    """Whether the experiment file's base training config is zoo/ippo.yml."""
+def trains_config(path: Path, stem: str) -> bool:
+    """Whether the experiment file's base training config is zoo/``stem``.yml."""
     text = path.read_text()
-    return any(f"\nconfig: {prefix}ippo.yml\n" in text for prefix in ("../", "../../zoo/"))
+    return any(f"\nconfig: {prefix}{stem}.yml\n" in text for prefix in ("../", "../../zoo/"))
+
+
+def trains_the_default(path: Path) -> bool:
+    """Whether the experiment file's base training config is zoo/ippo.yml, today's default."""
+    return trains_config(path, "ippo")
+
+
+def trains_the_split_default(path: Path) -> bool:
+    """Whether the experiment file's base training config is zoo/ippo_split.yml, the default before
+    planned territories became paper-50's (the files measured on it train it by name)."""
+    return trains_config(path, "ippo_split")

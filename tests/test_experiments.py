@@ -14,7 +14,13 @@ from sb3_pm.errors import InputError
 from sb3_pm.experiments import ExperimentError, load_experiment, plan_cells, reproduce
 from sb3_pm.experiments import runner as runner_module
 from sb3_pm.zoo import load_config
-from tests.paths import ZOO, every_experiment_file, experiment_file, trains_the_default
+from tests.paths import (
+    ZOO,
+    every_experiment_file,
+    experiment_file,
+    trains_the_default,
+    trains_the_split_default,
+)
 
 EXPECTED_FILES = {
     "results.md",
@@ -681,7 +687,7 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert updates["minibatch_125"].hyperparams == {"batch_size": 125}
     assert updates["epochs_5"].hyperparams == {"n_epochs": 5}
     assert updates["envs_4"].hyperparams == {"n_envs": 4, "n_steps": 125}  # rollout 4 x 125 = 2 x 250
-    epochs = _variants("fewer_epochs")  # today's default, unpinned, against the headline's cells
+    epochs = _variants("fewer_epochs")  # the default of its time (zoo/ippo_split.yml), unpinned
     assert epochs["epochs_10"].hyperparams == {"n_epochs": 10}  # the default's own value
     assert epochs["epochs_5"].hyperparams == {"n_epochs": 5}
     assert epochs["epochs_3"].hyperparams == {"n_epochs": 3}
@@ -844,34 +850,39 @@ def test_a_variant_sets_per_agent_overrides_validated_like_the_config_files_own(
 
 #: The experiment that measures the default as it is now, for the README's headline table.
 HEADLINE = "headline"
-#: Files that measure today's default unpinned: the headline, and variants of it that change only
-#: the keys they name.
-CURRENT_DEFAULT_FILES = (HEADLINE, "fewer_epochs")
+#: The default before planned territories became paper-50's: the files measured on it train it by
+#: name (zoo/ippo_split.yml), so a change of zoo/ippo.yml leaves their cells as recorded.
+SPLIT_DEFAULT = "ippo_split"
+#: Files that measure a default unpinned, by the config they train: the headline today's, and
+#: variants of the default of their time that change only the keys they name.
+CURRENT_DEFAULT_FILES = {HEADLINE: "ippo", "fewer_epochs": SPLIT_DEFAULT}
 #: Files measured on the default of its time with the topology known and staggered rates, before
 #: the territory reward: they pin only the reward.
 STAGGERED_DEFAULT_FILES = ("territory_reward",)
-#: Files that vary today's default: their variants name env settings on top of it, nothing pinned.
-VARIES_TODAYS_DEFAULT_FILES = ("planned_territories",)
+#: Files that vary the default of their time (zoo/ippo_split.yml): their variants name env settings
+#: on top of it, nothing pinned.
+VARIES_THE_SPLIT_DEFAULT_FILES = ("planned_territories",)
 PREVIOUS_DEFAULT_FILES = sorted(
     path.stem
     for path in every_experiment_file()
-    if trains_the_default(path)
+    if (trains_the_default(path) or trains_the_split_default(path))
     and path.stem not in CURRENT_DEFAULT_FILES
     and path.stem not in STAGGERED_DEFAULT_FILES
-    and path.stem not in VARIES_TODAYS_DEFAULT_FILES
+    and path.stem not in VARIES_THE_SPLIT_DEFAULT_FILES
 )
 REWARD_BEFORE_TERRITORY = {"clearing": 0.04, "collision": 0.001}
 #: The default's passes over each rollout before n_epochs 5: every file measured before pins it.
 EPOCHS_BEFORE = 10
 
 
-@pytest.mark.parametrize("name", CURRENT_DEFAULT_FILES)
-def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path, name: str) -> None:
-    """The headline's cells are the default's; a file that varies the default changes only the
-    hyperparameters its variants name."""
+@pytest.mark.parametrize(("name", "base"), CURRENT_DEFAULT_FILES.items())
+def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path, name: str, base: str) -> None:
+    """The headline's cells are today's default's; a file that varies the default of its time
+    changes only the hyperparameters its variants name."""
     experiment = load_experiment(experiment_file(name))
+    assert experiment.config is not None and experiment.config.name == f"{base}.yml"
     assert not experiment.env_kwargs and not experiment.hyperparams
-    default = load_config("ippo", "paper-50")
+    default = load_config(base, "paper-50")
     learned = [cell for cell in plan_cells(experiment, tmp_path) if cell.variant["kind"] != "baseline"]
     assert learned
     for cell in learned:
@@ -882,13 +893,14 @@ def test_the_headline_experiment_measures_the_default_unpinned(tmp_path: Path, n
         assert config.env_kwargs == default.env_kwargs
 
 
-@pytest.mark.parametrize("name", VARIES_TODAYS_DEFAULT_FILES)
-def test_a_file_that_varies_todays_default_changes_only_what_its_variants_name(
+@pytest.mark.parametrize("name", VARIES_THE_SPLIT_DEFAULT_FILES)
+def test_a_file_that_varies_the_split_default_changes_only_what_its_variants_name(
     tmp_path: Path, name: str
 ) -> None:
     experiment = load_experiment(experiment_file(name))
+    assert trains_the_split_default(experiment_file(name))
     assert not experiment.env_kwargs and not experiment.hyperparams
-    default = load_config("ippo", "paper-50")
+    default = load_config(SPLIT_DEFAULT, "paper-50")
     learned = [cell for cell in plan_cells(experiment, tmp_path) if cell.variant["kind"] != "baseline"]
     assert learned
     for cell in learned:
@@ -910,11 +922,11 @@ def test_a_file_that_varies_todays_default_changes_only_what_its_variants_name(
 def test_experiments_measured_on_the_previous_default_train_as_they_were_measured(
     tmp_path: Path, name: str, quick: bool
 ) -> None:
-    """zoo/ippo.yml knows the road network and staggers the learning rates; the files measured
-    before pin the topology discovered and one learning rate, so their learned variants train as
-    recorded unless a variant sets ``known`` itself (and baselines, which read the same maps, are
-    evaluated on discovered maps too). ``--quick`` keeps the pins: its hyperparams merge over the
-    file's."""
+    """zoo/ippo.yml and zoo/ippo_split.yml know the road network and stagger the learning rates;
+    the files measured before pin the topology discovered and one learning rate, so their learned
+    variants train as recorded unless a variant sets ``known`` itself (and baselines, which read the
+    same maps, are evaluated on discovered maps too). ``--quick`` keeps the pins: its hyperparams
+    merge over the file's."""
     experiment = load_experiment(experiment_file(name))
     assert experiment.env_kwargs.get("graph_knowledge") == "discovered", name
     assert experiment.hyperparams["n_epochs"] == EPOCHS_BEFORE, name
@@ -960,7 +972,8 @@ def test_experiments_measured_on_the_staggered_default_pin_its_reward(tmp_path: 
     """Files measured against the default before the territory reward train that default as their
     ``default`` variant: the topology known, staggered rates, the reward without the term."""
     experiment = load_experiment(experiment_file(name))
-    today = load_config("ippo", "paper-50")
+    assert trains_the_split_default(experiment_file(name))
+    became = load_config(SPLIT_DEFAULT, "paper-50")  # the default that the territory variant became
     cells = {cell.variant["key"]: cell for cell in plan_cells(experiment, tmp_path)}
     config = runner_module.cell_config(cells["default"], runner_module.Variant(**cells["default"].variant))
     assert config.env_kwargs["reward"] == REWARD_BEFORE_TERRITORY
@@ -969,42 +982,62 @@ def test_experiments_measured_on_the_staggered_default_pin_its_reward(tmp_path: 
     config = runner_module.cell_config(territory, runner_module.Variant(**territory.variant))
     # the variant that became the default, measured before paper-50's deploy bound and with the
     # passes over each rollout of its time
-    expected = {**today.team_kwargs(), "env_kwargs": config.env_kwargs, "deploy_filter": None}
+    expected = {**became.team_kwargs(), "env_kwargs": config.env_kwargs, "deploy_filter": None}
     expected["hyperparams"] = {**expected["hyperparams"], "n_epochs": EPOCHS_BEFORE}
     assert config.team_kwargs() == expected
-    assert today.hyperparams["n_epochs"] != EPOCHS_BEFORE
-    assert config.env_kwargs == today.env_kwargs
-    assert config.deploy_filter is None and today.deploy_filter is not None
+    assert became.hyperparams["n_epochs"] != EPOCHS_BEFORE
+    assert config.env_kwargs == became.env_kwargs
+    assert config.deploy_filter is None and became.deploy_filter is not None
 
 
-def test_the_headline_default_is_the_fewer_epochs_variant_that_became_it(tmp_path: Path) -> None:
-    """The README's headline figures for n_epochs 5 are fewer_epochs.yml's ``epochs_5`` cells:
-    the same team config, graph, seeds and episodes as the headline's ``default`` cells."""
+def _learned_cells(tmp_path: Path, name: str, key: str) -> dict[int, tuple[Any, ...]]:
+    """The cells of variant ``key`` of experiment ``name``, by seed: what each trains and where it
+    is evaluated (graph, episodes, steps, team size, budget and the training config's team keys)."""
+    experiment = load_experiment(experiment_file(name))
+    cells = [c for c in plan_cells(experiment, tmp_path / name) if c.variant["key"] == key]
+    assert cells
+    rows = {}
+    for cell in cells:
+        variant = runner_module.Variant(**cell.variant)
+        config = runner_module.cell_config(cell, variant)
+        budget = variant.timesteps or cell.timesteps or config.n_timesteps
+        training = (variant.kind, variant.train, variant.train_env, variant.train_agents, budget)
+        evaluation = (cell.graph, cell.episodes, cell.max_cycles, cell.n_agents, cell.eval_env_kwargs)
+        rows[cell.seed] = (*training, *evaluation, config.team_kwargs())
+    return rows
 
-    def learned(name: str, key: str) -> list[tuple[Any, ...]]:
-        experiment = load_experiment(experiment_file(name))
-        cells = [c for c in plan_cells(experiment, tmp_path / name) if c.variant["key"] == key]
-        assert cells
-        return [
-            (
-                cell.graph,
-                cell.seed,
-                cell.episodes,
-                runner_module.cell_config(cell, runner_module.Variant(**cell.variant)).team_kwargs(),
-            )
-            for cell in cells
-        ]
 
-    headline = {row[1]: row for row in learned(HEADLINE, "default")}
-    for row in learned("fewer_epochs", "epochs_5"):
-        assert row == headline[row[1]]
-    assert load_config("ippo", "paper-50").hyperparams["n_epochs"] == 5
+def test_the_headline_default_trains_the_planned_prior_teams(tmp_path: Path) -> None:
+    """paper-50's default is planned_territories.yml's ``planned_prior`` team: the headline's
+    ``default`` cells train it on the same graph, seeds and episodes, and differ only in their
+    deploy filter, the default's (paper-50's neglect bound), where planned_prior was measured
+    without one."""
+    headline = _learned_cells(tmp_path, HEADLINE, "default")
+    planned = _learned_cells(tmp_path, "planned_territories", "planned_prior")
+    assert planned.keys() <= headline.keys()
+    for seed, row in planned.items():
+        *where, team = row
+        *headline_where, headline_team = headline[seed]
+        assert where == headline_where, seed
+        assert team.pop("deploy_filter") is None
+        assert headline_team.pop("deploy_filter") == load_config("ippo", "paper-50").deploy_filter
+        assert team == headline_team, seed  # every other key, the learners' own included
+
+
+def test_the_split_default_is_the_fewer_epochs_variant_that_became_it(tmp_path: Path) -> None:
+    """The default before planned territories (zoo/ippo_split.yml) is fewer_epochs.yml's
+    ``epochs_5`` team: its cells train that config as it is, n_epochs included."""
+    split = load_config(SPLIT_DEFAULT, "paper-50")
+    assert split.hyperparams["n_epochs"] == 5
+    for row in _learned_cells(tmp_path, "fewer_epochs", "epochs_5").values():
+        assert row[-1] == split.team_kwargs()
 
 
 @pytest.mark.parametrize("name", CURRENT_DEFAULT_FILES)
 def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path, name: str) -> None:
-    """The headline measures the default as a user gets it: trained unfiltered, acting under
-    paper-50's deploy filter (the neglect bound on each agent's own territory)."""
+    """The headline measures the default as a user gets it (and fewer_epochs the default of its
+    time): trained unfiltered, acting under paper-50's deploy filter (the neglect bound on each
+    agent's own territory)."""
     cells = [
         c
         for c in plan_cells(load_experiment(experiment_file(name)), tmp_path)
@@ -1014,6 +1047,24 @@ def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path, nam
     for cell in cells:
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
         assert config.deploy_filter == {"neglect_bound": 50.0, "neglect_scope": "territory"}
+
+
+@pytest.mark.parametrize("path", every_experiment_file(), ids=lambda p: p.stem)
+def test_only_the_headline_trains_todays_paper_50_default(path: Path, tmp_path: Path) -> None:
+    """Every learned cell that trains zoo/ippo.yml's paper-50 entry is the headline's: the other
+    files were measured on an earlier default and train it by name (zoo/ippo_split.yml), so that
+    the next change of the default leaves their cells as recorded. Files on zoo/ippo.yml whose
+    learned cells are on other graphs only (families.yml, regime_100.yml ...) may stay on it."""
+    experiment = load_experiment(path)
+    on_default = []
+    for run in (experiment, experiment.quick()):
+        for cell in plan_cells(run, tmp_path):
+            config = cell.variant["config"] or cell.config
+            if cell.variant["kind"] == "baseline" or config is None:
+                continue
+            if Path(str(config)).name == "ippo.yml" and str(cell.graph) in ("paper-50", "paper_50n_8t"):
+                on_default.append((cell.variant["key"], cell.graph))
+    assert not on_default or path.stem == HEADLINE, on_default
 
 
 def test_the_default_config_knows_the_road_network() -> None:

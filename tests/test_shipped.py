@@ -36,7 +36,8 @@ def _lines(value: str) -> list[str]:
 
 def test_the_shipped_config_folder_is_the_repository_zoo_folder() -> None:
     assert CONFIG_DIR.resolve() == (ROOT / "zoo").resolve()
-    assert {path.name for path in CONFIG_DIR.glob("*.yml")} >= {"ippo.yml", "ippo_paper.yml"}
+    shipped = {path.name for path in CONFIG_DIR.glob("*.yml")}
+    assert shipped >= {"ippo.yml", "ippo_split.yml", "ippo_paper.yml"}
 
 
 def test_package_data_covers_every_config_experiment_and_graph() -> None:
@@ -84,7 +85,7 @@ def test_only_the_experiments_a_user_runs_ship() -> None:
     assert not (PACKAGE / "configs").exists()  # in a checkout the configs are zoo/, never a link
 
 
-@pytest.mark.parametrize("name", ["ippo", "ippo.yml", "zoo/ippo.yml", "ippo_paper"])
+@pytest.mark.parametrize("name", ["ippo", "ippo.yml", "zoo/ippo.yml", "ippo_paper", "ippo_split"])
 def test_configs_resolve_by_name_from_any_folder(name, tmp_path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     assert resolve_config_path(name).resolve().parent == CONFIG_DIR.resolve()
@@ -114,8 +115,9 @@ def test_unknown_names_list_what_ships(tmp_path, monkeypatch) -> None:
 
 
 def test_the_default_config_is_the_measured_best_and_the_paper_one_is_kept() -> None:
-    """zoo/ippo.yml is section 3e's `clearing` team (the best measured), at the paper's budget on the
-    published graphs; zoo/ippo_paper.yml keeps the paper's reward and DCBF rules."""
+    """zoo/ippo.yml is the best team measured, at the paper's budget on the published graphs, with
+    planned territories on paper-50; zoo/ippo_split.yml keeps the default before them (split
+    territories) and zoo/ippo_paper.yml the paper's reward and DCBF rules."""
     default = load_config(DEFAULT_CONFIG, "paper-50")
     assert default.n_timesteps == 50_000 and default.entry == "paper-50"
     assert default.env_kwargs["reward"] == {"clearing": 0.04, "territory": 0.04, "collision": 0.001}
@@ -123,6 +125,10 @@ def test_the_default_config_is_the_measured_best_and_the_paper_one_is_kept() -> 
     assert kwargs["dcbf_barrier"] is False and kwargs["avoid_collisions"] is True
     # The published graph by file path finds the same entry as by preset name.
     assert load_config(DEFAULT_CONFIG, str(DATA_DIR / "paper_50n_8t.graphml")).entry == "paper_50n_8t"
+    assert default.env_kwargs["territories"] == "planned" and default.env_kwargs["advice_input"] is True
+    split = load_config("ippo_split", "paper-50")
+    assert "territories" not in split.env_kwargs and "advice_input" not in split.env_kwargs
+    assert split.deploy_filter == default.deploy_filter
     paper = load_config("ippo_paper", "paper-50")
     assert paper.n_timesteps == 50_000
     assert "reward" not in paper.env_kwargs  # the environment's default: the paper's reward

@@ -200,11 +200,45 @@ def test_register_class_names_a_class_of_ones_own() -> None:
 def test_repository_config_is_valid() -> None:
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "zoo" / "ippo.yml"
-    for env in ("paper-50", "paper-100", "paper-200", "custom.graphml"):
-        config = load_config(path, env)
-        assert config.n_agents == 4
-    assert load_config(path, "paper-50").n_timesteps == 50_000
+    for name in ("ippo.yml", "ippo_split.yml"):
+        path = Path(__file__).resolve().parents[1] / "zoo" / name
+        for env in ("paper-50", "paper-100", "paper-200", "custom.graphml"):
+            config = load_config(path, env)
+            assert config.n_agents == 4
+        assert load_config(path, "paper-50").n_timesteps == 50_000
+
+
+#: What paper-50's default adds to the default before it (zoo/ippo_split.yml): territories planned
+#: per episode, the targets known, each agent told its territory and the rule's move, a prior of 2.
+PLANNED_ENV = {
+    "target_knowledge": "known",
+    "territory_input": True,
+    "advice_input": True,
+    "territories": "planned",
+}
+PLANNED_POLICY = {"advice_prior": 2.0}
+
+
+@pytest.mark.parametrize("graph", ["paper-50", "paper_50n_8t"])
+def test_paper_50s_default_is_the_split_default_with_planned_territories(graph: str) -> None:
+    default, split = load_config("ippo", graph).team_kwargs(), load_config("ippo_split", graph).team_kwargs()
+    assert default["env_kwargs"] == {**split["env_kwargs"], **PLANNED_ENV}
+    assert PLANNED_ENV.keys().isdisjoint(split["env_kwargs"])
+    policy = default["hyperparams"].pop("policy_kwargs")
+    split_policy = split["hyperparams"].pop("policy_kwargs")
+    assert policy == {**split_policy, **PLANNED_POLICY} and "advice_prior" not in split_policy
+    default.pop("env_kwargs"), split.pop("env_kwargs")
+    assert default == split  # the rest, the neglect bound at deployment included
+    assert default["deploy_filter"] == {"neglect_bound": 50.0, "neglect_scope": "territory"}
+
+
+def test_the_split_default_differs_from_the_default_on_paper_50_alone() -> None:
+    from sb3_pm.zoo.config import read_yaml
+
+    zoo = pathlib.Path(__file__).resolve().parents[1] / "zoo"
+    entries = set(read_yaml(zoo / "ippo.yml")) | set(read_yaml(zoo / "ippo_split.yml"))
+    for entry in sorted(entries - {"paper-50", "paper_50n_8t"}) + ["custom.graphml", "rgg-60"]:
+        assert load_config("ippo", entry).to_dict() == load_config("ippo_split", entry).to_dict(), entry
 
 
 def test_overrides_merge_kwargs_and_replace_the_rest(tmp_path) -> None:

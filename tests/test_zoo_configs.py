@@ -3,8 +3,8 @@
 * rl-zoo YAMLs (``zoo/<algo>.yml``, all but the team files ``zoo/ippo*.yml``): each entry is read
   by rl-zoo's own :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
   ``rl_zoo3.train`` would (schedules, env_kwargs, policy_kwargs, n_envs).
-* ``zoo/ippo.yml``, ``zoo/ippo_paper.yml``, ``zoo/ippo_improved.yml`` and ``zoo/ippo_transfer.yml``
-  (our team format): each entry builds an :class:`IndependentPPO` team.
+* ``zoo/ippo.yml``, ``zoo/ippo_split.yml``, ``zoo/ippo_paper.yml``, ``zoo/ippo_improved.yml`` and
+  ``zoo/ippo_transfer.yml`` (our team format): each entry builds an :class:`IndependentPPO` team.
 * ``python -m rl_zoo3.train --gym-packages sb3_pm ...`` (a subprocess) and our launcher
   ``python -m sb3_pm.zoo --algo dcbf_ppo ...`` run end to end and save a model.
 """
@@ -35,7 +35,7 @@ th.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]
 ZOO = ROOT / "zoo"
 #: Files in zoo/ that are not rl-zoo hyperparameter files.
-NOT_RL_ZOO = {"ippo.yml", "ippo_paper.yml", "ippo_improved.yml", "ippo_transfer.yml"}
+NOT_RL_ZOO = {"ippo.yml", "ippo_split.yml", "ippo_paper.yml", "ippo_improved.yml", "ippo_transfer.yml"}
 RL_ZOO_FILES = sorted(p for p in ZOO.glob("*.yml") if p.name not in NOT_RL_ZOO)
 #: Small settings so that building (and the end-to-end runs) stay fast.
 TINY = {"n_envs": 1, "n_steps": 32, "batch_size": 32}
@@ -207,7 +207,9 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
 
 
 def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_territory_and_advice() -> None:
-    transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo", "paper-50")
+    """zoo/ippo_transfer.yml against the default it was built from: paper-50's default before
+    planned territories, kept as zoo/ippo_split.yml."""
+    transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo_split", "paper-50")
     t_kwargs, d_kwargs = transfer.team_kwargs(), default.team_kwargs()
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
     d_policy = dict(d_kwargs["hyperparams"].pop("policy_kwargs"))

@@ -56,8 +56,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--config",
         default=None,
-        help="rl-zoo style YAML: a path, or the name of a shipped config (ippo, ippo_paper, ippo_improved, "
-        "ippo_transfer). "
+        help="rl-zoo style YAML: a path, or the name of a shipped config (ippo, ippo_split, ippo_paper, "
+        "ippo_improved, ippo_transfer). "
         "Default: ippo, the package's copy of zoo/ippo.yml, the best configuration measured "
         "(docs/RESULTS.md); ippo_paper is the paper-faithful one",
     )

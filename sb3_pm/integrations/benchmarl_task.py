@@ -15,8 +15,9 @@ observation vector per agent:
   (``use_mask``: ``(group, "mask")``) marks the failed agents and an episode ends when every
   agent is done. BenchMARL's losses do not read that mask: a failed agent's zero observations
   still enter the updates.
-- **Settings.** By default the env of the project's training config (``zoo/ippo.yml``'s entry for
-  the graph: its reward terms, ``graph_knowledge`` and ``max_cycles``); keywords override them.
+- **Settings.** By default the env of the project's training config as the peer runs measured it
+  (``zoo/ippo_split.yml``'s entry for the graph, the default before planned territories: its
+  reward terms, ``graph_knowledge`` and ``max_cycles``); keywords override them.
 
 Usage::
 
@@ -52,15 +53,22 @@ from sb3_pm.team_interface import Observation, Team, without_caller_keys
 GROUP = "agent"
 
 
+#: The training config whose env the task takes by default: the default before planned territories,
+#: the env of the peer runs of research/records/benchmarl_peers (on paper-50 the default's env has
+#: since added planned territories, the targets known and the territory rule's move as inputs).
+TASK_CONFIG = "ippo_split"
+
+
 def default_env_settings(graph: str) -> dict[str, Any]:
-    """The env settings of the project's training config (``zoo/ippo.yml``) for ``graph``: its
-    ``env_kwargs`` (``max_cycles``, ``reward``, ``graph_knowledge``, ...).
+    """The env settings of the project's training config as the peers measured it
+    (``zoo/ippo_split.yml``, :data:`TASK_CONFIG`) for ``graph``: its ``env_kwargs``
+    (``max_cycles``, ``reward``, ``graph_knowledge``, ...).
 
     :raises ConfigError: for a graph that config cannot place (see :func:`sb3_pm.zoo.load_config`).
     """
-    from sb3_pm.zoo import DEFAULT_CONFIG, load_config
+    from sb3_pm.zoo import load_config
 
-    return dict(load_config(DEFAULT_CONFIG, graph).env_kwargs)
+    return dict(load_config(TASK_CONFIG, graph).env_kwargs)
 
 
 def _uses_failures(env_kwargs: dict[str, Any]) -> bool:
@@ -348,6 +356,7 @@ __all__ = [
     "PPO_LOSS",
     "PPO_SCHEDULE",
     "QMIX_SCHEDULE",
+    "TASK_CONFIG",
     "BenchMARLTeam",
     "MonitoringTask",
     "MonitoringTaskClass",

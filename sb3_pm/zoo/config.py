@@ -216,8 +216,8 @@ def load_config(
     """Load the entry of ``path`` for graph ``env`` (a preset name or a GraphML path), every key
     checked against :mod:`sb3_pm.zoo.schema`.
 
-    :param path: a config file, or the name of a shipped one (``ippo``, ``ippo_paper``,
-        ``ippo_improved``, ``ippo_transfer``).
+    :param path: a config file, or the name of a shipped one (``ippo``, ``ippo_split``,
+        ``ippo_paper``, ``ippo_improved``, ``ippo_transfer``).
     :param overrides: entry keys to set on top of the file's (see :func:`apply_overrides`); they
         are validated like the file's own keys.
     :param origin: where the overrides come from, for error messages.
