@@ -8,8 +8,8 @@ seed made it and what it scored.
 ========== ==================================================================================
 name        team
 ========== ==================================================================================
-paper-50    the default configuration before planned territories (``zoo/ippo_split.yml``, then
-            ``zoo/ippo.yml``) trained on the paper's 50-node graph at the paper's budget, seed 0
+paper-50    the default configuration (``zoo/ippo.yml``: planned territories) trained on the
+            paper's 50-node graph at the paper's budget, seed 0
 transfer    the transfer configuration (``zoo/ippo_transfer.yml``) trained on random graphs of
             20 to 60 nodes, seed 0: deploy it on any graph (``--graph``)
 ========== ==================================================================================
