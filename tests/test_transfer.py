@@ -140,19 +140,29 @@ def test_evaluate_deploys_a_moved_team_under_a_bound(saved_transferable: Path, t
     assert config["filter_activity"]["masks"] == 120
 
 
-def test_a_moved_team_refuses_a_territory_bound_in_an_env_that_plans_territories(
+def test_a_moved_team_bounds_each_episodes_planned_groups_with_one_learner_per_agent(
     saved_transferable: Path,
 ) -> None:
     from sb3_pm.errors import InputError
 
     team = resolve_team(saved_transferable, graph=BOUND_GRAPH)
     team.set_filter(neglect_bound=20.0, neglect_scope="territory")
-    env = persistent_monitoring_v0.parallel_env(
-        graph=BOUND_GRAPH, n_agents=2, max_cycles=20, territories="planned", advice_input=True,
-        graph_knowledge="known", target_knowledge="known",
-    )
+
+    def planned_env(n_agents: int):
+        return persistent_monitoring_v0.parallel_env(
+            graph=BOUND_GRAPH, n_agents=n_agents, max_cycles=20, territories="planned",
+            advice_input=True, graph_knowledge="known", target_knowledge="known",
+        )
+
+    env = planned_env(2)
     env.reset(seed=0)
-    with pytest.raises(InputError, match="guards the split territories") as error:
+    team.reset(env, seed=0)
+    planned = [tuple(np.flatnonzero(row).tolist()) for row in env.unwrapped._territory]
+    assert [p.dcbf_config.territory for p in team.policies.values()] == planned
+    # Shared learners cannot each guard one agent's group: refused in one line.
+    env = planned_env(3)
+    env.reset(seed=0)
+    with pytest.raises(InputError, match="needs one learner per agent") as error:
         team.reset(env, seed=0)
     assert "\n" not in str(error.value)
     team.set_filter(neglect_bound=None)
