@@ -10,6 +10,7 @@ repeat elsewhere can be told apart from a bug.
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 from pathlib import Path
@@ -103,15 +104,20 @@ def release_freed_memory() -> None:
     1,000-node site then held several GB between their updates. Elsewhere (no glibc) this does
     nothing.
     """
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+@functools.lru_cache(maxsize=1)
+def _malloc_trim() -> Any:
+    """glibc's ``malloc_trim``, loaded once (every learner update calls it), or ``None``."""
     try:
         import ctypes
 
-        libc = ctypes.CDLL("libc.so.6")
+        return getattr(ctypes.CDLL("libc.so.6"), "malloc_trim", None)
     except OSError:
-        return
-    trim = getattr(libc, "malloc_trim", None)
-    if trim is not None:
-        trim(0)
+        return None
 
 
 __all__ = [

@@ -247,7 +247,7 @@ class DeploymentRule(Team):
                 raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
             check_bound_below_cap(bound, getattr(policy, "u_max", float("inf")))
         settings = {**self.filter_settings, **changes}
-        territories = self._filter_territories() if settings.get("neglect_scope") == "territory" else {}
+        territories = self._bound_territories() if settings.get("neglect_scope") == "territory" else {}
         # Every new config first: DCBFConfig checks its fields as it is built, so a bad setting
         # raises here, before any policy has changed.
         configs = {
@@ -290,29 +290,52 @@ class DeploymentRule(Team):
         """
         raise NotImplementedError
 
-    def _planned_territories(self) -> list[tuple[int, ...]]:
-        """Each agent's planned territory (its target nodes) in the episode the team was last
-        reset on, in the team's agent order; all empty before the first reset, since planned
-        territories depend on the episode's start positions (``territories: planned``)."""
+    def _plays_planned_territories(self) -> bool:
+        """Whether the team's territories are planned per episode (``territories: planned``): in
+        the env it was last reset on, else in its own env settings."""
         env = getattr(getattr(self, "env", None), "unwrapped", None)
-        territory = getattr(env, "_territory", None)
-        n_agents = int(getattr(self, "n_agents", 0))
-        if territory is None or getattr(env, "territories", None) != "planned":
-            return [()] * n_agents
-        return [tuple(int(node) for node in np.flatnonzero(row)) for row in territory]
+        if env is not None:
+            return getattr(env, "territories", None) == "planned"
+        return self.env_kwargs.get("territories") == "planned"
+
+    def _bound_territories(self) -> dict[str, tuple[int, ...]]:
+        """``{policy name: the targets its neglect bound of scope territory guards}``: the split
+        (:meth:`_filter_territories`), or under planned territories each agent's planned group of
+        the episode the team was last reset on (all empty before the first reset, since the groups
+        depend on the episode's start positions). Learners shared by more agents than there are
+        policies keep the split here; :meth:`_episode_territories` refuses them.
+        """
+        names = list(self.acting_policies())
+        territory = self._planned_groups()
+        if not self._plays_planned_territories() or (territory is not None and len(territory) != len(names)):
+            return self._filter_territories()
+        if territory is None:
+            return {name: () for name in names}
+        return {name: tuple(int(node) for node in np.flatnonzero(row)) for name, row in zip(names, territory)}
+
+    def _planned_groups(self) -> Any:
+        """``(n_agents, N)`` bool, the planned groups of the env the team was last reset on, or
+        ``None`` (no env yet, or one without territories)."""
+        return getattr(getattr(getattr(self, "env", None), "unwrapped", None), "_territory", None)
 
     def _episode_territories(self) -> None:
-        """Under ``territories: planned`` and a neglect bound of scope ``territory``, point each
-        policy's bound at its agent's territory for the episode just reset (the groups follow the
+        """Under planned territories and a neglect bound of scope ``territory``, point each
+        policy's bound at its agent's group for the episode just reset (the groups follow the
         start positions, so a bound set once would guard another episode's territory)."""
         settings = self.filter_settings
         if settings.get("neglect_scope") != "territory" or settings.get("neglect_bound") is None:
             return
-        if getattr(getattr(getattr(self, "env", None), "unwrapped", None), "territories", None) != "planned":
+        if not self._plays_planned_territories():
             return
-        for name, territory in self._filter_territories().items():
-            policy = self.acting_policies()[name]
-            policy.dcbf_config = replace(policy.dcbf_config, territory=territory)
+        policies, groups = self.acting_policies(), self._planned_groups()
+        if groups is not None and len(groups) != len(policies):
+            raise InputError(
+                f"a territory neglect bound in an env that plans territories needs one learner per "
+                f"agent; {len(policies)} learners act for {len(groups)} agents here: "
+                "set_filter(neglect_bound=None) or neglect_scope 'known'"
+            )
+        for name, territory in self._bound_territories().items():
+            policies[name].dcbf_config = replace(policies[name].dcbf_config, territory=territory)
 
 
 def _grouped_actions(

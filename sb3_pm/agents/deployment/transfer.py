@@ -156,10 +156,7 @@ class TransferredTeam(DeploymentRule):
 
     def _filter_territories(self) -> dict[str, tuple[int, ...]]:
         """``{agent: its territory}`` on the graph the team was moved to
-        (:meth:`DeploymentRule.set_filter`): the split, or in an env that plans territories each
-        agent's planned group of the episode (one policy per agent, checked at :meth:`reset`)."""
-        if getattr(getattr(getattr(self, "env", None), "unwrapped", None), "territories", None) == "planned":
-            return dict(zip(self.policies, self._planned_territories()))
+        (:meth:`DeploymentRule.set_filter`)."""
         return policy_territories(self.policies, self.graph)
 
     def policy_for(self, agent: str) -> Any:
@@ -173,17 +170,7 @@ class TransferredTeam(DeploymentRule):
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
         self._warn_if_site_bound_pending()
-        bound, unwrapped = self.filter_settings, getattr(env, "unwrapped", env)
-        if getattr(unwrapped, "territories", None) == "planned" and (
-            bound.get("neglect_bound") is not None and bound.get("neglect_scope") == "territory"
-        ):
-            if getattr(unwrapped, "n_agents", None) != len(self.policies):
-                raise InputError(
-                    f"a territory neglect bound in an env that plans territories needs one learner per "
-                    f"agent; {len(self.policies)} learners act for {unwrapped.n_agents} agents here: "
-                    "set_filter(neglect_bound=None) or neglect_scope 'known'"
-                )
-            self._episode_territories()
+        self._episode_territories()
         other = getattr(getattr(env, "unwrapped", env), "graph", None)
         if isinstance(other, GraphSpec):
             try:

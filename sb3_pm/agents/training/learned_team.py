@@ -160,9 +160,6 @@ class LearnedTeam(DeploymentRule):
                 "neglect_scope='territory' needs the team on one graph, not a graph family: "
                 "deploy it with team.on_graph(graph) first"
             )
-        if self.env_kwargs.get("territories") == "planned":
-            # Each episode's own groups, set at every reset (DeploymentRule._episode_territories).
-            return dict(zip(files, self._planned_territories()))
         return dict(zip(files, agent_territories(self.graph, self.n_agents)))
 
     @property
