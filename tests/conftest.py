@@ -16,6 +16,18 @@ from sb3_pm.graphs.presets import DATA_DIR
 torch.set_num_threads(1)
 
 
+def episode_moves(env, team, seed: int) -> list[dict[str, int]]:
+    """Every step's ``{agent: destination}`` of ``team`` over one episode of the parallel ``env``."""
+    observations, _ = env.reset(seed=seed)
+    team.reset(env, seed=seed)
+    moves = []
+    while env.agents:
+        actions = team.predict_dict(observations)
+        moves.append(actions)
+        observations, *_ = env.step(actions)
+    return moves
+
+
 def path_graph(n_nodes: int, targets: list[int], name: str = "path") -> GraphSpec:
     """0 - 1 - ... - (n-1), with the given target nodes."""
     adjacency = np.zeros((n_nodes, n_nodes), dtype=bool)

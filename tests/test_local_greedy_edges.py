@@ -12,6 +12,7 @@ from sb3_pm.baselines.local_greedy import _KnownEdges, _KnownGraph
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs import resolve_graph
 from sb3_pm.graphs.large_sites import city_streets
+from tests.conftest import episode_moves
 
 GRAPHS = {
     "paper-50": lambda: resolve_graph("paper-50"),
@@ -24,15 +25,7 @@ def _moves(name: str, layout: str, knowledge: str, steps: int = 80) -> list[dict
     env = persistent_monitoring_v0.parallel_env(
         graph=GRAPHS[name](), n_agents=5, max_cycles=steps, layout=layout, graph_knowledge=knowledge
     )
-    team = make_team("local_greedy")
-    observations, _ = env.reset(seed=4)
-    team.reset(env, seed=4)
-    moves = []
-    while env.agents:
-        actions = team.predict_dict(observations)
-        moves.append(actions)
-        observations, *_ = env.step(actions)
-    return moves
+    return episode_moves(env, make_team("local_greedy"), seed=4)
 
 
 @pytest.mark.parametrize("name", GRAPHS)
