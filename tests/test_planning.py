@@ -20,6 +20,8 @@ from sb3_pm.evaluation.statistics import GAP_METRIC, summarize
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.planning import lower_bound, priced_bound, stepwise_bound
+from sb3_pm.planning import planner as planner_search
+from sb3_pm.planning.batch_pricing import solo_costs
 from sb3_pm.planning.controllers import simulate
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost, tour_move
 from sb3_pm.planning.pair_schedule import PairSchedule
@@ -155,6 +157,37 @@ def test_the_pair_schedule_prices_what_it_plays_and_beats_the_greedy_rule() -> N
             played += u[1] + u[5]
         assert played == cost
         assert cost <= solo_cost(start, (1, 5), [0, 0], 60, 10, distances, next_hop)
+
+
+@pytest.mark.parametrize("graph_seed", [0, 1, 2])
+def test_the_batch_pricer_walks_every_group_as_the_scalar_rules_do(graph_seed: int) -> None:
+    """Ties in u and distance are common on these small graphs, so every tie-break is exercised."""
+    graph = erdos_renyi(14, edge_prob=0.3, n_targets=7, seed=graph_seed)
+    distances, next_hop = graph.hop_distances.astype(int).tolist(), graph.next_hop.astype(int).tolist()
+    rng = np.random.default_rng(graph_seed)
+    starts, groups, rules, initials = [], [], [], []
+    for _ in range(120):
+        size = int(rng.integers(0, 6))
+        groups.append(tuple(int(t) for t in rng.permutation(graph.target_indices)[:size]))
+        rules.append("tour" if size >= 3 and rng.random() < 0.5 else "stalest")
+        starts.append(int(rng.integers(graph.n_nodes)))
+        initials.append([int(v) for v in rng.integers(0, 9, size)] if rng.random() < 0.5 else [0] * size)
+    batch = solo_costs(starts, groups, rules, initials, 70, 8, graph.hop_distances, graph.next_hop)
+    one_by_one = [
+        solo_cost(start, group, initial, 70, 8, distances, next_hop, rule)
+        for start, group, rule, initial in zip(starts, groups, rules, initials)
+    ]
+    assert batch.tolist() == one_by_one
+
+
+def test_the_search_finds_the_same_plan_with_the_batch_pricer(monkeypatch) -> None:
+    graph = erdos_renyi(16, edge_prob=0.25, n_targets=8, seed=3)
+    starts = np.array([0, 5, 9])
+    monkeypatch.setattr(planner_search, "BATCH_MIN_WALKS", 1)
+    batched = planner_search.plan_patrol(graph, starts, 120, 20, restarts=3)
+    monkeypatch.setattr(planner_search, "BATCH_MIN_WALKS", 10**9)
+    one_by_one = planner_search.plan_patrol(graph, starts, 120, 20, restarts=3)
+    assert batched == one_by_one
 
 
 def test_a_dropped_target_grows_to_the_cap() -> None:

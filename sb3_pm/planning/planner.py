@@ -28,6 +28,7 @@ from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.territories import target_territories
 from sb3_pm.graphs.tours import approximate_tour
+from sb3_pm.planning.batch_pricing import solo_costs
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
 
 __all__ = ["PatrolPlan", "plan_patrol"]
@@ -36,6 +37,8 @@ __all__ = ["PatrolPlan", "plan_patrol"]
 DEFAULT_SEARCH_SECONDS = 60.0
 #: The default number of perturbed restarts of the local search.
 DEFAULT_RESTARTS = 20
+#: The fewest unpriced walks that :meth:`_Pricer.prefetch` prices as one NumPy batch.
+BATCH_MIN_WALKS = 512
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,8 @@ class _Pricer:
         self.distances = graph.hop_distances.astype(np.int64).tolist()
         self.next_hop = graph.next_hop.astype(np.int64).tolist()
         self.hop_distances = graph.hop_distances
+        self.distance_array = graph.hop_distances.astype(np.int64)
+        self.next_hop_array = graph.next_hop.astype(np.int64)
         self._cache: dict[tuple[int, tuple[int, ...]], int] = {}
         #: (start, group) -> the cheaper rule and the group in that rule's order
         self.rule: dict[tuple[int, tuple[int, ...]], tuple[str, tuple[int, ...]]] = {}
@@ -97,6 +102,34 @@ class _Pricer:
             cost, rule, ordered = min(priced, key=lambda item: item[0])
             self._cache[key], self.rule[key] = cost, (rule, ordered)
         return self._cache[key]
+
+    def prefetch(self, groups: set[tuple[int, ...]]) -> None:
+        """Price every start on every group of ``groups`` not priced yet, in one batch."""
+        walks: list[tuple[int, tuple[int, ...], str, tuple[int, ...]]] = []
+        for group in groups:
+            options = [("stalest", group)] + ([("tour", self._tour(group))] if len(group) >= 3 else [])
+            for start in self.starts:
+                if (start, group) not in self._cache:
+                    walks.extend((start, group, rule, ordered) for rule, ordered in options)
+        if len(walks) < BATCH_MIN_WALKS:  # a small batch walks faster one by one
+            for start, group, _, _ in walks:
+                self.solo(start, group)
+            return
+        costs = solo_costs(
+            [start for start, _, _, _ in walks],
+            [ordered for _, _, _, ordered in walks],
+            [rule for _, _, rule, _ in walks],
+            [[self.initial[t] for t in ordered] for _, _, _, ordered in walks],
+            self.max_cycles,
+            self.u_max,
+            self.distance_array,
+            self.next_hop_array,
+        )
+        # as solo(): the cheaper rule, stalest on a tie (it comes first)
+        for (start, group, rule, ordered), cost in zip(walks, costs.tolist()):
+            key = (start, group)
+            if key not in self._cache or cost < self._cache[key]:
+                self._cache[key], self.rule[key] = cost, (rule, ordered)
 
     def dropped(self, target: int) -> int:
         return dropped_cost(self.initial[target], self.max_cycles, self.u_max)
@@ -154,7 +187,9 @@ def _descend(
     rounds = 0
     while True:
         improved = None
-        for candidate, candidate_dropped in _neighbours(groups, dropped):
+        candidates = list(_neighbours(groups, dropped))
+        pricer.prefetch({group for candidate, _ in candidates for group in candidate})
+        for candidate, candidate_dropped in candidates:
             if time.monotonic() > deadline:
                 if improved is not None:
                     groups, dropped, order = improved[1:]
