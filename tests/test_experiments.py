@@ -1049,12 +1049,28 @@ def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path, nam
         assert config.deploy_filter == {"neglect_bound": 50.0, "neglect_scope": "territory"}
 
 
+#: The graphs whose zoo/ippo.yml entry plays planned territories, and the one file that trains them.
+PLANNED_DEFAULT_GRAPHS = {
+    "paper-50": HEADLINE,
+    "paper_50n_8t": HEADLINE,
+    "rgg-60": None,
+    "rooms-4": None,
+}
+
+
+def test_the_planned_default_graphs_are_those_of_zoo_ippo() -> None:
+    for graph in [*PLANNED_DEFAULT_GRAPHS, "paper-100", "cliques-6x8", "karate"]:
+        planned = load_config("ippo", graph).env_kwargs.get("territories") == "planned"
+        assert planned == (graph in PLANNED_DEFAULT_GRAPHS), graph
+
+
 @pytest.mark.parametrize("path", every_experiment_file(), ids=lambda p: p.stem)
-def test_only_the_headline_trains_todays_paper_50_default(path: Path, tmp_path: Path) -> None:
-    """Every learned cell that trains zoo/ippo.yml's paper-50 entry is the headline's: the other
-    files were measured on an earlier default and train it by name (zoo/ippo_split.yml), so that
-    the next change of the default leaves their cells as recorded. Files on zoo/ippo.yml whose
-    learned cells are on other graphs only (families.yml, regime_100.yml ...) may stay on it."""
+def test_only_the_headline_trains_todays_planned_defaults(path: Path, tmp_path: Path) -> None:
+    """Every learned cell that trains a planned-territory entry of zoo/ippo.yml is the headline's
+    (paper-50): the other files were measured on an earlier default and train it by name
+    (zoo/ippo_split.yml), so that the next change of the default leaves their cells as recorded.
+    Files on zoo/ippo.yml whose learned cells are on other graphs only (regime_100.yml ...) may
+    stay on it."""
     experiment = load_experiment(path)
     on_default = []
     for run in (experiment, experiment.quick()):
@@ -1062,9 +1078,24 @@ def test_only_the_headline_trains_todays_paper_50_default(path: Path, tmp_path: 
             config = cell.variant["config"] or cell.config
             if cell.variant["kind"] == "baseline" or config is None:
                 continue
-            if Path(str(config)).name == "ippo.yml" and str(cell.graph) in ("paper-50", "paper_50n_8t"):
-                on_default.append((cell.variant["key"], cell.graph))
-    assert not on_default or path.stem == HEADLINE, on_default
+            if Path(str(config)).name == "ippo.yml" and str(cell.graph) in PLANNED_DEFAULT_GRAPHS:
+                if PLANNED_DEFAULT_GRAPHS[str(cell.graph)] != path.stem:
+                    on_default.append((cell.variant["key"], cell.graph))
+    assert not on_default, on_default
+
+
+def test_the_family_defaults_are_the_families_planned_prior_teams(tmp_path: Path) -> None:
+    """zoo/ippo.yml's entries for rgg-60 and rooms-4 are families.yml's
+    ``planned_prior`` team, written out there on top of the split default it was measured on."""
+    experiment = load_experiment(experiment_file("families"))
+    checked = set()
+    for cell in plan_cells(experiment, tmp_path):
+        if cell.variant["key"] != "planned_prior" or str(cell.graph) not in PLANNED_DEFAULT_GRAPHS:
+            continue
+        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
+        assert config.team_kwargs() == load_config("ippo", str(cell.graph)).team_kwargs(), cell.graph
+        checked.add(str(cell.graph))
+    assert checked == {"rgg-60", "rooms-4"}
 
 
 def test_the_default_config_knows_the_road_network() -> None:
