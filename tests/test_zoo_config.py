@@ -232,13 +232,30 @@ def test_paper_50s_default_is_the_split_default_with_planned_territories(graph: 
     assert default["deploy_filter"] == {"neglect_bound": 50.0, "neglect_scope": "territory"}
 
 
-def test_the_split_default_differs_from_the_default_on_paper_50_alone() -> None:
+@pytest.mark.parametrize("graph", ["rgg-60", "rooms-4"])
+def test_the_planned_family_defaults_are_the_split_default_with_planned_territories(graph: str) -> None:
+    """The families' planned entries add what paper-50's adds, without its neglect bound."""
+    default, split = load_config("ippo", graph).team_kwargs(), load_config("ippo_split", graph).team_kwargs()
+    assert default["env_kwargs"] == {**split["env_kwargs"], **PLANNED_ENV}
+    policy = default["hyperparams"].pop("policy_kwargs")
+    assert policy == {**split["hyperparams"].pop("policy_kwargs"), **PLANNED_POLICY}
+    default.pop("env_kwargs"), split.pop("env_kwargs")
+    assert default == split and default["deploy_filter"] is None
+
+
+#: The entries of zoo/ippo.yml that play planned territories; every other is zoo/ippo_split.yml's.
+PLANNED_ENTRIES = {"paper-50", "paper_50n_8t", "rgg-60", "rooms-4"}
+
+
+def test_the_split_default_differs_from_the_default_on_the_planned_entries_alone() -> None:
     from sb3_pm.zoo.config import read_yaml
 
     zoo = pathlib.Path(__file__).resolve().parents[1] / "zoo"
     entries = set(read_yaml(zoo / "ippo.yml")) | set(read_yaml(zoo / "ippo_split.yml"))
-    for entry in sorted(entries - {"paper-50", "paper_50n_8t"}) + ["custom.graphml", "rgg-60"]:
+    for entry in sorted(entries - PLANNED_ENTRIES) + ["custom.graphml", "cliques-6x8", "karate"]:
         assert load_config("ippo", entry).to_dict() == load_config("ippo_split", entry).to_dict(), entry
+    for entry in PLANNED_ENTRIES:
+        assert load_config("ippo", entry).to_dict() != load_config("ippo_split", entry).to_dict(), entry
 
 
 def test_overrides_merge_kwargs_and_replace_the_rest(tmp_path) -> None:
