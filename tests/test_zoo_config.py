@@ -219,8 +219,15 @@ PLANNED_ENV = {
 PLANNED_POLICY = {"advice_prior": 2.0}
 
 
-@pytest.mark.parametrize("graph", ["paper-50", "paper_50n_8t"])
-def test_paper_50s_default_is_the_split_default_with_planned_territories(graph: str) -> None:
+#: paper-50's neglect bound at deployment (the families' planned entries deploy without one).
+PAPER_50_BOUND = {"neglect_bound": 50.0, "neglect_scope": "territory"}
+
+
+@pytest.mark.parametrize(
+    ("graph", "deploy_filter"),
+    [("paper-50", PAPER_50_BOUND), ("paper_50n_8t", PAPER_50_BOUND), ("rgg-60", None), ("rooms-4", None)],
+)
+def test_a_planned_default_is_the_split_default_with_planned_territories(graph: str, deploy_filter) -> None:
     default, split = load_config("ippo", graph).team_kwargs(), load_config("ippo_split", graph).team_kwargs()
     assert default["env_kwargs"] == {**split["env_kwargs"], **PLANNED_ENV}
     assert PLANNED_ENV.keys().isdisjoint(split["env_kwargs"])
@@ -229,18 +236,7 @@ def test_paper_50s_default_is_the_split_default_with_planned_territories(graph: 
     assert policy == {**split_policy, **PLANNED_POLICY} and "advice_prior" not in split_policy
     default.pop("env_kwargs"), split.pop("env_kwargs")
     assert default == split  # the rest, the neglect bound at deployment included
-    assert default["deploy_filter"] == {"neglect_bound": 50.0, "neglect_scope": "territory"}
-
-
-@pytest.mark.parametrize("graph", ["rgg-60", "rooms-4"])
-def test_the_planned_family_defaults_are_the_split_default_with_planned_territories(graph: str) -> None:
-    """The families' planned entries add what paper-50's adds, without its neglect bound."""
-    default, split = load_config("ippo", graph).team_kwargs(), load_config("ippo_split", graph).team_kwargs()
-    assert default["env_kwargs"] == {**split["env_kwargs"], **PLANNED_ENV}
-    policy = default["hyperparams"].pop("policy_kwargs")
-    assert policy == {**split["hyperparams"].pop("policy_kwargs"), **PLANNED_POLICY}
-    default.pop("env_kwargs"), split.pop("env_kwargs")
-    assert default == split and default["deploy_filter"] is None
+    assert default["deploy_filter"] == deploy_filter
 
 
 #: The entries of zoo/ippo.yml that play planned territories; every other is zoo/ippo_split.yml's.

@@ -71,11 +71,10 @@ def solo_costs(
         new_goal[dwell] = -1
         new_position[keep] = next_hop[position[keep], goal[keep]]
         if choose.any():
-            picked = _choose_goals(
-                np.flatnonzero(choose), position, members, real, values, here, on_group, lengths,
-                tour, distances, scale,
+            chosen_rows = np.flatnonzero(choose)
+            chosen_goals = _choose_goals(
+                chosen_rows, position, members, real, values, here, on_group, lengths, tour, distances, scale
             )
-            chosen_rows, chosen_goals = picked
             new_goal[chosen_rows] = chosen_goals
             moving = chosen_goals >= 0
             new_position[chosen_rows[moving]] = next_hop[position[chosen_rows[moving]], chosen_goals[moving]]
@@ -99,7 +98,7 @@ def _choose_goals(
     tour: np.ndarray,
     distances: np.ndarray,
     scale: int,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> np.ndarray:
     """The next goal of each walk in ``idx`` that must choose one (``-1``: stay without a goal)."""
     group, mask, at = members[idx], real[idx], position[idx]
     hops = distances[at[:, None], group]
@@ -116,4 +115,4 @@ def _choose_goals(
     following = group[np.arange(idx.size), (slot + 1) % np.maximum(lengths[idx], 1)]
     on = on_group[idx]
     tour_goal = np.where(on, np.where(lengths[idx] == 1, -1, following), nearest)
-    return idx, np.where(tour[idx], tour_goal, stalest)
+    return np.where(tour[idx], tour_goal, stalest)

@@ -87,13 +87,16 @@ class _Pricer:
             self._tours[group] = tuple(int(t) for t in order)
         return self._tours[group]
 
+    def _options(self, group: tuple[int, ...]) -> list[tuple[str, tuple[int, ...]]]:
+        """The rules a group is priced by, each with the group in its order (``tour`` from 3 targets)."""
+        return [("stalest", group)] + ([("tour", self._tour(group))] if len(group) >= 3 else [])
+
     def solo(self, start: int, group: tuple[int, ...]) -> int:
         """The agent's cost alone on ``group`` by the cheaper rule (``tour`` is tried from 3 targets)."""
         key = (start, group)
         if key not in self._cache:
-            options = [("stalest", group)] + ([("tour", self._tour(group))] if len(group) >= 3 else [])
             priced = []
-            for rule, ordered in options:
+            for rule, ordered in self._options(group):
                 initial = [self.initial[t] for t in ordered]
                 cost = solo_cost(
                     start, ordered, initial, self.max_cycles, self.u_max, self.distances, self.next_hop, rule
@@ -105,14 +108,16 @@ class _Pricer:
 
     def prefetch(self, groups: set[tuple[int, ...]]) -> None:
         """Price every start on every group of ``groups`` not priced yet, in one batch."""
-        walks: list[tuple[int, tuple[int, ...], str, tuple[int, ...]]] = []
-        for group in groups:
-            options = [("stalest", group)] + ([("tour", self._tour(group))] if len(group) >= 3 else [])
-            for start in self.starts:
-                if (start, group) not in self._cache:
-                    walks.extend((start, group, rule, ordered) for rule, ordered in options)
+        unpriced = [
+            (start, group) for group in groups for start in self.starts if (start, group) not in self._cache
+        ]
+        walks = [
+            (start, group, rule, ordered)
+            for start, group in unpriced
+            for rule, ordered in self._options(group)
+        ]
         if len(walks) < BATCH_MIN_WALKS:  # a small batch walks faster one by one
-            for start, group, _, _ in walks:
+            for start, group in unpriced:
                 self.solo(start, group)
             return
         costs = solo_costs(
