@@ -12,6 +12,7 @@ from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import preset
 from sb3_pm.graphs.territories import territory_nodes
+from sb3_pm.planning.controllers import GroupController, simulate
 from sb3_pm.planning.conventions import planned_territory, team_territory
 from sb3_pm.planning.planner import plan_patrol
 
@@ -32,7 +33,7 @@ def test_the_split_convention_is_the_territory_split() -> None:
 def test_the_planned_convention_is_the_plans_groups_for_the_starts() -> None:
     graph = preset("rgg-60")
     starts = np.array([3, 17, 29, 41])
-    plan = plan_patrol(graph, starts, 500, 100, search_seconds=600.0, restarts=20)
+    plan = plan_patrol(graph, starts, 500, 100, search_seconds=600.0, restarts=20, tour_groups=False)
     territory = planned_territory(graph, starts, 500, 100)
     assert territory.shape == (4, graph.n_nodes)
     for agent, group in enumerate(plan.groups):
@@ -40,6 +41,29 @@ def test_the_planned_convention_is_the_plans_groups_for_the_starts() -> None:
     assert territory.sum(axis=0).max() <= 1  # no target in two groups
     assert not territory[:, list(plan.dropped)].any()  # a dropped target is nobody's
     assert not territory[:, ~graph.targets].any()
+
+
+def test_the_convention_plans_with_the_rule_its_agents_play() -> None:
+    """Every planned group, walked by the territory rule's stalest-first choice, costs what the plan
+    priced: on these starts a plan free to price a group by the ``tour`` rule gives an agent three
+    targets that the stalest rule walks far worse."""
+    graph = preset("rgg-60")
+    starts = np.array([3, 17, 29, 41])
+    distances = graph.hop_distances.astype(int).tolist()
+    next_hop = graph.next_hop.astype(int).tolist()
+
+    def played(groups) -> float:
+        controllers = [GroupController(group, distances, next_hop, "stalest") for group in groups]
+        return simulate(controllers, starts, graph.target_indices, np.zeros(graph.n_nodes), 500, 100)
+
+    territory = planned_territory(graph, starts, 500, 100)
+    groups = [tuple(np.flatnonzero(row).tolist()) for row in territory]
+    plan = plan_patrol(graph, starts, 500, 100, search_seconds=600.0, restarts=20, tour_groups=False)
+    assert set(plan.rules) == {"stalest"}
+    assert played(groups) <= plan.predicted + 1e-9  # crossing another's target only lowers it
+    mixed = plan_patrol(graph, starts, 500, 100, search_seconds=600.0, restarts=20)
+    assert "tour" in mixed.rules
+    assert played(mixed.groups) > 1.1 * mixed.predicted
 
 
 def test_the_planned_groups_follow_the_starts_of_each_episode() -> None:

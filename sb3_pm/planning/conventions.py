@@ -11,7 +11,10 @@ communication while the team acts:
   for the episode's start positions. It reads where every agent starts (a pre-mission broadcast, as
   a launch plan would give it) but no uncertainty, since no agent has observed any yet: it plans as
   if every target started at 0. A target no group holds is left to nobody. The search is seeded and
-  its restarts are counted, so every agent derives the same groups from the same starts.
+  its restarts are counted, so every agent derives the same groups from the same starts. Every
+  agent plays its group by the territory rule, which takes the stalest target next, so the plan
+  prices every group by that rule alone: a group the plan would price by the ``tour`` rule is
+  walked otherwise by the rule, and can cost far more than the plan assumed.
 """
 
 from __future__ import annotations
@@ -53,7 +56,13 @@ def planned_territory(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_m
     agent ``i`` from these starts (``starts``: ``(n_agents,)`` nodes)."""
     starts = np.asarray(starts, dtype=np.int64)
     plan = plan_patrol(
-        graph, starts, max_cycles, u_max, search_seconds=PLAN_SECONDS, restarts=PLAN_RESTARTS
+        graph,
+        starts,
+        max_cycles,
+        u_max,
+        search_seconds=PLAN_SECONDS,
+        restarts=PLAN_RESTARTS,
+        tour_groups=False,
     )
     territory = np.zeros((starts.size, graph.n_nodes), dtype=bool)
     for agent, group in enumerate(plan.groups):

@@ -66,8 +66,15 @@ class _Pricer:
     """Solo costs, cached, for one episode's starts and initial uncertainties."""
 
     def __init__(
-        self, graph: GraphSpec, starts: np.ndarray, initial: np.ndarray, max_cycles: int, u_max: int
+        self,
+        graph: GraphSpec,
+        starts: np.ndarray,
+        initial: np.ndarray,
+        max_cycles: int,
+        u_max: int,
+        tour_groups: bool = True,
     ) -> None:
+        self.tour_groups = tour_groups
         self.starts = [int(s) for s in starts]
         self.initial = {int(node): int(initial[node]) for node in graph.target_indices}
         self.max_cycles, self.u_max = max_cycles, u_max
@@ -88,11 +95,13 @@ class _Pricer:
         return self._tours[group]
 
     def _options(self, group: tuple[int, ...]) -> list[tuple[str, tuple[int, ...]]]:
-        """The rules a group is priced by, each with the group in its order (``tour`` from 3 targets)."""
-        return [("stalest", group)] + ([("tour", self._tour(group))] if len(group) >= 3 else [])
+        """The rules a group is priced by, each with the group in its order (``tour`` from 3 targets,
+        where ``tour_groups``)."""
+        tour = self.tour_groups and len(group) >= 3
+        return [("stalest", group)] + ([("tour", self._tour(group))] if tour else [])
 
     def solo(self, start: int, group: tuple[int, ...]) -> int:
-        """The agent's cost alone on ``group`` by the cheaper rule (``tour`` is tried from 3 targets)."""
+        """The agent's cost alone on ``group`` by the cheaper of :meth:`_options`' rules."""
         key = (start, group)
         if key not in self._cache:
             priced = []
@@ -234,6 +243,7 @@ def plan_patrol(
     initial_uncertainty: np.ndarray | None = None,
     search_seconds: float = DEFAULT_SEARCH_SECONDS,
     restarts: int = DEFAULT_RESTARTS,
+    tour_groups: bool = True,
 ) -> PatrolPlan:
     """The best plan the search finds for one episode.
 
@@ -248,6 +258,9 @@ def plan_patrol(
     :param initial_uncertainty: ``(N,)`` the uncertainties at reset (default: all 0).
     :param search_seconds: a wall-clock cap on the search (``complete`` is False where it cut it).
     :param restarts: perturbed restarts after the first local optimum.
+    :param tour_groups: also price each group of 3 or more targets by the ``tour`` rule, and keep
+        the cheaper rule per agent; False plans with the ``stalest`` rule alone, for a team that
+        plays nothing else (the planned territory convention, :mod:`sb3_pm.planning.conventions`).
     """
     starts = np.asarray(starts, dtype=np.int64)
     if starts.ndim != 1 or starts.size == 0:
@@ -261,7 +274,7 @@ def plan_patrol(
         if initial_uncertainty is None
         else np.asarray(initial_uncertainty)
     )
-    pricer = _Pricer(graph, starts, initial, max_cycles, u_max)
+    pricer = _Pricer(graph, starts, initial, max_cycles, u_max, tour_groups)
     n = starts.size
     owner = target_territories(graph.hop_distances, graph.target_indices, n)
     groups = [tuple(int(t) for t in graph.target_indices[owner == i]) for i in range(n)]
