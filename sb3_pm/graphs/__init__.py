@@ -3,7 +3,14 @@ seeded graph families to train on (:mod:`sb3_pm.graphs.distributions`) and large
 (:mod:`sb3_pm.graphs.large_sites`)."""
 
 from sb3_pm.graphs.distributions import FAMILY_NAMES, GraphFamily, family_from_record, resolve_family
-from sb3_pm.graphs.families import from_networkx, random_geometric, ring_of_cliques, rooms
+from sb3_pm.graphs.families import (
+    from_networkx,
+    random_geometric,
+    random_tree,
+    ring_of_cliques,
+    rooms,
+    small_world,
+)
 from sb3_pm.graphs.generators import erdos_renyi, hyperrectangle
 from sb3_pm.graphs.io import load_graphml, save_graphml
 from sb3_pm.graphs.large_sites import campus, city_streets, suggested_agents, warehouse
@@ -41,12 +48,14 @@ __all__ = [
     "preset",
     "published_graph_path",
     "random_geometric",
+    "random_tree",
     "resolve_family",
     "resolve_graph",
     "resolve_graph_or_family",
     "ring_of_cliques",
     "rooms",
     "save_graphml",
+    "small_world",
     "suggested_agents",
     "warehouse",
 ]

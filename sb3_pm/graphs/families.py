@@ -9,6 +9,9 @@ these generators give seeded graphs with the structures that make patrolling har
 * :func:`rooms`: the paper's Algorithm 1 boxes (rooms) in a row, each joined to the next by one
   door edge (bottlenecks between dense rooms);
 * :func:`ring_of_cliques`: cliques joined in a ring by single edges;
+* :func:`small_world`: a ring lattice with a few edges rewired into shortcuts (Watts–Strogatz);
+* :func:`random_tree`: a uniformly random labelled tree (corridors with dead ends, one path
+  between any two nodes);
 * :func:`from_networkx`: any connected NetworkX graph with seeded targets, e.g. Zachary's karate
   club (a real social network's shape).
 
@@ -120,4 +123,43 @@ def ring_of_cliques(
     return from_networkx(graph, n_targets, seed=seed, name=label)
 
 
-__all__ = ["from_networkx", "random_geometric", "ring_of_cliques", "rooms"]
+def small_world(
+    n_nodes: int, neighbours: int, rewire: float, n_targets: int, seed: int = 0, name: str | None = None
+) -> GraphSpec:
+    """A Watts–Strogatz graph: a ring where each node is joined to its ``neighbours`` nearest, each
+    edge rewired with probability ``rewire``; redrawn (by NetworkX) until connected.
+
+    :raises GraphError: ``neighbours`` not even and in ``[2, n_nodes)``, or ``rewire`` not in [0, 1].
+    """
+    import networkx as nx
+
+    if neighbours % 2 or not 2 <= neighbours < n_nodes:
+        raise GraphError(
+            f"small_world needs an even number of neighbours in [2, {n_nodes}), got {neighbours}"
+        )
+    if not 0.0 <= rewire <= 1.0:
+        raise GraphError(f"small_world's rewire must be a probability, got {rewire}")
+    rng = np.random.default_rng(seed)
+    graph = nx.connected_watts_strogatz_graph(
+        n_nodes, neighbours, rewire, tries=1000, seed=int(rng.integers(2**31))
+    )
+    label = name or f"small-world-{n_nodes}-k{neighbours}-p{rewire:g}-s{seed}"
+    return from_networkx(graph, n_targets, seed=int(rng.integers(2**31)), name=label)
+
+
+def random_tree(n_nodes: int, n_targets: int, seed: int = 0, name: str | None = None) -> GraphSpec:
+    """A labelled tree drawn uniformly among those on ``n_nodes`` nodes.
+
+    :raises GraphError: fewer than 2 nodes.
+    """
+    import networkx as nx
+
+    if n_nodes < 2:
+        raise GraphError(f"random_tree needs at least 2 nodes, got {n_nodes}")
+    rng = np.random.default_rng(seed)
+    graph = nx.random_labeled_tree(n_nodes, seed=int(rng.integers(2**31)))
+    label = name or f"tree-{n_nodes}-s{seed}"
+    return from_networkx(graph, n_targets, seed=int(rng.integers(2**31)), name=label)
+
+
+__all__ = ["from_networkx", "random_geometric", "random_tree", "ring_of_cliques", "rooms", "small_world"]

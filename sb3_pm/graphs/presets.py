@@ -16,7 +16,14 @@ from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 
-from sb3_pm.graphs.families import from_networkx, random_geometric, ring_of_cliques, rooms
+from sb3_pm.graphs.families import (
+    from_networkx,
+    random_geometric,
+    random_tree,
+    ring_of_cliques,
+    rooms,
+    small_world,
+)
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.graphs.io import load_graphml
 from sb3_pm.graphs.large_sites import campus, city_streets, warehouse
@@ -46,6 +53,8 @@ FAMILY_PRESETS: dict[str, Callable[[str], GraphSpec]] = {
     "rooms-4": lambda name: rooms(4, (4, 3), n_targets=8, seed=4, name=name),
     "cliques-6x8": lambda name: ring_of_cliques(6, 8, n_targets=8, seed=6, name=name),
     "karate": lambda name: _karate(name),
+    "small-world-60": lambda name: small_world(60, 4, 0.1, n_targets=10, seed=61, name=name),
+    "tree-50": lambda name: random_tree(50, n_targets=8, seed=51, name=name),
 }
 
 
@@ -84,6 +93,8 @@ PRESETS: dict[str, str] = {
     "rooms-4": "4 rooms of 4x3 cells (Algorithm 1) joined in a row by single doors, 48 nodes, 8 targets",
     "cliques-6x8": "a ring of 6 cliques of 8 nodes joined by single edges, 8 targets",
     "karate": "Zachary's karate club (a real social network, 34 nodes), 6 targets",
+    "small-world-60": "a seeded Watts-Strogatz ring of 60 nodes, 4 neighbours each, 10% rewired, 10 targets",
+    "tree-50": "a seeded uniformly random tree of 50 nodes, 8 targets",
     "city-1k": "a seeded city street grid with parks and diagonal avenues, 1,000 nodes, 100 targets",
     "city-5k": "a seeded city street grid with parks and diagonal avenues, 5,000 nodes, 500 targets",
     "city-20k": "a seeded city street grid with parks and diagonal avenues, 20,000 nodes, 2,000 targets",
