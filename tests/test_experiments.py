@@ -727,6 +727,7 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
 #: ``advice_prior`` where it is not 0.
 AUTO = {"neglect_bound": "auto", "neglect_scope": "territory"}
 TRANSFER_EXPERIMENTS = [
+    ("held_out", "known", True, {"transfer_planned"}, {"transfer_planned": 2.0}, None),
     ("zero_shot", "discovered", False, set(), {}, None),
     ("zero_shot_scaling", "discovered", False, set(), {}, None),
     ("transfer_known_map", "known", False, set(), {}, None),
@@ -1055,11 +1056,12 @@ PLANNED_DEFAULT_GRAPHS = {
     "paper_50n_8t": HEADLINE,
     "rgg-60": None,
     "rooms-4": None,
+    "cliques-6x8": None,
 }
 
 
 def test_the_planned_default_graphs_are_those_of_zoo_ippo() -> None:
-    for graph in [*PLANNED_DEFAULT_GRAPHS, "paper-100", "cliques-6x8", "karate"]:
+    for graph in [*PLANNED_DEFAULT_GRAPHS, "paper-100", "karate"]:
         planned = load_config("ippo", graph).env_kwargs.get("territories") == "planned"
         assert planned == (graph in PLANNED_DEFAULT_GRAPHS), graph
 
@@ -1085,17 +1087,22 @@ def test_only_the_headline_trains_todays_planned_defaults(path: Path, tmp_path: 
 
 
 def test_the_family_defaults_are_the_families_planned_prior_teams(tmp_path: Path) -> None:
-    """zoo/ippo.yml's entries for rgg-60 and rooms-4 are families.yml's
-    ``planned_prior`` team, written out there on top of the split default it was measured on."""
+    """zoo/ippo.yml's entries for rgg-60, rooms-4 and cliques-6x8 are families.yml's
+    ``planned_prior`` team, written out there on top of the split default it was measured on;
+    cliques-6x8 deploys it with paper-50's neglect bound, as it was measured there."""
     experiment = load_experiment(experiment_file("families"))
     checked = set()
     for cell in plan_cells(experiment, tmp_path):
         if cell.variant["key"] != "planned_prior" or str(cell.graph) not in PLANNED_DEFAULT_GRAPHS:
             continue
-        config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
-        assert config.team_kwargs() == load_config("ippo", str(cell.graph)).team_kwargs(), cell.graph
+        measured = runner_module.cell_config(cell, runner_module.Variant(**cell.variant)).team_kwargs()
+        default = load_config("ippo", str(cell.graph)).team_kwargs()
+        if cell.graph == "cliques-6x8":
+            assert default.pop("deploy_filter") == load_config("ippo", "paper-50").deploy_filter
+            assert measured.pop("deploy_filter") is None
+        assert measured == default, cell.graph
         checked.add(str(cell.graph))
-    assert checked == {"rgg-60", "rooms-4"}
+    assert checked == {"rgg-60", "rooms-4", "cliques-6x8"}
 
 
 def test_the_default_config_knows_the_road_network() -> None:

@@ -81,6 +81,7 @@ def test_only_the_experiments_a_user_runs_ship() -> None:
         "zero_shot_scaling",
         "failures",
         "families",
+        "held_out",
     }
     assert not (PACKAGE / "configs").exists()  # in a checkout the configs are zoo/, never a link
 
