@@ -239,8 +239,8 @@ def test_a_rule_for_learners_without_the_dcbf_policy_is_refused_and_leaves_the_t
 
 
 def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> None:
-    """Only known_map_family, transfer_territory's and transfer_advice's variants
-    and the regimes' transfer rows (zoo/ippo_transfer.yml's own rule) sample; the other transfer
+    """Only known_map_family, transfer_territory's and transfer_advice's variants, the regimes'
+    transfer rows and held_out's planned transfer team (zoo/ippo_transfer.yml's own rule) sample; the other transfer
     files pin the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
     from sb3_pm.experiments.record import experiment_record, team_rules
@@ -255,6 +255,7 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
         "transfer_advice": {"advice_prior": 0.25, "advice_prior_family": 0.25, "advice": 0.25},
         "regime_100": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
         "regime_200": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
+        "held_out": {"transfer_planned": 0.25},
     }
     assert experiment_record(load_experiment(experiment_file("transfer_known_map")))[
         "deploy_temperature"
