@@ -240,8 +240,8 @@ def test_a_rule_for_learners_without_the_dcbf_policy_is_refused_and_leaves_the_t
 
 def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> None:
     """Only known_map_family, transfer_territory's and transfer_advice's variants, the regimes'
-    transfer rows and held_out's planned transfer team (zoo/ippo_transfer.yml's own rule) sample; the other transfer
-    files pin the argmax their tables measured.
+    transfer rows and held_out's planned transfer team (zoo/ippo_transfer.yml's own rule) sample;
+    the other transfer files pin the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
     from sb3_pm.experiments.record import experiment_record, team_rules
 
