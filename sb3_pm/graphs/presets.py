@@ -16,14 +16,7 @@ from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 
-from sb3_pm.graphs.families import (
-    from_networkx,
-    random_geometric,
-    random_tree,
-    ring_of_cliques,
-    rooms,
-    small_world,
-)
+from sb3_pm.graphs import families
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.graphs.io import load_graphml
 from sb3_pm.graphs.large_sites import campus, city_streets, warehouse
@@ -49,12 +42,12 @@ ER_PRESETS: dict[str, tuple[int, int, int]] = {
 #: Preset name -> builder of a graph from another family (:mod:`sb3_pm.graphs.families`): our suite
 #: of structures unlike the paper's dense, small-diameter graphs. The seeds are ours.
 FAMILY_PRESETS: dict[str, Callable[[str], GraphSpec]] = {
-    "rgg-60": lambda name: random_geometric(60, 0.2, n_targets=10, seed=60, name=name),
-    "rooms-4": lambda name: rooms(4, (4, 3), n_targets=8, seed=4, name=name),
-    "cliques-6x8": lambda name: ring_of_cliques(6, 8, n_targets=8, seed=6, name=name),
+    "rgg-60": lambda name: families.random_geometric(60, 0.2, n_targets=10, seed=60, name=name),
+    "rooms-4": lambda name: families.rooms(4, (4, 3), n_targets=8, seed=4, name=name),
+    "cliques-6x8": lambda name: families.ring_of_cliques(6, 8, n_targets=8, seed=6, name=name),
     "karate": lambda name: _karate(name),
-    "small-world-60": lambda name: small_world(60, 4, 0.1, n_targets=10, seed=61, name=name),
-    "tree-50": lambda name: random_tree(50, n_targets=8, seed=51, name=name),
+    "small-world-60": lambda name: families.small_world(60, 4, 0.1, n_targets=10, seed=61, name=name),
+    "tree-50": lambda name: families.random_tree(50, n_targets=8, seed=51, name=name),
 }
 
 
@@ -78,7 +71,7 @@ LARGE_PRESETS: dict[str, Callable[[str], GraphSpec]] = {
 def _karate(name: str) -> GraphSpec:
     import networkx as nx
 
-    return from_networkx(nx.karate_club_graph(), n_targets=6, seed=34, name=name)
+    return families.from_networkx(nx.karate_club_graph(), n_targets=6, seed=34, name=name)
 
 
 #: Every preset name -> a one-line description (for ``--help`` and error messages).
