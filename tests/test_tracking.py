@@ -72,7 +72,8 @@ def test_reproduce_tracks_each_training_cell_as_one_offline_run(tmp_path: Path, 
     learned = out / "cells" / "learned" / "tiny" / "seed0"
     [run] = list((learned / "wandb").glob("offline-run-*"))
     [record] = list(run.glob("run-*.wandb"))
-    data = _read_once_written(record, (b"pm-sweep", b"learned/tiny/seed0", b"\x04tiny", b"n_timesteps", b"hidden_dim"))
+    needles = (b"pm-sweep", b"learned/tiny/seed0", b"\x04tiny", b"n_timesteps", b"hidden_dim")
+    data = _read_once_written(record, needles)
     assert b"pm-sweep" in data and b"learned/tiny/seed0" in data  # the project given; named after the cell
     assert b"\x04tiny" in data  # grouped under the experiment's name (a 4-byte protobuf string)
     assert b"n_timesteps" in data and b"hidden_dim" in data  # the cell's training config
