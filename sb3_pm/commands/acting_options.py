@@ -1,6 +1,6 @@
 """``sb3-pm evaluate``'s acting-rule options: ``--neglect-bound`` (a number, ``off`` or ``auto``),
-``--neglect-scope``, ``--temperature``, ``--stochastic`` and ``--deterministic``, checked against
-the team and applied to it."""
+``--neglect-scope``, ``--leave-cleared``, ``--temperature``, ``--stochastic`` and
+``--deterministic``, checked against the team and applied to it."""
 
 from __future__ import annotations
 
@@ -83,6 +83,18 @@ def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None 
     team.set_filter(neglect_bound=bound, neglect_scope=scope)
 
 
+def apply_leave_cleared(team: Any, choice: str | None) -> None:
+    """``--leave-cleared on|off``: switch the filter's rule 9 on a trained DCBF team (an agent on a
+    target it observes cleared does not stay there); ``None``: as the team's deploy_filter says."""
+    from sb3_pm.errors import UsageError
+
+    if choice is None:
+        return
+    if not team.learned:
+        raise UsageError(f"--leave-cleared needs a trained DCBF team; {team.name!r} is not one")
+    team.set_filter(leave_cleared=choice == "on")
+
+
 def apply_temperature(team: Any, temperature: float | None, stochastic: bool = False) -> None:
     """``--temperature``: the sampling temperature of a trained DCBF team; a baseline has none.
     ``--stochastic`` samples from the trained distribution (temperature 1), also on a team whose
@@ -112,6 +124,7 @@ __all__ = [
     "BOUND_AUTO",
     "BOUND_OFF",
     "acting_rule",
+    "apply_leave_cleared",
     "apply_neglect_bound",
     "apply_temperature",
     "neglect_bound_option",

@@ -12,6 +12,7 @@ from sb3_pm.commands.acting_options import (
     BOUND_AUTO,
     BOUND_OFF,
     acting_rule,
+    apply_leave_cleared,
     apply_neglect_bound,
     apply_temperature,
     neglect_bound_option,
@@ -109,6 +110,13 @@ def register(subparsers: Any) -> None:
         help="with --neglect-bound: bound every known target (known), only those last seen without a "
         "teammate on them (unserved), or the targets of each agent's own territory (territory); "
         "default: the scope of the team's own bound (its deploy_filter's), else known",
+    )
+    parser.add_argument(
+        "--leave-cleared",
+        choices=["on", "off"],
+        default=None,
+        help="the filter's rule 9 on a trained DCBF team: an agent on a target it observes cleared "
+        "(u = 0) moves on instead of staying; default: as the team's deploy_filter says",
     )
     parser.add_argument(
         "--settling",
@@ -303,6 +311,7 @@ def run(args: argparse.Namespace) -> int:
         calibration = resolve_auto_bound(args, team, graph, team.env_settings())
     else:
         apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
+    apply_leave_cleared(team, args.leave_cleared)
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
     acting_filter = team.acting_filter()  # after the flags
@@ -335,6 +344,12 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"the team acts under its deploy_filter: neglect bound {acting_filter['neglect_bound']:g}, scope "
             f"{acting_filter['neglect_scope']} (--neglect-bound off to act without it)",
+            file=sys.stderr,
+        )
+    if args.leave_cleared is None and team.acting_record(True).get("leave_cleared"):
+        print(
+            "the team acts under its deploy_filter's leave_cleared: an agent on a target it observes "
+            "cleared moves on (--leave-cleared off to let it stay)",
             file=sys.stderr,
         )
     own_temperature = team.deploy_temperature
@@ -384,6 +399,7 @@ def run(args: argparse.Namespace) -> int:
     if args.gif is not None:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device, layout=args.layout)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
+        apply_leave_cleared(gif_team, args.leave_cleared)
         apply_temperature(gif_team, args.temperature, args.stochastic)
         with sigterm_as_interrupt():  # a stopped GIF leaves the previous file, and no temporary one
             record_gif(

@@ -23,7 +23,12 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
 8. ``neglect_bound`` ``B`` (not in the paper; off by default in the paper-faithful config): where
    a known target is *due* (its worst-case uncertainty on arrival could otherwise exceed ``B``),
    the mask is the next hops towards it, whatever rules 2-7 said; rule 6 still applies within
-   those hops. See :mod:`sb3_pm.policies.neglect_bound` for the rule and its guarantee.
+   those hops. See :mod:`sb3_pm.policies.neglect_bound` for the rule and its guarantee;
+9. ``leave_cleared`` (not in the paper; off unless set): on a known target the agent observes at
+   ``u = 0``, its own node is dropped from ``S`` after rule 6, unless that empties ``S``. Staying
+   there lowers no uncertainty, while every other target's keeps growing; it is what a learner
+   that has settled on one target of its group does. Gated by rule 7 like rules 2-6; rule 8
+   overrides it.
 
 ``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
 among all reachable nodes but still dwells on a target until it is cleared. This is not in the
@@ -67,6 +72,7 @@ class DCBFConfig:
         territory, :attr:`territory`, whether or not its map has seen them yet).
     :param territory: with ``neglect_scope="territory"``, the agent's own targets (node indices):
         its share of the site's targets under the split of :mod:`sb3_pm.graphs.territories`.
+    :param leave_cleared: apply rule 9 (an agent on a target it observes cleared does not stay).
     """
 
     eta: float = 0.1
@@ -77,6 +83,7 @@ class DCBFConfig:
     neglect_bound: float | None = None
     neglect_scope: str = "known"
     territory: tuple[int, ...] = ()
+    leave_cleared: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
@@ -91,6 +98,8 @@ class DCBFConfig:
             raise InputError(f"neglect_scope must be one of {NEGLECT_SCOPES}, got {self.neglect_scope!r}")
         if any(isinstance(node, bool) or not isinstance(node, int) or node < 0 for node in self.territory):
             raise InputError(f"territory must list node indices (ints >= 0), got {self.territory!r}")
+        if not isinstance(self.leave_cleared, bool):
+            raise InputError(f"leave_cleared must be true or false, got {self.leave_cleared!r}")
 
 
 def check_bound_below_cap(bound: float | None, u_max: float) -> None:
@@ -107,7 +116,7 @@ def check_bound_below_cap(bound: float | None, u_max: float) -> None:
 
 
 #: The DCBF settings a trained team may switch on for deployment (a config's ``deploy_filter``).
-DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope")
+DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope", "leave_cleared")
 #: ``deploy_filter: {neglect_bound: auto}``: a territory bound measured on each site the team is
 #: deployed on, before it acts there (:mod:`sb3_pm.evaluation.neglect_calibration`).
 SITE_BOUND = "auto"
@@ -115,9 +124,12 @@ SITE_BOUND = "auto"
 
 def check_deploy_filter(value: object) -> dict[str, object] | None:
     """A team's deployment filter: ``None`` (act with the filter it trained under) or a mapping
-    ``{neglect_bound: B, neglect_scope: known | unserved | territory}`` (scope optional, ``known``
-    by default), checked as :class:`DCBFConfig` checks them; or ``{neglect_bound: auto}``, a
-    territory bound calibrated on each deployment site (scope ``territory``, the only one it takes).
+    ``{neglect_bound: B, neglect_scope: known | unserved | territory, leave_cleared: bool}``.
+
+    The scope is optional (``known`` by default), checked as :class:`DCBFConfig` checks it;
+    ``neglect_bound: auto`` is a territory bound calibrated on each deployment site (scope
+    ``territory``, the only one it takes). ``leave_cleared`` (rule 9) is optional and kept only
+    where given; with it the bound may be left out (``neglect_bound: null``: rule 9 alone).
 
     :raises InputError: anything else, naming the problem.
     """
@@ -128,7 +140,16 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
     unknown = sorted(set(value) - set(DEPLOY_FILTER_KEYS))
     if unknown:
         raise InputError(f"unknown key {unknown[0]!r} (known: {', '.join(DEPLOY_FILTER_KEYS)})")
+    rule_9: dict[str, object] = {}
+    if "leave_cleared" in value:
+        if not isinstance(value["leave_cleared"], bool):
+            raise InputError(f"leave_cleared must be true or false, got {value['leave_cleared']!r}")
+        rule_9 = {"leave_cleared": value["leave_cleared"]}
     bound = value.get("neglect_bound")
+    if bound is None and rule_9:
+        if "neglect_scope" in value:
+            raise InputError("neglect_scope needs a neglect_bound (a number or auto)")
+        return {"neglect_bound": None, "neglect_scope": "known", **rule_9}
     if bound == SITE_BOUND:
         scope = value.get("neglect_scope", "territory")
         if scope != "territory":
@@ -136,14 +157,14 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
                 f"neglect_bound auto is a territory bound (calibrated on each agent's territory); "
                 f"neglect_scope {scope!r} cannot go with it"
             )
-        return {"neglect_bound": SITE_BOUND, "neglect_scope": "territory"}
+        return {"neglect_bound": SITE_BOUND, "neglect_scope": "territory", **rule_9}
     if bound is None or isinstance(bound, bool) or not isinstance(bound, (int, float)):
         raise InputError(f"neglect_bound must be a number (the bound B) or auto, got {bound!r}")
     if not math.isfinite(bound):
         raise InputError(f"neglect_bound must be finite, got {bound!r}")
     scope = value.get("neglect_scope", "known")
     DCBFConfig(neglect_bound=float(bound), neglect_scope=scope)  # the filter's own checks
-    return {"neglect_bound": float(bound), "neglect_scope": scope}
+    return {"neglect_bound": float(bound), "neglect_scope": scope, **rule_9}
 
 
 def territory_mask(territory: tuple[int, ...], batch: int, n_nodes: int, device: th.device) -> th.Tensor:
@@ -180,7 +201,7 @@ def dcbf_mask(
     config: DCBFConfig = DCBFConfig(),
     deadline: tuple[th.Tensor, th.Tensor] | None = None,
 ) -> th.Tensor:
-    """Apply rules 1-8 to a batch.
+    """Apply rules 1-9 to a batch.
 
     :param u_hat: predicted (or last observed) uncertainty per node.
     :param reachable: the reachable set ``R`` (bool).
@@ -215,6 +236,9 @@ def dcbf_mask(
     safe = th.where(frozen[:, None], own, safe)
     if config.avoid_collisions:  # rule 6
         safe = _non_empty(safe & ~occupied_now.bool(), safe)
+    if config.leave_cleared:  # rule 9: not on a target observed cleared (frozen needs u > 0)
+        cleared = on_target.bool() & (u_here <= 0)
+        safe = th.where(cleared[:, None], _non_empty(safe & ~own, safe), safe)
     # Rule 7: the filter is active only where max û >= γ.
     active = u_max_all >= config.gamma_threshold
     mask = th.where(active, safe, reachable)

@@ -77,7 +77,8 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         estimator's (``use_estimator``, ``estimator_hidden``, ``estimator_lr``,
         ``estimator_epochs``, ``estimator_batch_size``), the DCBF filter's (``use_dcbf``,
         ``avoid_collisions``, ``freeze_steps``, ``eta``, ``gamma_threshold``, ``dcbf_barrier``,
-        ``neglect_bound``, ``neglect_scope``, ``neglect_territory``; :mod:`sb3_pm.policies.dcbf`)
+        ``neglect_bound``, ``neglect_scope``, ``neglect_territory``, ``leave_cleared``;
+        :mod:`sb3_pm.policies.dcbf`)
         and ``advice_prior`` (a fixed number added to the logit of the territory rule's next move,
         the env's ``advice_input``). ``docs/CONFIG.md`` gives each its default and range.
     """

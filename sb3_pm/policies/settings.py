@@ -77,6 +77,7 @@ class FilterSettings:
     neglect_bound: float | None = None
     neglect_scope: str = "known"
     neglect_territory: Sequence[int] = ()
+    leave_cleared: bool = False
 
     def __post_init__(self) -> None:
         if self.neglect_bound is not None and not self.use_dcbf:
@@ -85,14 +86,15 @@ class FilterSettings:
     def dcbf_config(self) -> DCBFConfig:
         """The filter's :class:`~sb3_pm.policies.dcbf.DCBFConfig` (which checks every field)."""
         return DCBFConfig(
-            self.eta,
-            int(self.freeze_steps),
-            bool(self.avoid_collisions),
-            float(self.gamma_threshold),
-            bool(self.dcbf_barrier),
-            None if self.neglect_bound is None else float(self.neglect_bound),
-            str(self.neglect_scope),
-            tuple(int(node) for node in self.neglect_territory),
+            eta=self.eta,
+            freeze_steps=int(self.freeze_steps),
+            avoid_collisions=bool(self.avoid_collisions),
+            gamma_threshold=float(self.gamma_threshold),
+            barrier=bool(self.dcbf_barrier),
+            neglect_bound=None if self.neglect_bound is None else float(self.neglect_bound),
+            neglect_scope=str(self.neglect_scope),
+            territory=tuple(int(node) for node in self.neglect_territory),
+            leave_cleared=self.leave_cleared,
         )
 
     @classmethod
@@ -108,6 +110,7 @@ class FilterSettings:
             neglect_bound=config.neglect_bound,
             neglect_scope=config.neglect_scope,
             neglect_territory=list(config.territory),
+            leave_cleared=config.leave_cleared,
         )
 
 

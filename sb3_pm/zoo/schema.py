@@ -152,9 +152,10 @@ TEAM = Section('team', 'Team keys', 'entry', keys=(
         help='how the trained team acts: `null` by its most likely allowed node, `T` by sampling '
         '`softmax(logits / T)`; see [Deployment rules](#deployment-rules)'),
     Key('deploy_filter', 'deploy_filter', None, nullable=True,
-        help='the DCBF neglect bound the trained team acts under, `{neglect_bound: B \\| auto, '
-        'neglect_scope: S}`; `null`: the filter it trained under; see [Deployment '
-        'rules](#deployment-rules)'),
+        help='the DCBF rules the trained team acts under, `{neglect_bound: B \\| auto, '
+        'neglect_scope: S, leave_cleared: true}` (the scope is optional; the bound may be left out where '
+        'leave_cleared is given); `null`: the filter it trained '
+        'under; see [Deployment rules](#deployment-rules)'),
     Key('learning_rate_spread', 'float', 1.0, low=1.0,
         help="the fastest learner's learning rate over the slowest's; `1`: every learner the same; see "
         '[Staggered learning rates](#staggered-learning-rates)'),
@@ -276,6 +277,9 @@ DCBF = Section(
         help="the targets rule 8 covers (`territory`: the agent's own)"),
     Key('neglect_territory', 'list', [], default_text='`[]`',
         help="the agent's own targets, for `neglect_scope: territory` (filled in by `deploy_filter`)"),
+    Key('leave_cleared', 'bool', False,
+        help='rule 9: an agent on a target it observes cleared (u = 0) does not stay there; usually '
+        'set after training by `deploy_filter`'),
 ))
 
 ENV = Section('env', 'Environment keys (`env_kwargs`)', 'env_kwargs', keys=(

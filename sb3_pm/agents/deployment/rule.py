@@ -118,13 +118,17 @@ class DeploymentRule(Team):
         return self._team_forward
 
     def acting_record(self, deterministic: bool) -> dict[str, Any]:
-        """The sampling temperature (when sampling) and the neglect bound the team acts under."""
+        """The sampling temperature (when sampling), the neglect bound the team acts under, and
+        ``leave_cleared: True`` where its policies act under the filter's rule 9."""
         record: dict[str, Any] = {}
         if not deterministic and self.sampling_temperature is not None:
             record["temperature"] = self.sampling_temperature
         bound = self.acting_filter()
         if bound is not None:
             record.update(bound)
+        configs = (getattr(policy, "dcbf_config", None) for policy in self.acting_policies().values())
+        if any(config is not None and config.leave_cleared for config in configs):
+            record["leave_cleared"] = True
         return record
 
     # ------------------------------------------------ the pending site bound

@@ -164,10 +164,11 @@ class LearnedTeam(DeploymentRule):
 
     @property
     def deploy_filter(self) -> dict[str, Any] | None:
-        """The DCBF neglect bound the trained team acts under, or ``None``.
+        """The DCBF rules the trained team acts under beyond its training filter, or ``None``.
 
-        The bound is ``{"neglect_bound": B, "neglect_scope": S}``; with ``None`` the team acts
-        under the filter it trained under.
+        The rules are ``{"neglect_bound": B, "neglect_scope": S}`` (rule 8; ``B`` ``None``: off),
+        with ``"leave_cleared": True`` where rule 9 is on (:mod:`sb3_pm.policies.dcbf`); with
+        ``None`` the team acts under the filter it trained under.
 
         Set by the config's ``deploy_filter`` and saved with the team. Training never reads it:
         :meth:`learn` trains with the bound off and switches it on again when it returns, so the
@@ -178,7 +179,7 @@ class LearnedTeam(DeploymentRule):
     @deploy_filter.setter
     def deploy_filter(self, deploy_filter: Mapping[str, Any] | None) -> None:
         previous, new = self._deploy_filter, self._checked_deploy_filter(deploy_filter)
-        if previous is None and new is not None:
+        if previous is None and new is not None and new["neglect_bound"] is not None:
             self._check_training_bound()  # a bound trained in is not a deploy filter's to replace
         self._training_filter()  # the previous rule off (nothing to do without one)
         self._deploy_filter = new
@@ -232,6 +233,9 @@ class LearnedTeam(DeploymentRule):
         if self._deploy_filter is None:
             return
         if self._deploy_filter["neglect_bound"] == SITE_BOUND:
+            rule_9 = {key: value for key, value in self._deploy_filter.items() if key == "leave_cleared"}
+            if rule_9:
+                self.set_filter(**rule_9)  # kept when the site's bound is set (set_filter merges)
             self.await_site_bound()
             return
         self.set_filter(**self._deploy_filter)
