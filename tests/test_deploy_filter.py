@@ -86,7 +86,8 @@ class TestConfig:
         """The bound was measured on paper-50 (B = 50, about the grazing baseline's worst neglect
         there); other graphs keep the filter as trained until a bound is measured for them."""
         paper = load_config("ippo", "paper-50")
-        assert paper.deploy_filter == {"neglect_bound": 50.0, "neglect_scope": "territory"}
+        rule = {"neglect_bound": 50.0, "neglect_scope": "territory", "leave_cleared": True}
+        assert paper.deploy_filter == rule
         assert paper.team_kwargs()["deploy_filter"] == paper.deploy_filter
         assert paper.to_dict()["deploy_filter"] == paper.deploy_filter
         for graph in ("paper-100", "rgg-60", "karate"):
@@ -369,7 +370,7 @@ class TestExperiments:
         from sb3_pm.experiments.runner import experiment_record
 
         assert experiment_record(load_experiment("headline"))["deploy_filter"] == {
-            "default": {"neglect_bound": 50.0, "neglect_scope": "territory"}
+            "default": {"neglect_bound": 50.0, "neglect_scope": "territory", "leave_cleared": True}
         }
         assert "deploy_filter" not in experiment_record(load_experiment(experiment_file("territory_reward")))
         assert "deploy_filter" not in experiment_record(load_experiment("families"))

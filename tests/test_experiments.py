@@ -1038,7 +1038,10 @@ def test_the_split_default_is_the_fewer_epochs_variant_that_became_it(tmp_path: 
 def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path, name: str) -> None:
     """The headline measures the default as a user gets it (and fewer_epochs the default of its
     time): trained unfiltered, acting under paper-50's deploy filter (the neglect bound on each
-    agent's own territory)."""
+    agent's own territory; the headline's default also with the filter's rule 9)."""
+    expected: dict[str, object] = {"neglect_bound": 50.0, "neglect_scope": "territory"}
+    if name == HEADLINE:
+        expected["leave_cleared"] = True
     cells = [
         c
         for c in plan_cells(load_experiment(experiment_file(name)), tmp_path)
@@ -1047,7 +1050,7 @@ def test_the_headline_default_acts_under_the_territory_bound(tmp_path: Path, nam
     assert cells
     for cell in cells:
         config = runner_module.cell_config(cell, runner_module.Variant(**cell.variant))
-        assert config.deploy_filter == {"neglect_bound": 50.0, "neglect_scope": "territory"}
+        assert config.deploy_filter == expected
 
 
 #: The graphs whose zoo/ippo.yml entry plays planned territories, and the one file that trains them.

@@ -117,8 +117,8 @@ def test_unknown_names_list_what_ships(tmp_path, monkeypatch) -> None:
 
 def test_the_default_config_is_the_measured_best_and_the_paper_one_is_kept() -> None:
     """zoo/ippo.yml is the best team measured, at the paper's budget on the published graphs, with
-    planned territories on paper-50; zoo/ippo_split.yml keeps the default before them (split
-    territories) and zoo/ippo_paper.yml the paper's reward and DCBF rules."""
+    planned territories and the filter's rule 9 at deployment on paper-50; zoo/ippo_split.yml keeps
+    the default before them (split territories) and zoo/ippo_paper.yml the paper's reward and DCBF rules."""
     default = load_config(DEFAULT_CONFIG, "paper-50")
     assert default.n_timesteps == 50_000 and default.entry == "paper-50"
     assert default.env_kwargs["reward"] == {"clearing": 0.04, "territory": 0.04, "collision": 0.001}
@@ -129,7 +129,7 @@ def test_the_default_config_is_the_measured_best_and_the_paper_one_is_kept() -> 
     assert default.env_kwargs["territories"] == "planned" and default.env_kwargs["advice_input"] is True
     split = load_config("ippo_split", "paper-50")
     assert "territories" not in split.env_kwargs and "advice_input" not in split.env_kwargs
-    assert split.deploy_filter == default.deploy_filter
+    assert default.deploy_filter == {**(split.deploy_filter or {}), "leave_cleared": True}
     paper = load_config("ippo_paper", "paper-50")
     assert paper.n_timesteps == 50_000
     assert "reward" not in paper.env_kwargs  # the environment's default: the paper's reward

@@ -219,8 +219,9 @@ PLANNED_ENV = {
 PLANNED_POLICY = {"advice_prior": 2.0}
 
 
-#: paper-50's neglect bound at deployment (the families' planned entries deploy without one).
-PAPER_50_BOUND = {"neglect_bound": 50.0, "neglect_scope": "territory"}
+#: paper-50's deploy filter: the neglect bound and rule 9 (the families' planned entries deploy
+#: without one).
+PAPER_50_BOUND = {"neglect_bound": 50.0, "neglect_scope": "territory", "leave_cleared": True}
 
 
 @pytest.mark.parametrize(
@@ -235,8 +236,11 @@ def test_a_planned_default_is_the_split_default_with_planned_territories(graph: 
     split_policy = split["hyperparams"].pop("policy_kwargs")
     assert policy == {**split_policy, **PLANNED_POLICY} and "advice_prior" not in split_policy
     default.pop("env_kwargs"), split.pop("env_kwargs")
-    assert default == split  # the rest, the neglect bound at deployment included
-    assert default["deploy_filter"] == deploy_filter
+    assert default.pop("deploy_filter") == deploy_filter
+    # the split default's filter: the same neglect bound, without rule 9
+    bound_only = {key: value for key, value in (deploy_filter or {}).items() if key != "leave_cleared"}
+    assert split.pop("deploy_filter") == (bound_only or None)
+    assert default == split  # the rest
 
 
 #: The entries of zoo/ippo.yml that play planned territories; every other is zoo/ippo_split.yml's.
