@@ -63,22 +63,32 @@ class TestRule:
     def test_the_neglect_bound_overrides_it(self) -> None:
         assert allowed([0, 1, 2], deadline=[0], leave_cleared=True) == [0]
 
-    def test_never_all_false_on_random_batches(self) -> None:
+    def test_on_random_batches_it_drops_exactly_the_stay_on_a_cleared_target(self) -> None:
+        """Against the filter without rule 9: the same mask, less the own node (0) on the rows of an
+        agent on a cleared target with another node allowed; never an empty row."""
         generator = th.Generator().manual_seed(3)
-        batch = 256
+        batch = 512
         reachable = th.rand(batch, N, generator=generator) < 0.4
-        reachable[:, 0] |= th.rand(batch, generator=generator) < 0.5
-        mask = dcbf_mask(
+        reachable[:, 0] |= th.rand(batch, generator=generator) < 0.8
+        reachable[~reachable.any(-1), 1] = True  # an agent can always go somewhere
+        on_target = th.rand(batch, generator=generator) < 0.5
+        u_here = (th.rand(batch, generator=generator) < 0.5).float()
+        inputs = (
             th.rand(batch, N, generator=generator) * 10,
             reachable,
             th.zeros(batch, dtype=th.long),
-            th.rand(batch, generator=generator) < 0.5,
-            (th.rand(batch, generator=generator) < 0.5).float(),
+            on_target,
+            u_here,
             th.full((batch,), 20.0),
             th.rand(batch, N, generator=generator) < 0.3,
-            DCBFConfig(avoid_collisions=True, leave_cleared=True),
         )
-        assert bool(mask.any(-1).all())
+        off = dcbf_mask(*inputs, DCBFConfig(avoid_collisions=True, barrier=False))
+        on = dcbf_mask(*inputs, DCBFConfig(avoid_collisions=True, barrier=False, leave_cleared=True))
+        cleared = on_target & (u_here == 0) & off[:, 1:].any(-1)
+        expected = off.clone()
+        expected[cleared, 0] = False
+        assert bool(cleared.any()) and bool((~cleared & on_target & (u_here == 0)).any())
+        assert th.equal(on, expected) and bool(on.any(-1).all())
 
     def test_a_setting_that_is_not_a_bool_is_refused(self) -> None:
         with pytest.raises(InputError, match="leave_cleared must be true or false"):
@@ -108,6 +118,8 @@ class TestDeployFilter:
             ({"leave_cleared": "yes"}, "leave_cleared must be true or false"),
             ({"leave_cleared": True, "neglect_scope": "known"}, "neglect_scope needs a neglect_bound"),
             ({"leave_cleared": True, "bound": 3}, "unknown key 'bound'"),
+            ({"leave_cleared": False}, "leave_cleared: false alone changes nothing; use null"),
+            ({"neglect_bound": None}, r"or auto \(or left out, with leave_cleared: true\)"),
         ],
     )
     def test_anything_else_is_refused_by_name(self, value, message) -> None:
@@ -138,6 +150,38 @@ class TestDeployFilter:
             team.close()
 
 
+class TestWithOtherRules:
+    def test_it_does_not_replace_a_bound_the_learners_train_with(self) -> None:
+        with pytest.raises(InputError, match="trains with a neglect bound .* keep one of them"):
+            tiny_team(deploy_filter={"leave_cleared": True}, policy_kwargs={"neglect_bound": 20.0})
+
+    def test_with_auto_it_acts_before_the_site_is_calibrated_and_after(self) -> None:
+        from sb3_pm.evaluation.neglect_calibration import settle_site_bound, unsettle_site_bound
+
+        team = tiny_team(deploy_filter={"neglect_bound": "auto", "leave_cleared": True})
+        try:
+            policy = team.models["agent_0"].policy
+            assert team.site_bound_pending and policy.dcbf_config.leave_cleared
+            calibration = settle_site_bound(team, team.graph, 2, {}, max_cycles=20)
+            assert calibration.bound is not None and not team.site_bound_pending
+            assert policy.dcbf_config.neglect_bound == calibration.bound and policy.dcbf_config.leave_cleared
+            unsettle_site_bound(team)
+            assert policy.dcbf_config.neglect_bound is None and policy.dcbf_config.leave_cleared
+        finally:
+            team.close()
+
+    def test_a_team_moved_to_another_graph_keeps_it(self) -> None:
+        from tests.conftest import path_graph
+
+        team = tiny_team(deploy_filter={"leave_cleared": True}, policy_kwargs={"laplacian": "none"})
+        try:
+            moved = team.on_graph(path_graph(12, targets=[0, 5, 11]))
+            assert all(p.dcbf_config.leave_cleared for p in moved.acting_policies().values())
+            assert moved.acting_record(True) == {"leave_cleared": True}
+        finally:
+            team.close()
+
+
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory) -> Path:
     """A trained two-agent team saved with rule 9 and a territory bound as its deploy filter."""
@@ -157,7 +201,7 @@ class TestCommandLine:
     def test_a_saved_team_follows_its_rule_and_says_so(self, saved, tmp_path, capsys) -> None:
         config = self.evaluate(saved, tmp_path)
         assert config["leave_cleared"] is True and config["neglect_bound"] == 15.0
-        assert "acts under its deploy_filter's leave_cleared" in capsys.readouterr().err
+        assert "acts under the filter's rule 9, leave_cleared" in capsys.readouterr().err
 
     def test_off_lets_it_stay_and_on_turns_it_on_without_a_bound(self, saved, tmp_path) -> None:
         assert "leave_cleared" not in self.evaluate(saved, tmp_path, "--leave-cleared", "off")

@@ -19,6 +19,17 @@ def test_every_pretrained_team_says_how_it_was_made() -> None:
         assert record["seed"] == 0 and "sb3-pm train" in record["command"] and "commit" in record["code"]
 
 
+def test_the_pretrained_default_deploys_as_the_default_config_says() -> None:
+    """The shipped paper-50 team acts under the deploy filter of the entry it was trained from."""
+    from sb3_pm.zoo.config import load_config
+
+    manifest = json.loads((pretrained_path("paper-50") / "manifest.json").read_text())
+    assert manifest["deploy_filter"] == load_config("ippo", "paper-50").deploy_filter
+    team = resolve_team("pretrained:paper-50")
+    assert team.deploy_filter == manifest["deploy_filter"]
+    assert team.acting_record(True) == {**manifest["deploy_filter"]}
+
+
 def test_the_pretrained_team_acts_legally() -> None:
     team = resolve_team("pretrained:paper-50")
     assert team.learned and team.n_agents == 4

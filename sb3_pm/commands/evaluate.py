@@ -348,7 +348,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.leave_cleared is None and team.acting_record(True).get("leave_cleared"):
         print(
-            "the team acts under its deploy_filter's leave_cleared: an agent on a target it observes "
+            "the team acts under the filter's rule 9, leave_cleared: an agent on a target it observes "
             "cleared moves on (--leave-cleared off to let it stay)",
             file=sys.stderr,
         )

@@ -149,6 +149,8 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
     if bound is None and rule_9:
         if "neglect_scope" in value:
             raise InputError("neglect_scope needs a neglect_bound (a number or auto)")
+        if not rule_9["leave_cleared"]:
+            raise InputError("a deploy_filter of leave_cleared: false alone changes nothing; use null")
         return {"neglect_bound": None, "neglect_scope": "known", **rule_9}
     if bound == SITE_BOUND:
         scope = value.get("neglect_scope", "territory")
@@ -159,7 +161,10 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
             )
         return {"neglect_bound": SITE_BOUND, "neglect_scope": "territory", **rule_9}
     if bound is None or isinstance(bound, bool) or not isinstance(bound, (int, float)):
-        raise InputError(f"neglect_bound must be a number (the bound B) or auto, got {bound!r}")
+        raise InputError(
+            f"neglect_bound must be a number (the bound B) or auto (or left out, with leave_cleared: true), "
+            f"got {bound!r}"
+        )
     if not math.isfinite(bound):
         raise InputError(f"neglect_bound must be finite, got {bound!r}")
     scope = value.get("neglect_scope", "known")

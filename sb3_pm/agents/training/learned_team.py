@@ -179,7 +179,7 @@ class LearnedTeam(DeploymentRule):
     @deploy_filter.setter
     def deploy_filter(self, deploy_filter: Mapping[str, Any] | None) -> None:
         previous, new = self._deploy_filter, self._checked_deploy_filter(deploy_filter)
-        if previous is None and new is not None and new["neglect_bound"] is not None:
+        if previous is None and new is not None:
             self._check_training_bound()  # a bound trained in is not a deploy filter's to replace
         self._training_filter()  # the previous rule off (nothing to do without one)
         self._deploy_filter = new
@@ -224,7 +224,8 @@ class LearnedTeam(DeploymentRule):
             if (model.policy_kwargs or {}).get("neglect_bound") is not None:
                 raise InputError(
                     f"{name} trains with a neglect bound (policy_kwargs.neglect_bound) and the team has a "
-                    "deploy_filter: keep one of them (the deploy filter switches the bound on after training)"
+                    "deploy_filter: keep one of them (the deploy filter switches its rules on after training "
+                    "and off while training, the trained bound included)"
                 )
 
     def _apply_deploy_filter(self) -> None:
