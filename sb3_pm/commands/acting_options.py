@@ -26,12 +26,12 @@ def neglect_bound_option(text: str) -> float | str:
         raise argparse.ArgumentTypeError(f"expected a number, 'off' or 'auto', got {text!r}") from None
 
 
-def require_filter(team: Any) -> None:
-    """``--neglect-bound`` needs a team with the DCBF filter (a trained DCBF team)."""
+def require_filter(team: Any, option: str = "--neglect-bound") -> None:
+    """``option`` (a rule of the DCBF filter) needs a team with the filter (a trained DCBF team)."""
     from sb3_pm.errors import UsageError
 
     if not team.learned:
-        raise UsageError(f"--neglect-bound needs a trained DCBF team; {team.name!r} is not one")
+        raise UsageError(f"{option} needs a trained DCBF team; {team.name!r} is not one")
 
 
 def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwargs: dict[str, Any]) -> Any:
@@ -86,12 +86,9 @@ def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None 
 def apply_leave_cleared(team: Any, choice: str | None) -> None:
     """``--leave-cleared on|off``: switch the filter's rule 9 on a trained DCBF team (an agent on a
     target it observes cleared does not stay there); ``None``: as the team's deploy_filter says."""
-    from sb3_pm.errors import UsageError
-
     if choice is None:
         return
-    if not team.learned:
-        raise UsageError(f"--leave-cleared needs a trained DCBF team; {team.name!r} is not one")
+    require_filter(team, "--leave-cleared")
     team.set_filter(leave_cleared=choice == "on")
 
 

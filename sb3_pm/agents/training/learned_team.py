@@ -234,9 +234,8 @@ class LearnedTeam(DeploymentRule):
         if self._deploy_filter is None:
             return
         if self._deploy_filter["neglect_bound"] == SITE_BOUND:
-            rule_9 = {key: value for key, value in self._deploy_filter.items() if key == "leave_cleared"}
-            if rule_9:
-                self.set_filter(**rule_9)  # kept when the site's bound is set (set_filter merges)
+            if "leave_cleared" in self._deploy_filter:  # kept when the bound is set (set_filter merges)
+                self.set_filter(leave_cleared=self._deploy_filter["leave_cleared"])
             self.await_site_bound()
             return
         self.set_filter(**self._deploy_filter)
