@@ -260,8 +260,19 @@ def test_the_bound_command_brackets_each_episode(tmp_path, capsys) -> None:
     rows = json.loads(out.read_text())["rows"]
     assert [row["env_seed"] for row in rows] == [0, 1]
     for row in rows:
-        assert row["lower_bound"] == max(row["stepwise"], row["priced"])
+        assert row["components"] is not None
+        assert row["lower_bound"] == max(row["stepwise"], row["priced"], row["components"])
         assert row["planner"] >= row["lower_bound"] - 1e-9
+    # without the planner a quick plan prunes the components bound, which is the same figure
+    fast = tmp_path / "fast.json"
+    assert main(["bound", "--episodes", "2", "--steps", "60", "--json", str(fast)]) == 0
+    assert [row["components"] for row in json.loads(fast.read_text())["rows"]] == [
+        row["components"] for row in rows
+    ]
+    skipped = tmp_path / "skipped.json"
+    assert main(["bound", "--episodes", "1", "--steps", "60", "--no-components", "--json", str(skipped)]) == 0
+    (row,) = json.loads(skipped.read_text())["rows"]
+    assert row["components"] is None and row["lower_bound"] == max(row["stepwise"], row["priced"])
     assert main([*argv, "--search-seconds", "0"]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert error[-1] == "sb3-pm bound: error: --search-seconds must be positive, got 0.0"

@@ -41,7 +41,8 @@ def _integers(values: object, what: str) -> np.ndarray:
     return array.astype(np.int64)
 
 
-def _checked(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) -> np.ndarray:
+def checked_starts(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) -> np.ndarray:
+    """``starts`` as ``(n,)`` int64 nodes, refusing what no episode can start from (one line)."""
     starts = _integers(starts, "starts")
     if starts.ndim != 1 or starts.size == 0:
         raise InputError(f"starts must be a non-empty list of nodes, got {starts.tolist()}")
@@ -52,7 +53,7 @@ def _checked(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) 
     return starts
 
 
-def _initial_targets(graph: GraphSpec, initial_uncertainty: np.ndarray | None, u_max: int) -> np.ndarray:
+def initial_targets(graph: GraphSpec, initial_uncertainty: np.ndarray | None, u_max: int) -> np.ndarray:
     """``(T,)`` the targets' uncertainties at reset (zeros by default), checked to be ``N``
     integers in ``[0, u_max]``."""
     if initial_uncertainty is None:
@@ -112,8 +113,8 @@ def stepwise_bound(
     :param initial_uncertainty: ``(N,)`` the uncertainties at reset (default: all 0).
     :return: ``(K,)`` int64.
     """
-    starts = _checked(graph, starts, max_cycles, u_max)
-    initial = _initial_targets(graph, initial_uncertainty, u_max)
+    starts = checked_starts(graph, starts, max_cycles, u_max)
+    initial = initial_targets(graph, initial_uncertainty, u_max)
     n_targets = int(initial.size)
     coverable = coverable_from(graph.routes.to_targets(starts))  # no all-pairs table on a large site
     # Before step k a target's u is at most u_0 + k - 1, so few can be at the cap early on.
@@ -196,11 +197,11 @@ def priced_bound(
     spans the whole gap since ``i`` was last occupied, and holding ``i`` through that gap is an
     allowed schedule that costs no more (docs/PLANNING.md, "Lower bounds").
     """
-    starts = _checked(graph, starts, max_cycles, u_max)
+    starts = checked_starts(graph, starts, max_cycles, u_max)
     targets = graph.target_indices
     if targets.size == 0:
         return 0.0
-    initial = _initial_targets(graph, initial_uncertainty, u_max)
+    initial = initial_targets(graph, initial_uncertainty, u_max)
     distances = graph.routes.to_targets(starts)  # (n, T)
     earliest = distances.min(axis=0)
     starts_on = earliest == 0
