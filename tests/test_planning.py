@@ -24,6 +24,7 @@ from sb3_pm.planning import planner as planner_search
 from sb3_pm.planning.batch_pricing import solo_costs
 from sb3_pm.planning.controllers import simulate
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost, tour_move
+from sb3_pm.planning.openings import plan_with_openings
 from sb3_pm.planning.pair_schedule import PairSchedule
 from sb3_pm.planning.planner import plan_patrol
 from sb3_pm.planning.team_plan import plan_team
@@ -113,7 +114,9 @@ def test_a_plan_replays_through_the_env_to_its_simulated_figure() -> None:
     env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=4, max_cycles=120)
     env.reset(seed=3)
     state = env.unwrapped
-    plan = plan_team(state.graph, state.positions, 120, state.u_max, state.uncertainty, search_seconds=5)
+    plan = plan_with_openings(
+        state.graph, state.positions, 120, state.u_max, state.uncertainty, search_seconds=5
+    )
     result = evaluate(
         make_team("optimal_planner", search_seconds=5), "paper-50", episodes=1, seed=3, max_cycles=120
     )
@@ -283,14 +286,14 @@ def test_the_planner_falls_back_to_the_rule_where_the_rule_scores_lower(monkeypa
     kwargs = dict(episodes=1, seed=4, max_cycles=100)
     rule = evaluate(make_team("territory_patrol"), "rooms-4", **kwargs).episodes[0].metrics["avg_uncertainty"]
     planner = make_team("optimal_planner", search_seconds=5)
-    original = planner_module.plan_team
+    original = planner_module.plan_with_openings
 
     def worse_plan(*args, **kw):
         plan = original(*args, **kw)
         plan.simulated = float("inf")
         return plan
 
-    monkeypatch.setattr(planner_module, "plan_team", worse_plan)
+    monkeypatch.setattr(planner_module, "plan_with_openings", worse_plan)
     fallen_back = evaluate(planner, "rooms-4", **kwargs).episodes[0].metrics["avg_uncertainty"]
     assert planner.acting == "territory_patrol"
     assert fallen_back == pytest.approx(rule)
@@ -319,7 +322,7 @@ def test_a_plan_replays_from_random_initial_uncertainties() -> None:
     )
     env.reset(seed=9)
     state = env.unwrapped
-    plan = plan_team(state.graph, state.positions, 80, 20, state.uncertainty, search_seconds=5)
+    plan = plan_with_openings(state.graph, state.positions, 80, 20, state.uncertainty, search_seconds=5)
     team = make_team("optimal_planner", search_seconds=5)
     result = evaluate(
         team,

@@ -3,9 +3,10 @@
 An omniscient, centralized team. At every reset it reads the episode's start positions and
 uncertainties, plans with :func:`sb3_pm.planning.team_plan.plan_team` (groups of targets per
 agent, matched to the agents by the Hungarian method, improved by local search, exact schedules
-for two-target groups, refined by joint simulation), then acts each step by the plan with the true
-uncertainties. Its ``avg_uncertainty`` is an upper bound on the optimum; ``sb3-pm bound`` gives the
-lower one.
+for two-target groups, refined by joint simulation) and tries openings
+(:func:`sb3_pm.planning.openings.plan_with_openings`: the first two steps played exactly, then a
+fresh plan), then acts each step by the plan with the true uncertainties. Its
+``avg_uncertainty`` is an upper bound on the optimum; ``sb3-pm bound`` gives the lower one.
 
 A planner that scores worse than ``territory_patrol`` would be a bug of the search, not a fact
 about the site, so at an episode's first step the planner also plays ``territory_patrol`` on a copy
@@ -26,15 +27,17 @@ from typing import Any
 from sb3_pm.baselines._common import agent_positions, env_graph
 from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
 from sb3_pm.errors import InputError
+from sb3_pm.planning.openings import plan_with_openings
 from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS
-from sb3_pm.planning.team_plan import TeamPlan, plan_team
+from sb3_pm.planning.team_plan import TeamPlan
 from sb3_pm.team_interface import Observation, Team
 
 
 class OptimalPlannerTeam(Team):
     """Centralized planning on the true state.
 
-    :param search_seconds: the plan search's wall-clock budget per episode.
+    :param search_seconds: the plan search's wall-clock budget per episode (the openings take half
+        as much again).
     """
 
     name = "optimal_planner"
@@ -49,7 +52,7 @@ class OptimalPlannerTeam(Team):
         super().reset(env, seed)
         state = env.unwrapped
         graph = env_graph(env)
-        self.plan: TeamPlan = plan_team(
+        self.plan: TeamPlan = plan_with_openings(
             graph, state.positions, state.max_cycles, state.u_max, state.uncertainty, self.search_seconds
         )
         distances = graph.hop_distances.astype(int).tolist()

@@ -36,6 +36,7 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.planning.bound import checked_starts, initial_targets
+from sb3_pm.planning.joint_moves import after_step, joint_choices
 
 __all__ = [
     "EXACT_STEPS",
@@ -163,27 +164,6 @@ def _hops_to_components(graph: GraphSpec, nodes: np.ndarray, groups: list[np.nda
     return np.stack([hops[:, g].min(axis=1) for g in groups], axis=1)
 
 
-def _expand(choices: list[np.ndarray], at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every joint choice of the agents: ``choices[node]`` are one agent's options from ``node``.
-
-    :param at: ``(M, n)`` each row's agents' nodes.
-    :return: ``(M', n)`` the chosen options and ``(M',)`` each new row's parent row.
-    """
-    parent = np.arange(at.shape[0])
-    chosen = np.zeros((at.shape[0], 0), dtype=np.int64)
-    sizes = np.array([c.size for c in choices], dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
-    flat = np.concatenate(choices)
-    for agent in range(at.shape[1]):
-        count = sizes[at[parent, agent]]
-        rows = np.repeat(np.arange(parent.size), count)
-        within = np.arange(rows.size) - np.repeat(np.cumsum(count) - count, count)
-        option = flat[offsets[at[parent[rows], agent]] + within]
-        chosen = np.concatenate([chosen[rows], option[:, None]], axis=1)
-        parent = parent[rows]
-    return chosen, parent
-
-
 def _exact_start(
     graph: GraphSpec,
     starts: np.ndarray,
@@ -196,10 +176,10 @@ def _exact_start(
 
     The steps before the last enumerate every joint move, node by node. On the last only where each
     agent ends matters to the relaxation: on which target, or off targets and how many hops from each
-    component, so each agent's options there are the targets it can reach and one "off" per distinct
-    hop count. Each state keeps its least
-    cost, so the start-up waste the relaxation would not see (agents that must first sort out which
-    target each takes) is counted exactly.
+    component, so each agent's options there are the targets it can reach and one "off" with the
+    fewest hops of the nodes off targets it can reach. Each state keeps its least cost, so the
+    start-up waste the relaxation would not see (agents that must first sort out which target each
+    takes) is counted exactly.
     """
     n_targets = initial.size
     target_of = np.full(graph.n_nodes, -1, dtype=np.int64)
@@ -210,8 +190,8 @@ def _exact_start(
     reach = [np.flatnonzero(row).astype(np.int64) for row in graph.reachable]
     at, values, cost = starts[None, :], initial[None, :], np.zeros(1, dtype=np.int64)
     for _ in range(steps - 1):  # every joint move; rows with the same nodes and u merged
-        nodes, parent = _expand(reach, at)
-        values = _after(target_of[nodes], values[parent], u_max)
+        nodes, parent = joint_choices(reach, at)
+        values = after_step(target_of[nodes], values[parent], u_max)
         cost = cost[parent] + values.sum(axis=1)
         at = np.sort(nodes, axis=1)  # the agents are alike: only where they stand matters
         keys = np.concatenate([at, values], axis=1)
@@ -239,8 +219,8 @@ def _exact_start(
     gathered: dict[Config, list[tuple[np.ndarray, np.ndarray]]] = {}
     for low in range(0, at.shape[0], per_part):
         part = slice(low, low + per_part)
-        chosen, parent = _expand(landing, at[part])
-        after = _after(chosen, values[part][parent], u_max)
+        chosen, parent = joint_choices(landing, at[part])
+        after = after_step(chosen, values[part][parent], u_max)
         total = cost[part][parent] + after.sum(axis=1)
         sums = np.stack([after[:, g].sum(axis=1) for g in groups], axis=1)
         placed = np.zeros((chosen.shape[0], len(groups)), dtype=np.int64)
@@ -260,16 +240,6 @@ def _exact_start(
             config = (tuple(int(c) for c in counts), 0, on_the_way)
             gathered.setdefault(config, []).append((sums[rows], total[rows]))
     return {key: _cheapest(parts) for key, parts in gathered.items()}
-
-
-def _after(on: np.ndarray, before: np.ndarray, u_max: int) -> np.ndarray:
-    """Eq. (1) on the targets: ``on`` ``(M, n)`` the target each agent stands on (-1: none),
-    ``before`` ``(M, T)`` the targets' ``u``; returns ``(M, T)`` after the step."""
-    occupied = np.zeros(before.shape, dtype=bool)
-    for agent in range(on.shape[1]):
-        rows = np.flatnonzero(on[:, agent] >= 0)
-        occupied[rows, on[rows, agent]] = True
-    return np.where(occupied, np.maximum(before - 1, 0), np.minimum(before + 1, u_max))
 
 
 def _cheapest(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:

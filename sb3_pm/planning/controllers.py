@@ -15,7 +15,14 @@ import numpy as np
 from sb3_pm.planning.group_patrol import RULES
 from sb3_pm.planning.pair_schedule import PairSchedule
 
-__all__ = ["Controller", "GroupController", "PairController", "ViaController", "simulate"]
+__all__ = [
+    "Controller",
+    "GroupController",
+    "OpeningController",
+    "PairController",
+    "ViaController",
+    "simulate",
+]
 
 
 class Controller(Protocol):
@@ -74,6 +81,19 @@ class ViaController:
             self.waypoints.pop(0)
         if self.waypoints:
             return int(self.next_hop[position][self.waypoints[0]])
+        return self.then.move(position, uncertainty, remaining)
+
+
+class OpeningController:
+    """Play the fixed first ``moves`` (nodes, one per step), then hand over to ``then``."""
+
+    def __init__(self, moves: Sequence[int], then: Controller) -> None:
+        self.moves = [int(m) for m in moves]
+        self.then = then
+
+    def move(self, position: int, uncertainty: np.ndarray, remaining: int) -> int:
+        if self.moves:
+            return self.moves.pop(0)
         return self.then.move(position, uncertainty, remaining)
 
 

@@ -21,7 +21,14 @@ import numpy as np
 
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
-from sb3_pm.planning.controllers import Controller, GroupController, PairController, ViaController, simulate
+from sb3_pm.planning.controllers import (
+    Controller,
+    GroupController,
+    OpeningController,
+    PairController,
+    ViaController,
+    simulate,
+)
 from sb3_pm.planning.group_patrol import solo_cost
 from sb3_pm.planning.pair_schedule import MAX_PATH_HOPS, PairSchedule
 from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS, PatrolPlan, plan_patrol
@@ -53,6 +60,9 @@ class TeamPlan:
     simulated: float
     groups_plan: PatrolPlan
     schedules: dict[tuple[int, int], PairSchedule] = field(default_factory=dict)
+    #: ``(steps, n)`` nodes every agent moves to first, before its orders (``None``: none); the
+    #: orders were then planned from where the opening ends (:mod:`sb3_pm.planning.openings`)
+    opening: np.ndarray | None = None
 
     def controllers(self, distances: list[list[int]], next_hop: list[list[int]]) -> list[Controller]:
         """Fresh controllers for an episode (they keep state, so one set per run)."""
@@ -64,6 +74,8 @@ class TeamPlan:
             else:
                 acting = GroupController(orders.group, distances, next_hop, orders.rule)
             made.append(ViaController(orders.waypoints, acting, next_hop) if orders.waypoints else acting)
+        if self.opening is not None:
+            made = [OpeningController(self.opening[:, agent], then) for agent, then in enumerate(made)]
         return made
 
 
