@@ -18,9 +18,10 @@ steps, which are played node by node (where agents sort out which target each ta
 agent counts, the smallest next ``S_C`` is the greedy one and it grows with ``S_C``, so a dynamic
 programme over (agents per component, agents free off targets, agents on their way with their
 earliest step in each component, ``S_C`` per component) finds the relaxed minimum exactly.
-States that another state of the same counts beats in every ``S_C`` and in cost so far are
-dropped, and so is any state whose cost so far plus the step-by-step bound from its total already
-exceeds an achievable score (``ceiling``): neither can lead to a lower minimum.
+A state is dropped where another of the same counts, with the same ``S_C`` in all components but
+one, is no higher in that one and in cost so far, and so is any state whose cost so far plus the
+step-by-step bound from its total already exceeds an achievable score (``ceiling``): neither can
+lead to a lower minimum.
 
 The programme grows with the number of ways to place the agents, so it is computed only where
 that number and the surviving states stay small (``None`` otherwise).
@@ -274,7 +275,8 @@ def component_bound(
 
     :param ceiling: an ``avg_uncertainty`` some team achieves on this episode (for example the
         planner's replayed score); only used to drop states, so the result does not depend on it
-        unless it is below the optimum, and then the result is the ceiling, still a valid bound.
+        unless it is below the relaxed minimum, and then the result is ``floor(ceiling * K) / K``,
+        still a valid bound.
     :return: the bound, or ``None`` where the programme is too large (more than
         :data:`MAX_PLACEMENTS` placements, more than :data:`MAX_STATES` states after a step, or a
         component with as many targets as ``u_max``).
