@@ -95,3 +95,17 @@ def test_the_exact_start_only_tightens_and_the_plain_start_is_also_valid(monkeyp
         assert plain <= exact + 1e-9 <= best + 2e-9
         tighter += exact > plain + 1e-9
     assert tighter >= 2
+
+
+@pytest.mark.parametrize("case", [0, 2, 6, 9, 12])
+def test_the_components_bound_holds_from_random_initial_uncertainties(case: int) -> None:
+    graph, starts = cases()[case]
+    max_cycles, u_max = 8, 5
+    rng = np.random.default_rng(case)
+    at_reset = rng.integers(0, u_max + 1, size=graph.n_targets)
+    initial = np.zeros(graph.n_nodes, dtype=np.int64)
+    initial[graph.target_indices] = at_reset
+    best, _ = optimum(graph, starts, max_cycles, u_max, tuple(at_reset.tolist()))
+    bound = component_bound(graph, np.array(starts), max_cycles, u_max, initial, ceiling=best)
+    assert bound is not None and bound <= best + 1e-9
+    assert component_bound(graph, np.array(starts), max_cycles, u_max, initial, ceiling=2 * best + 5) == bound

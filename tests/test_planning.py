@@ -32,11 +32,18 @@ from tests.conftest import path_graph
 
 
 def optimum(
-    graph: GraphSpec, starts: tuple[int, ...], max_cycles: int, u_max: int
+    graph: GraphSpec,
+    starts: tuple[int, ...],
+    max_cycles: int,
+    u_max: int,
+    initial: tuple[int, ...] | None = None,
 ) -> tuple[float, np.ndarray]:
     """The exact least ``avg_uncertainty`` over every joint move sequence, and the least summed
-    target ``u`` after each step ``k`` over every team (``(K,)``), by exhaustive dynamic programming."""
+    target ``u`` after each step ``k`` over every team (``(K,)``), by exhaustive dynamic programming.
+
+    :param initial: the targets' ``u`` at reset, in target order (default all 0)."""
     targets = tuple(int(t) for t in graph.target_indices)
+    at_reset = tuple(0 for _ in targets) if initial is None else tuple(int(u) for u in initial)
     moves = [tuple(int(v) for v in np.flatnonzero(row)) for row in graph.reachable]
 
     def advance(positions: tuple[int, ...], values: tuple[int, ...]) -> tuple[int, ...]:
@@ -55,7 +62,7 @@ def optimum(
         )
 
     # the least total after each step over all teams: a forward sweep of the reachable states
-    states = {(tuple(starts), tuple(0 for _ in targets))}
+    states = {(tuple(starts), at_reset)}
     least = np.empty(max_cycles, dtype=np.int64)
     for k in range(max_cycles):
         states = {
@@ -64,7 +71,7 @@ def optimum(
             for nxt in itertools.product(*(moves[p] for p in positions))
         }
         least[k] = min(sum(values) for _, values in states)
-    return best(0, tuple(starts), tuple(0 for _ in targets)) / max_cycles, least
+    return best(0, tuple(starts), at_reset) / max_cycles, least
 
 
 def small_cases() -> list[tuple[GraphSpec, tuple[int, ...]]]:
