@@ -37,7 +37,7 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.planning.bound import checked_starts, initial_targets
-from sb3_pm.planning.joint_moves import after_step, joint_choices
+from sb3_pm.planning.joint_moves import after_step, distinct_cheapest, joint_choices
 
 __all__ = [
     "EXACT_STEPS",
@@ -195,12 +195,8 @@ def _exact_start(
         values = after_step(target_of[nodes], values[parent], u_max)
         cost = cost[parent] + values.sum(axis=1)
         at = np.sort(nodes, axis=1)  # the agents are alike: only where they stand matters
-        keys = np.concatenate([at, values], axis=1)
-        order = np.lexsort((cost, *keys.T[::-1]))
-        keys, at, values, cost = keys[order], at[order], values[order], cost[order]
-        first = np.ones(cost.size, dtype=bool)
-        first[1:] = (keys[1:] != keys[:-1]).any(axis=1)
-        at, values, cost = at[first], values[first], cost[first]
+        kept = distinct_cheapest(np.concatenate([at, values], axis=1), cost)
+        at, values, cost = at[kept], values[kept], cost[kept]
     # The last step: each agent onto a target it can reach (its index) or off targets. Off targets
     # only the hops onward matter; one option takes, per component, the fewest hops of any node off
     # targets it can reach (an agent there is no further from any component): -1 - its index.
@@ -247,11 +243,8 @@ def _cheapest(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, n
     """The states of ``parts`` joined, each distinct sums once at its least cost."""
     sums = np.concatenate([p[0] for p in parts])
     cost = np.concatenate([p[1] for p in parts])
-    order = np.lexsort((cost, *[sums[:, c] for c in range(sums.shape[1])]))
-    sums, cost = sums[order], cost[order]
-    first = np.ones(cost.size, dtype=bool)
-    first[1:] = (sums[1:] != sums[:-1]).any(axis=1)
-    return sums[first], cost[first]
+    kept = distinct_cheapest(sums, cost)
+    return sums[kept], cost[kept]
 
 
 def component_bound_applies(graph: GraphSpec, n_agents: int, u_max: int) -> bool:

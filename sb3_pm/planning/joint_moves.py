@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["after_step", "joint_choices"]
+__all__ = ["after_step", "distinct_cheapest", "joint_choices"]
 
 
 def joint_choices(choices: list[np.ndarray], at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -37,3 +37,11 @@ def after_step(on: np.ndarray, before: np.ndarray, u_max: int) -> np.ndarray:
         rows = np.flatnonzero(on[:, agent] >= 0)
         occupied[rows, on[rows, agent]] = True
     return np.where(occupied, np.maximum(before - 1, 0), np.minimum(before + 1, u_max))
+
+
+def distinct_cheapest(keys: np.ndarray, cost: np.ndarray) -> np.ndarray:
+    """Row indices of ``keys`` ``(M, k)``, each distinct row once at its least ``cost`` ``(M,)``,
+    ordered by cost, then by the row (so the order does not depend on how the rows were made)."""
+    order = np.lexsort((*keys.T[::-1], cost))
+    _, first = np.unique(keys[order], axis=0, return_index=True)
+    return order[np.sort(first)]

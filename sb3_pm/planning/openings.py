@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from sb3_pm.graphs import GraphSpec
-from sb3_pm.planning.joint_moves import after_step, joint_choices
+from sb3_pm.planning.joint_moves import after_step, distinct_cheapest, joint_choices
 from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS
 from sb3_pm.planning.team_plan import TeamPlan, plan_team
 
@@ -30,15 +30,6 @@ OPENING_STEPS = 2
 OPENING_CANDIDATES = 8
 #: The most joint first moves searched; with more agents or moves, no opening is tried.
 MAX_OPENING_MOVES = 200_000
-
-
-def _distinct_cheapest(nodes: np.ndarray, values: np.ndarray, cost: np.ndarray) -> np.ndarray:
-    """Rows of distinct (where the agents stand, ``u``) states, each at its least cost, ordered by
-    cost, then by the state (so the order does not depend on how the moves were enumerated)."""
-    keys = np.concatenate([np.sort(nodes, axis=1), values], axis=1)
-    order = np.lexsort((*keys.T[::-1], cost))
-    _, first = np.unique(keys[order], axis=0, return_index=True)
-    return order[np.sort(first)]
 
 
 def best_opening(
@@ -69,14 +60,16 @@ def best_opening(
         target_of[first], np.repeat(initial[targets][None, :], first.shape[0], axis=0), u_max
     )
     cost1 = values1.sum(axis=1)
-    keep = _distinct_cheapest(first, values1, cost1)
+    keep = distinct_cheapest(np.concatenate([np.sort(first, axis=1), values1], axis=1), cost1)
     keep = keep[cost1[keep] == cost1.min()]
     first, values1, cost1 = first[keep], values1[keep], cost1[keep]
     # step 2: every joint move from those
     second, parent = joint_choices(reach, first)
     values2 = after_step(target_of[second], values1[parent], u_max)
     cost2 = cost1[parent] + values2.sum(axis=1)
-    picked = _distinct_cheapest(second, values2, cost2)[:OPENING_CANDIDATES]
+    # the agents are alike: a state is where they stand, sorted, and the targets' u
+    states = np.concatenate([np.sort(second, axis=1), values2], axis=1)
+    picked = distinct_cheapest(states, cost2)[:OPENING_CANDIDATES]
     best: TeamPlan | None = None
     each = seconds / max(1, picked.size)
     for row in picked:
