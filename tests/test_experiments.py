@@ -727,7 +727,14 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
 #: ``advice_prior`` where it is not 0.
 AUTO = {"neglect_bound": "auto", "neglect_scope": "territory"}
 TRANSFER_EXPERIMENTS = [
-    ("held_out", "known", True, {"transfer_planned"}, {"transfer_planned": 2.0}, None),
+    (
+        "held_out",
+        "known",
+        True,
+        {"transfer_planned", "transfer_planned_prior4"},
+        {"transfer_planned": 2.0, "transfer_planned_prior4": 4.0},
+        None,
+    ),
     ("zero_shot", "discovered", False, set(), {}, None),
     ("zero_shot_scaling", "discovered", False, set(), {}, None),
     ("transfer_known_map", "known", False, set(), {}, None),
