@@ -19,7 +19,7 @@ import numpy as np
 
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.planning.joint_moves import after_step, distinct_cheapest, joint_choices
-from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS
+from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS, uncertainty_at_reset
 from sb3_pm.planning.team_plan import TeamPlan, plan_team
 
 __all__ = ["MAX_OPENING_MOVES", "OPENING_CANDIDATES", "OPENING_STEPS", "best_opening", "plan_with_openings"]
@@ -94,11 +94,7 @@ def plan_with_openings(
     """:func:`~sb3_pm.planning.team_plan.plan_team`, or the best opening where that scores lower
     (arguments as ``plan_team``; the openings get half as much time again)."""
     plan = plan_team(graph, starts, max_cycles, u_max, initial_uncertainty, search_seconds)
-    initial = (
-        np.zeros(graph.n_nodes, dtype=np.int64)
-        if initial_uncertainty is None
-        else np.asarray(initial_uncertainty, dtype=np.int64)
-    )
+    initial = uncertainty_at_reset(graph, initial_uncertainty).astype(np.int64)
     opened = best_opening(
         graph, np.asarray(starts, dtype=np.int64), max_cycles, u_max, initial, search_seconds / 2
     )

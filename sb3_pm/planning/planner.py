@@ -31,7 +31,7 @@ from sb3_pm.graphs.tours import approximate_tour
 from sb3_pm.planning.batch_pricing import solo_costs
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
 
-__all__ = ["PatrolPlan", "plan_patrol"]
+__all__ = ["PatrolPlan", "plan_patrol", "uncertainty_at_reset"]
 
 #: The default wall-clock cap of the search, in seconds: a plan for one episode.
 DEFAULT_SEARCH_SECONDS = 60.0
@@ -235,6 +235,14 @@ def _perturbed(
     return [tuple(sorted(group)) for group in groups], ()
 
 
+def uncertainty_at_reset(graph: GraphSpec, initial_uncertainty: np.ndarray | None) -> np.ndarray:
+    """``(N,)`` the nodes' ``u`` at reset that a plan starts from: ``initial_uncertainty`` as given,
+    or zeros (the environment's default) where it is ``None``."""
+    if initial_uncertainty is None:
+        return np.zeros(graph.n_nodes, dtype=np.int64)
+    return np.asarray(initial_uncertainty)
+
+
 def plan_patrol(
     graph: GraphSpec,
     starts: np.ndarray,
@@ -269,11 +277,7 @@ def plan_patrol(
         raise InputError(f"search_seconds must be positive, got {search_seconds}")
     if restarts < 0:
         raise InputError(f"restarts must be >= 0, got {restarts}")
-    initial = (
-        np.zeros(graph.n_nodes, dtype=np.int64)
-        if initial_uncertainty is None
-        else np.asarray(initial_uncertainty)
-    )
+    initial = uncertainty_at_reset(graph, initial_uncertainty)
     pricer = _Pricer(graph, starts, initial, max_cycles, u_max, tour_groups)
     n = starts.size
     owner = target_territories(graph.hop_distances, graph.target_indices, n)

@@ -31,7 +31,7 @@ from sb3_pm.planning.controllers import (
 )
 from sb3_pm.planning.group_patrol import solo_cost
 from sb3_pm.planning.pair_schedule import MAX_PATH_HOPS, PairSchedule
-from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS, PatrolPlan, plan_patrol
+from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS, PatrolPlan, plan_patrol, uncertainty_at_reset
 
 __all__ = ["AgentOrders", "TeamPlan", "plan_team"]
 
@@ -96,11 +96,7 @@ def plan_team(
     if search_seconds <= 0:
         raise InputError(f"search_seconds must be positive, got {search_seconds}")
     starts = np.asarray(starts, dtype=np.int64)
-    initial = (
-        np.zeros(graph.n_nodes, dtype=np.int64)
-        if initial_uncertainty is None
-        else np.asarray(initial_uncertainty)
-    )
+    initial = uncertainty_at_reset(graph, initial_uncertainty)
     deadline = time.monotonic() + search_seconds
     searches = [
         plan_patrol(graph, starts, max_cycles, u_max, initial, search_seconds / 4, tour_groups=tours)
