@@ -21,6 +21,7 @@ from sb3_pm.graphs import GraphSpec, preset
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.planning import lower_bound, priced_bound, stepwise_bound
 from sb3_pm.planning import planner as planner_search
+from sb3_pm.planning import pricer as pricer_module
 from sb3_pm.planning.batch_pricing import solo_costs
 from sb3_pm.planning.controllers import simulate
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost, tour_move
@@ -203,9 +204,9 @@ def test_the_batch_pricer_walks_every_group_as_the_scalar_rules_do(graph_seed: i
 def test_the_search_finds_the_same_plan_with_the_batch_pricer(monkeypatch) -> None:
     graph = erdos_renyi(16, edge_prob=0.25, n_targets=8, seed=3)
     starts = np.array([0, 5, 9])
-    monkeypatch.setattr(planner_search, "BATCH_MIN_WALKS", 1)
+    monkeypatch.setattr(pricer_module, "BATCH_MIN_WALKS", 1)
     batched = planner_search.plan_patrol(graph, starts, 120, 20, restarts=3)
-    monkeypatch.setattr(planner_search, "BATCH_MIN_WALKS", 10**9)
+    monkeypatch.setattr(pricer_module, "BATCH_MIN_WALKS", 10**9)
     one_by_one = planner_search.plan_patrol(graph, starts, 120, 20, restarts=3)
     assert batched == one_by_one
 

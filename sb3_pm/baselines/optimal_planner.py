@@ -32,6 +32,11 @@ from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS
 from sb3_pm.planning.team_plan import TeamPlan
 from sb3_pm.team_interface import Observation, Team
 
+#: The largest site the planner acts on: its schedules and openings read the ``(N, N)`` tables,
+#: which above this size take gigabytes (a 5,000-node site passed 10 GB). The groups alone scale:
+#: ``planned_patrol`` plans them on any site.
+MAX_PLANNER_NODES = 2_000
+
 
 class OptimalPlannerTeam(Team):
     """Centralized planning on the true state.
@@ -52,6 +57,11 @@ class OptimalPlannerTeam(Team):
         super().reset(env, seed)
         state = env.unwrapped
         graph = env_graph(env)
+        if graph.n_nodes > MAX_PLANNER_NODES:
+            raise InputError(
+                f"optimal_planner plans on sites of up to {MAX_PLANNER_NODES} nodes and {graph.name} has "
+                f"{graph.n_nodes}: use planned_patrol, whose plan of groups has no such limit"
+            )
         self.plan: TeamPlan = plan_with_openings(
             graph, state.positions, state.max_cycles, state.u_max, state.uncertainty, self.search_seconds
         )

@@ -5,12 +5,15 @@ then follows :func:`~sb3_pm.planning.group_patrol.group_move` on its group with 
 uncertainties. Priced as if each agent were alone on its group (an agent crossing another's
 target only lowers it), a plan's cost is a sum, so:
 
-1. the groups start as the territory split (:func:`sb3_pm.graphs.territories.target_territories`),
+1. the groups start as the territory split (:func:`sb3_pm.graphs.territories.split_targets`),
    the convention ``territory_patrol`` keeps;
 2. for given groups, the agents are matched to them by the Hungarian method
    (``scipy.optimize.linear_sum_assignment``) on each agent's solo cost from its own start;
 3. local search moves a target to another group or to nobody, brings a dropped target back, or
-   swaps two targets of two groups, taking the best improving change, until none improves.
+   swaps two targets of two groups, taking the best improving change, until none improves. Above
+   :data:`~sb3_pm.planning.owned_search.EXACT_SEARCH_MAX_AGENTS` agents, a search that tries nearby
+   changes only and prices them with each group's own agent
+   (:func:`~sb3_pm.planning.owned_search.descend_owned`) takes its place.
 
 Every candidate is priced by simulation (:func:`~sb3_pm.planning.group_patrol.solo_cost`), cached
 per (start, group). The plan is an upper bound on the optimum once replayed through the env.
@@ -20,16 +23,16 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
-from sb3_pm.graphs.territories import target_territories
-from sb3_pm.graphs.tours import approximate_tour
-from sb3_pm.planning.batch_pricing import solo_costs
-from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
+from sb3_pm.graphs.territories import split_targets
+from sb3_pm.planning.owned_search import EXACT_SEARCH_MAX_AGENTS, descend_owned, nearest_targets
+from sb3_pm.planning.pricer import GroupPricer
+from sb3_pm.planning.target_tables import TargetTables
 
 __all__ = ["PatrolPlan", "plan_patrol", "uncertainty_at_reset"]
 
@@ -37,8 +40,6 @@ __all__ = ["PatrolPlan", "plan_patrol", "uncertainty_at_reset"]
 DEFAULT_SEARCH_SECONDS = 60.0
 #: The default number of perturbed restarts of the local search.
 DEFAULT_RESTARTS = 20
-#: The fewest unpriced walks that :meth:`_Pricer.prefetch` prices as one NumPy batch.
-BATCH_MIN_WALKS = 512
 
 
 @dataclass(frozen=True)
@@ -60,106 +61,6 @@ class PatrolPlan:
     searched: int = 0
     complete: bool = True
     notes: dict[str, float] = field(default_factory=dict)
-
-
-class _Pricer:
-    """Solo costs, cached, for one episode's starts and initial uncertainties."""
-
-    def __init__(
-        self,
-        graph: GraphSpec,
-        starts: np.ndarray,
-        initial: np.ndarray,
-        max_cycles: int,
-        u_max: int,
-        tour_groups: bool = True,
-    ) -> None:
-        self.tour_groups = tour_groups
-        self.starts = [int(s) for s in starts]
-        self.initial = {int(node): int(initial[node]) for node in graph.target_indices}
-        self.max_cycles, self.u_max = max_cycles, u_max
-        self.distances = graph.hop_distances.astype(np.int64).tolist()
-        self.next_hop = graph.next_hop.astype(np.int64).tolist()
-        self.hop_distances = graph.hop_distances
-        self.distance_array = graph.hop_distances.astype(np.int64)
-        self.next_hop_array = graph.next_hop.astype(np.int64)
-        self._cache: dict[tuple[int, tuple[int, ...]], int] = {}
-        #: (start, group) -> the cheaper rule and the group in that rule's order
-        self.rule: dict[tuple[int, tuple[int, ...]], tuple[str, tuple[int, ...]]] = {}
-        self._tours: dict[tuple[int, ...], tuple[int, ...]] = {}
-
-    def _tour(self, group: tuple[int, ...]) -> tuple[int, ...]:
-        if group not in self._tours:
-            order = approximate_tour(np.asarray(group, dtype=np.int64), self.hop_distances)
-            self._tours[group] = tuple(int(t) for t in order)
-        return self._tours[group]
-
-    def _options(self, group: tuple[int, ...]) -> list[tuple[str, tuple[int, ...]]]:
-        """The rules a group is priced by, each with the group in its order (``tour`` from 3 targets,
-        where ``tour_groups``)."""
-        tour = self.tour_groups and len(group) >= 3
-        return [("stalest", group)] + ([("tour", self._tour(group))] if tour else [])
-
-    def solo(self, start: int, group: tuple[int, ...]) -> int:
-        """The agent's cost alone on ``group`` by the cheaper of :meth:`_options`' rules."""
-        key = (start, group)
-        if key not in self._cache:
-            priced = []
-            for rule, ordered in self._options(group):
-                initial = [self.initial[t] for t in ordered]
-                cost = solo_cost(
-                    start, ordered, initial, self.max_cycles, self.u_max, self.distances, self.next_hop, rule
-                )
-                priced.append((cost, rule, ordered))
-            cost, rule, ordered = min(priced, key=lambda item: item[0])
-            self._cache[key], self.rule[key] = cost, (rule, ordered)
-        return self._cache[key]
-
-    def prefetch(self, groups: set[tuple[int, ...]]) -> None:
-        """Price every start on every group of ``groups`` not priced yet, in one batch."""
-        unpriced = [
-            (start, group) for group in groups for start in self.starts if (start, group) not in self._cache
-        ]
-        walks = [
-            (start, group, rule, ordered)
-            for start, group in unpriced
-            for rule, ordered in self._options(group)
-        ]
-        if len(walks) < BATCH_MIN_WALKS:  # a small batch walks faster one by one
-            for start, group in unpriced:
-                self.solo(start, group)
-            return
-        costs = solo_costs(
-            [start for start, _, _, _ in walks],
-            [ordered for _, _, _, ordered in walks],
-            [rule for _, _, rule, _ in walks],
-            [[self.initial[t] for t in ordered] for _, _, _, ordered in walks],
-            self.max_cycles,
-            self.u_max,
-            self.distance_array,
-            self.next_hop_array,
-        )
-        # as solo(): the cheaper rule, stalest on a tie (it comes first)
-        for (start, group, rule, ordered), cost in zip(walks, costs.tolist()):
-            key = (start, group)
-            if key not in self._cache or cost < self._cache[key]:
-                self._cache[key], self.rule[key] = cost, (rule, ordered)
-
-    def dropped(self, target: int) -> int:
-        return dropped_cost(self.initial[target], self.max_cycles, self.u_max)
-
-    def assign(self, groups: list[tuple[int, ...]]) -> tuple[int, list[int]]:
-        """The least summed solo cost over agent-to-group matchings, and each agent's group index."""
-        costs = np.array([[self.solo(s, g) for g in groups] for s in self.starts], dtype=np.float64)
-        rows, cols = linear_sum_assignment(costs)
-        order = [0] * len(self.starts)
-        for row, col in zip(rows, cols):
-            order[row] = int(col)
-        return int(costs[rows, cols].sum()), order
-
-    def total(self, groups: list[tuple[int, ...]], dropped: tuple[int, ...]) -> tuple[int, list[int]]:
-        cost, order = self.assign(groups)
-        return cost + sum(self.dropped(t) for t in dropped), order
 
 
 def _neighbours(groups: list[tuple[int, ...]], dropped: tuple[int, ...]):
@@ -194,7 +95,7 @@ def _neighbours(groups: list[tuple[int, ...]], dropped: tuple[int, ...]):
 
 
 def _descend(
-    pricer: _Pricer, groups: list[tuple[int, ...]], dropped: tuple[int, ...], deadline: float
+    pricer: GroupPricer, groups: list[tuple[int, ...]], dropped: tuple[int, ...], deadline: float
 ) -> tuple[int, list[tuple[int, ...]], tuple[int, ...], list[int], int, bool]:
     """Best-improvement local search from ``groups``: (cost, groups, dropped, order, rounds, complete)."""
     best, order = pricer.total(groups, dropped)
@@ -278,30 +179,34 @@ def plan_patrol(
     if restarts < 0:
         raise InputError(f"restarts must be >= 0, got {restarts}")
     initial = uncertainty_at_reset(graph, initial_uncertainty)
-    pricer = _Pricer(graph, starts, initial, max_cycles, u_max, tour_groups)
+    tables = TargetTables(graph)
+    pricer = GroupPricer(tables, tables.labels(starts), initial, max_cycles, u_max, tour_groups)
     n = starts.size
-    owner = target_territories(graph.hop_distances, graph.target_indices, n)
-    groups = [tuple(int(t) for t in graph.target_indices[owner == i]) for i in range(n)]
+    owner = split_targets(tables.between, np.arange(tables.between.shape[0]), n)
+    groups = [tuple(int(t) for t in np.flatnonzero(owner == i)) for i in range(n)]
+    pricer.prefetch(set(groups))
     first, _ = pricer.total(groups, ())
     deadline = time.monotonic() + search_seconds
-    best, groups, dropped, order, rounds, complete = _descend(pricer, groups, (), deadline)
+    if n > EXACT_SEARCH_MAX_AGENTS:
+        descend = partial(descend_owned, pricer, deadline=deadline, near=nearest_targets(tables.between))
+    else:
+        descend = partial(_descend, pricer, deadline=deadline)
+    best, groups, dropped, order, rounds, complete = descend(groups, ())
     rng = np.random.default_rng(0)
     for _ in range(restarts):
         if not complete:
             break
         moves = int(rng.integers(1, 4))
         start_groups, start_dropped = _perturbed(groups, dropped, rng, moves)
-        cost, found, found_dropped, found_order, more, complete = _descend(
-            pricer, start_groups, start_dropped, deadline
-        )
+        cost, found, found_dropped, found_order, more, complete = descend(start_groups, start_dropped)
         rounds += more
         if cost < best:
             best, groups, dropped, order = cost, found, found_dropped, found_order
     chosen = [pricer.rule[(pricer.starts[agent], groups[order[agent]])] for agent in range(n)]
     return PatrolPlan(
-        groups=tuple(ordered for _, ordered in chosen),
+        groups=tuple(tables.nodes(ordered) for _, ordered in chosen),
         rules=tuple(rule for rule, _ in chosen),
-        dropped=dropped,
+        dropped=tables.nodes(dropped),
         predicted=best / max_cycles,
         searched=rounds,
         complete=complete,

@@ -14,7 +14,7 @@ import sys
 
 import torch
 
-import sb3_pm.planning.planner as planner
+import sb3_pm.planning.pricer as pricer
 from sb3_pm.baselines import make_team
 from sb3_pm.evaluation import evaluate
 
@@ -22,7 +22,7 @@ torch.set_num_threads(1)
 mode, graph, n_agents = sys.argv[1], sys.argv[2], int(sys.argv[3])
 policy = sys.argv[4] if len(sys.argv) > 4 else "planned_patrol"
 if mode == "nodrop":
-    planner._Pricer.dropped = lambda self, target: 10**12  # no plan drops a target
+    pricer.GroupPricer.dropped = lambda self, target: 10**12  # no plan drops a target
 result = evaluate(make_team(policy), graph, n_agents=n_agents, episodes=5, seed=11)
 print(
     mode,
