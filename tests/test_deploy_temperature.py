@@ -255,7 +255,11 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
         "transfer_advice": {"advice_prior": 0.25, "advice_prior_family": 0.25, "advice": 0.25},
         "regime_100": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
         "regime_200": {"transfer": 0.25, "transfer_advice": 0.25, "transfer_family": 0.25},
-        "held_out": {"transfer_planned": 0.25, "transfer_planned_prior4": 0.25},
+        "held_out": {
+            "transfer_planned": 0.25,
+            "transfer_planned_prior4": 0.25,
+            "transfer_planned_prior8": 0.25,
+        },
     }
     assert experiment_record(load_experiment(experiment_file("transfer_known_map")))[
         "deploy_temperature"
