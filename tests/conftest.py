@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -11,6 +14,9 @@ import torch
 
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.presets import DATA_DIR
+
+#: The repository root, where child processes run.
+ROOT = Path(__file__).resolve().parent.parent
 
 # Tests run two workers on two cores: one torch thread each avoids oversubscription.
 torch.set_num_threads(1)
@@ -73,3 +79,18 @@ def tiny_train(tmp_path: Path) -> tuple[Path, Path, Path]:
     config.write_text(textwrap.dedent(TINY_CONFIG))
     graph = save_graphml(erdos_renyi(12, 0.3, n_targets=3, seed=1), tmp_path / "g12.graphml")
     return config, graph, tmp_path / "run"
+
+
+def child_result(script: str, timeout: int) -> dict:
+    """Run ``script`` in a fresh Python process (its own peak memory, one thread) and return the
+    JSON of its last line; the child's error output if it fails."""
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={"PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
+        timeout=timeout,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])

@@ -12,10 +12,7 @@ of its own, with its peak memory.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,9 +27,8 @@ from sb3_pm.graphs.routes import DenseRoutes, TargetRoutes
 from sb3_pm.graphs.territories import site_territories, target_territories
 from sb3_pm.policies.edges import edges_to_adjacency
 from sb3_pm.policies.neglect_bound import edge_hop_distances, hop_distances
-from tests.conftest import episode_moves
+from tests.conftest import child_result, episode_moves
 
-ROOT = Path(__file__).resolve().parent.parent
 GRAPHS = {
     "paper-50": lambda: resolve_graph("paper-50"),
     "rooms-4": lambda: resolve_graph("rooms-4"),
@@ -294,23 +290,8 @@ EPISODE = textwrap.dedent(
 )
 
 
-def _child_result(script: str, timeout: int) -> dict:
-    """Run ``script`` in a fresh Python process (its own peak memory, one thread) and return the
-    JSON of its last line; the child's error output if it fails."""
-    done = subprocess.run(
-        [sys.executable, "-c", script],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={"PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
-        timeout=timeout,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 def test_a_transfer_episode_on_a_1000_node_site_in_the_edges_layout() -> None:
-    result = _child_result(EPISODE, timeout=600)
+    result = child_result(EPISODE, timeout=600)
     assert result["moves"] == 12 * 20 and result["legal"] == result["moves"]
     assert not result["all_pairs"]  # 1,000 nodes: above DENSE_ROUTES_MAX, per-target routes
     assert result["peak_mb"] < 1500, result  # measured 480 MB (importing torch alone: about 300)
@@ -347,7 +328,7 @@ SITE_5K = textwrap.dedent(
 def test_a_transfer_episode_on_the_5000_node_city_with_64_agents_fits_in_2_gb() -> None:
     """The zero-shot records' setting (docs/RESULTS.md, "Sites of thousands of nodes"), 10 steps;
     measured 590 MB and 6 s in the child (9 s in all) on a busy 2-core machine."""
-    result = _child_result(SITE_5K, timeout=900)
+    result = child_result(SITE_5K, timeout=900)
     assert result["moves"] == 64 * 10 and result["legal"] == result["moves"]
     assert not result["all_pairs"]
     assert result["peak_mb"] < 2048, result

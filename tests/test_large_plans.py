@@ -8,11 +8,7 @@ or dropped; and a plan for 64 agents on the 5,000-node city must fit in a small 
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,8 +20,7 @@ from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
 from sb3_pm.planning.owned_search import EXACT_SEARCH_MAX_AGENTS, nearest_targets
 from sb3_pm.planning.planner import plan_patrol
 from sb3_pm.planning.target_tables import TargetTables
-
-ROOT = Path(__file__).resolve().parent.parent
+from tests.conftest import child_result
 
 
 def fresh(name: str) -> GraphSpec:
@@ -101,16 +96,7 @@ PLAN_5K = textwrap.dedent(
 
 
 def test_a_plan_for_64_agents_on_the_5000_node_city_fits_in_a_small_process() -> None:
-    done = subprocess.run(
-        [sys.executable, "-c", PLAN_5K],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={"PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
-        timeout=600,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    result = json.loads(done.stdout.strip().splitlines()[-1])
+    result = child_result(PLAN_5K, timeout=600)
     assert result["complete"] and result["predicted"] < result["split"], result
     assert not result["all_pairs"]  # no (N, N) table was built
     assert result["peak_mb"] < 1000, result
