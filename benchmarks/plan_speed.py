@@ -9,7 +9,8 @@ Each cell is ``GRAPH:AGENTS``. For each, the start positions of ``--episodes`` e
 seconds per plan (mean and worst), whether every search completed within its cap, and the
 predicted ``avg_uncertainty``. ``--one-by-one`` prices every walk one at a time instead of in
 NumPy batches; the plans are the same (``tests/test_planning.py``), so the two runs differ in time
-only. The load average is printed: on a shared CPU the figures are higher.
+only. The load average is printed: on a shared CPU the figures are higher. Large cells work too
+(``city-5k:64``: above 16 agents the search over nearby changes, docs/PLANNING.md).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.graphs.resolve import resolve_graph
-from sb3_pm.planning import planner
+from sb3_pm.planning import planner, pricer
 
 
 def plan_seconds(graph_name: str, agents: int, episodes: int, seed: int) -> tuple[list[float], bool, float]:
@@ -49,7 +50,7 @@ def main() -> None:
     parser.add_argument("--one-by-one", action="store_true", help="price every walk alone (no batches)")
     args = parser.parse_args()
     if args.one_by_one:
-        planner.BATCH_MIN_WALKS = 10**12
+        pricer.BATCH_MIN_WALKS = 10**12
     print(f"load average {os.getloadavg()[0]:.2f}; pricing {'one by one' if args.one_by_one else 'batched'}")
     print("| cell | s per plan (mean) | worst | all complete | predicted |")
     print("|---|---:|---:|---|---:|")
