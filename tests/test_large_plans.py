@@ -15,6 +15,7 @@ import pytest
 
 from sb3_pm.graphs import GraphSpec, resolve_graph
 from sb3_pm.graphs.large_sites import city_streets
+from sb3_pm.planning import owned_search
 from sb3_pm.planning import target_tables as tables_module
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
 from sb3_pm.planning.owned_search import EXACT_SEARCH_MAX_AGENTS, nearest_targets
@@ -62,9 +63,15 @@ def _recomputed(graph: GraphSpec, starts: np.ndarray, plan, max_cycles: int, u_m
     return total / max_cycles
 
 
-def test_the_large_team_search_prices_what_it_plans_and_ends_below_the_split() -> None:
-    graph = city_streets(600, seed=3)  # 60 targets: 3 for each of 20 agents
-    n_agents = EXACT_SEARCH_MAX_AGENTS + 4
+@pytest.mark.parametrize("n_agents, max_targets", [(EXACT_SEARCH_MAX_AGENTS + 4, None), (4, 20)])
+def test_the_large_team_search_prices_what_it_plans_and_ends_below_the_split(
+    n_agents: int, max_targets: int | None, monkeypatch
+) -> None:
+    """Above 16 agents, or (with the limit lowered to 20) above the limit on targets."""
+    if max_targets is not None:
+        monkeypatch.setattr(owned_search, "EXACT_SEARCH_MAX_TARGETS", max_targets)
+    graph = city_streets(600, seed=3)  # 60 targets
+    assert not owned_search.exhaustive(n_agents, graph.n_targets)
     starts = np.random.default_rng(0).choice(graph.n_nodes, n_agents, replace=False)
     plan = plan_patrol(graph, starts, 200, 60, search_seconds=600.0, restarts=2, tour_groups=False)
     assert plan.complete
@@ -74,6 +81,11 @@ def test_the_large_team_search_prices_what_it_plans_and_ends_below_the_split() -
     assert plan.predicted < plan.notes["territory_split"]
     # the search is seeded and counted: the same arguments give the same plan
     assert plan_patrol(graph, starts, 200, 60, search_seconds=600.0, restarts=2, tour_groups=False) == plan
+
+
+def test_the_exhaustive_search_plans_up_to_16_agents_and_200_targets() -> None:
+    assert owned_search.exhaustive(16, 200)
+    assert not owned_search.exhaustive(17, 10) and not owned_search.exhaustive(4, 201)
 
 
 PLAN_5K = textwrap.dedent(

@@ -1,8 +1,9 @@
 """The plan search for large teams: nearby changes, priced with each group's own agent (docs/PLANNING.md).
 
 The exhaustive search (:func:`sb3_pm.planning.planner.plan_patrol` up to
-:data:`EXACT_SEARCH_MAX_AGENTS` agents) tries every move, drop, return and swap and re-matches
-all agents to all groups for each: ``O(T^2)`` candidates a round, each priced from every start.
+:data:`EXACT_SEARCH_MAX_AGENTS` agents and :data:`EXACT_SEARCH_MAX_TARGETS` targets) tries every
+move, drop, return and swap and re-matches all agents to all groups for each: ``O(T^2)``
+candidates a round, each priced from every start.
 With 64 agents on 500 targets that is about 160,000 candidates and ten million walks a round.
 
 Above that size this search keeps the matching fixed while it descends:
@@ -27,16 +28,30 @@ import numpy as np
 
 from sb3_pm.planning.pricer import GroupPricer
 
-__all__ = ["EXACT_SEARCH_MAX_AGENTS", "NEAR_TARGETS", "descend_owned", "nearest_targets"]
+__all__ = [
+    "EXACT_SEARCH_MAX_AGENTS",
+    "EXACT_SEARCH_MAX_TARGETS",
+    "NEAR_TARGETS",
+    "descend_owned",
+    "exhaustive",
+    "nearest_targets",
+]
 
 #: Teams up to this size are planned by the exhaustive search; larger ones by :func:`descend_owned`.
 EXACT_SEARCH_MAX_AGENTS = 16
+#: Sites with more targets than this are planned by :func:`descend_owned` whatever the team size.
+EXACT_SEARCH_MAX_TARGETS = 200
 #: How many nearest targets (by hops) name the groups a target may join.
 NEAR_TARGETS = 8
 
 #: One candidate: its gain (negative: cheaper), each changed group as (group index, new group),
 #: the targets it moves, and the dropped targets after it.
 _Candidate = tuple[int, tuple[tuple[int, tuple[int, ...]], ...], tuple[int, ...], tuple[int, ...]]
+
+
+def exhaustive(n_agents: int, n_targets: int) -> bool:
+    """Whether a plan for ``n_agents`` on ``n_targets`` takes the exhaustive search."""
+    return n_agents <= EXACT_SEARCH_MAX_AGENTS and n_targets <= EXACT_SEARCH_MAX_TARGETS
 
 
 def nearest_targets(between: np.ndarray, count: int = NEAR_TARGETS) -> np.ndarray:

@@ -11,8 +11,8 @@ target only lowers it), a plan's cost is a sum, so:
    (``scipy.optimize.linear_sum_assignment``) on each agent's solo cost from its own start;
 3. local search moves a target to another group or to nobody, brings a dropped target back, or
    swaps two targets of two groups, taking the best improving change, until none improves. Above
-   :data:`~sb3_pm.planning.owned_search.EXACT_SEARCH_MAX_AGENTS` agents, a search that tries nearby
-   changes only and prices them with each group's own agent
+   16 agents or 200 targets (:func:`~sb3_pm.planning.owned_search.exhaustive`), a search that
+   tries nearby changes only and prices them with each group's own agent
    (:func:`~sb3_pm.planning.owned_search.descend_owned`) takes its place.
 
 Every candidate is priced by simulation (:func:`~sb3_pm.planning.group_patrol.solo_cost`), cached
@@ -30,7 +30,7 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.territories import split_targets
-from sb3_pm.planning.owned_search import EXACT_SEARCH_MAX_AGENTS, descend_owned, nearest_targets
+from sb3_pm.planning.owned_search import descend_owned, exhaustive, nearest_targets
 from sb3_pm.planning.pricer import GroupPricer
 from sb3_pm.planning.target_tables import TargetTables
 
@@ -187,7 +187,7 @@ def plan_patrol(
     pricer.prefetch(set(groups))
     first, _ = pricer.total(groups, ())
     deadline = time.monotonic() + search_seconds
-    if n > EXACT_SEARCH_MAX_AGENTS:
+    if not exhaustive(n, tables.between.shape[0]):
         descend = partial(descend_owned, pricer, deadline=deadline, near=nearest_targets(tables.between))
     else:
         descend = partial(_descend, pricer, deadline=deadline)
