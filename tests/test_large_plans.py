@@ -18,7 +18,7 @@ from sb3_pm.graphs.large_sites import city_streets
 from sb3_pm.planning import owned_search
 from sb3_pm.planning import target_tables as tables_module
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
-from sb3_pm.planning.owned_search import EXACT_SEARCH_MAX_AGENTS, nearest_targets
+from sb3_pm.planning.owned_search import nearest_targets
 from sb3_pm.planning.planner import plan_patrol
 from sb3_pm.planning.target_tables import TargetTables
 from tests.conftest import child_result
@@ -63,13 +63,12 @@ def _recomputed(graph: GraphSpec, starts: np.ndarray, plan, max_cycles: int, u_m
     return total / max_cycles
 
 
-@pytest.mark.parametrize("n_agents, max_targets", [(EXACT_SEARCH_MAX_AGENTS + 4, None), (4, 20)])
+@pytest.mark.parametrize("n_agents", [20, 4])
 def test_the_large_team_search_prices_what_it_plans_and_ends_below_the_split(
-    n_agents: int, max_targets: int | None, monkeypatch
+    n_agents: int, monkeypatch
 ) -> None:
-    """Above 16 agents, or (with the limit lowered to 20) above the limit on targets."""
-    if max_targets is not None:
-        monkeypatch.setattr(owned_search, "EXACT_SEARCH_MAX_TARGETS", max_targets)
+    """With the limit on the exhaustive search lowered, so that a small site takes the other one."""
+    monkeypatch.setattr(owned_search, "EXACT_SEARCH_MAX_WALKS", 1000)
     graph = city_streets(600, seed=3)  # 60 targets
     assert not owned_search.exhaustive(n_agents, graph.n_targets)
     starts = np.random.default_rng(0).choice(graph.n_nodes, n_agents, replace=False)
@@ -83,9 +82,17 @@ def test_the_large_team_search_prices_what_it_plans_and_ends_below_the_split(
     assert plan_patrol(graph, starts, 200, 60, search_seconds=600.0, restarts=2, tour_groups=False) == plan
 
 
-def test_the_exhaustive_search_plans_up_to_16_agents_and_200_targets() -> None:
-    assert owned_search.exhaustive(16, 200)
-    assert not owned_search.exhaustive(17, 10) and not owned_search.exhaustive(4, 201)
+def test_the_exhaustive_search_plans_where_a_round_prices_few_enough_walks() -> None:
+    assert owned_search.exhaustive(12, 100)  # city-1k's 12 agents: about 74,000 walks a round
+    assert owned_search.exhaustive(16, 32) and owned_search.exhaustive(8, 17)  # paper-200, paper-100
+    assert not owned_search.exhaustive(64, 500) and not owned_search.exhaustive(16, 500)  # city-5k
+
+
+def test_an_idle_agents_empty_group_may_take_any_target() -> None:
+    between = np.array([[0, 1, 5], [1, 0, 5], [5, 5, 0]])
+    changes = owned_search._changes([(0, 1), (2,), ()], (), nearest_targets(between, 1))
+    moved_to_empty = {moved for changed, moved, _ in changes if (2, moved) in changed}
+    assert moved_to_empty == {(0,), (1,), (2,)}
 
 
 PLAN_5K = textwrap.dedent(

@@ -34,7 +34,7 @@ from sb3_pm.team_interface import Observation, Team
 
 #: The largest site the planner acts on: its schedules and openings read the ``(N, N)`` tables,
 #: which above this size take gigabytes (a 5,000-node site passed 10 GB). The groups alone scale:
-#: ``planned_patrol`` plans them on any site.
+#: ``planned_patrol`` plans them on the large sites.
 MAX_PLANNER_NODES = 2_000
 
 
@@ -60,7 +60,7 @@ class OptimalPlannerTeam(Team):
         if graph.n_nodes > MAX_PLANNER_NODES:
             raise InputError(
                 f"optimal_planner plans on sites of up to {MAX_PLANNER_NODES} nodes and {graph.name} has "
-                f"{graph.n_nodes}: use planned_patrol, whose plan of groups has no such limit"
+                f"{graph.n_nodes}: use planned_patrol, whose plan of groups scales"
             )
         self.plan: TeamPlan = plan_with_openings(
             graph, state.positions, state.max_cycles, state.u_max, state.uncertainty, self.search_seconds

@@ -1,18 +1,17 @@
 """The plan search for large teams: nearby changes, priced with each group's own agent (docs/PLANNING.md).
 
-The exhaustive search (:func:`sb3_pm.planning.planner.plan_patrol` up to
-:data:`EXACT_SEARCH_MAX_AGENTS` agents and :data:`EXACT_SEARCH_MAX_TARGETS` targets) tries every
-move, drop, return and swap and re-matches all agents to all groups for each: ``O(T^2)``
-candidates a round, each priced from every start.
-With 64 agents on 500 targets that is about 160,000 candidates and ten million walks a round.
+The exhaustive search (:func:`sb3_pm.planning.planner.plan_patrol`) tries every move, drop, return
+and swap and re-matches all agents to all groups for each: ``O(T^2)`` candidates a round, each
+priced from every start. With 64 agents on 500 targets that is about 160,000 candidates and ten
+million walks a round. Above :data:`EXACT_SEARCH_MAX_WALKS` walks a round (:func:`exhaustive`) this
+search takes its place, keeping the matching fixed while it descends:
 
-Above that size this search keeps the matching fixed while it descends:
-
-* a target moves, or swaps, only with the groups holding one of its :data:`NEAR_TARGETS` nearest
-  targets (a far group never gains from it on a site where travel is what costs), and a dropped
-  target returns only to those groups;
-* each changed group is priced with the agent that holds it, so a candidate costs two walks, and
-  its gain is the difference of two solo costs;
+* a target moves to the groups holding one of its :data:`NEAR_TARGETS` nearest targets, or to an
+  empty group, swaps with one of those nearest targets held by another group, or is dropped (a
+  far group never gains from it on a site where travel is what costs), and a dropped target
+  returns only to those groups;
+* each changed group is priced with the agent that holds it (by each rule the group is priced
+  by), and a candidate's gain is the difference of its groups' solo costs;
 * every round applies all improving candidates that touch disjoint groups and targets, best
   first (their gains add up, since each agent is priced alone);
 * after each round the agents are matched to the groups again by the Hungarian method, which
@@ -29,18 +28,17 @@ import numpy as np
 from sb3_pm.planning.pricer import GroupPricer
 
 __all__ = [
-    "EXACT_SEARCH_MAX_AGENTS",
-    "EXACT_SEARCH_MAX_TARGETS",
+    "EXACT_SEARCH_MAX_WALKS",
     "NEAR_TARGETS",
     "descend_owned",
     "exhaustive",
     "nearest_targets",
 ]
 
-#: Teams up to this size are planned by the exhaustive search; larger ones by :func:`descend_owned`.
-EXACT_SEARCH_MAX_AGENTS = 16
-#: Sites with more targets than this are planned by :func:`descend_owned` whatever the team size.
-EXACT_SEARCH_MAX_TARGETS = 200
+#: The most walks a round of the exhaustive search may price (every candidate from every start)
+#: for a plan to take it; larger plans take :func:`descend_owned`. 12 agents on 100 targets
+#: (``city-1k``) are about 74,000; 64 agents on 500 targets about ten million.
+EXACT_SEARCH_MAX_WALKS = 250_000
 #: How many nearest targets (by hops) name the groups a target may join.
 NEAR_TARGETS = 8
 
@@ -50,8 +48,11 @@ _Candidate = tuple[int, tuple[tuple[int, tuple[int, ...]], ...], tuple[int, ...]
 
 
 def exhaustive(n_agents: int, n_targets: int) -> bool:
-    """Whether a plan for ``n_agents`` on ``n_targets`` takes the exhaustive search."""
-    return n_agents <= EXACT_SEARCH_MAX_AGENTS and n_targets <= EXACT_SEARCH_MAX_TARGETS
+    """Whether a plan for ``n_agents`` on ``n_targets`` takes the exhaustive search: whether a round's
+    candidates (``n T`` moves and drops, ``T (T - 1) / 2`` swaps at most), each priced from every
+    start, are at most :data:`EXACT_SEARCH_MAX_WALKS` walks."""
+    candidates = n_agents * n_targets + n_targets * (n_targets - 1) // 2
+    return n_agents * candidates <= EXACT_SEARCH_MAX_WALKS
 
 
 def nearest_targets(between: np.ndarray, count: int = NEAR_TARGETS) -> np.ndarray:
@@ -70,10 +71,13 @@ def _changes(
 ) -> list[tuple[tuple[tuple[int, tuple[int, ...]], ...], tuple[int, ...], tuple[int, ...]]]:
     """Every nearby change: (changed groups as (index, new group), targets moved, dropped after)."""
     holder = {target: g for g, group in enumerate(groups) for target in group}
+    empty = {g for g, group in enumerate(groups) if not group}  # an idle agent may take any target
     found = []
     for target in range(near.shape[0]):
         g = holder.get(target)
-        near_groups = sorted({holder[other] for other in near[target].tolist() if other in holder} - {g})
+        near_groups = sorted(
+            ({holder[other] for other in near[target].tolist() if other in holder} | empty) - {g}
+        )
         if g is None:  # dropped: return it to a nearby group
             rest = tuple(t for t in dropped if t != target)
             for h in near_groups:
@@ -116,6 +120,8 @@ def descend_owned(
         start_of = {group_index: pricer.starts[agent] for agent, group_index in enumerate(order)}
         changes = _changes(groups, dropped, near)
         pricer.prefetch_pairs((start_of[g], new) for changed, _, _ in changes for g, new in changed)
+        if time.monotonic() > deadline:
+            return best, groups, dropped, order, rounds, False
         was_dropped = set(dropped)
         candidates: list[_Candidate] = []
         for changed, moved, after in changes:

@@ -10,9 +10,9 @@ target only lowers it), a plan's cost is a sum, so:
 2. for given groups, the agents are matched to them by the Hungarian method
    (``scipy.optimize.linear_sum_assignment``) on each agent's solo cost from its own start;
 3. local search moves a target to another group or to nobody, brings a dropped target back, or
-   swaps two targets of two groups, taking the best improving change, until none improves. Above
-   16 agents or 200 targets (:func:`~sb3_pm.planning.owned_search.exhaustive`), a search that
-   tries nearby changes only and prices them with each group's own agent
+   swaps two targets of two groups, taking the best improving change, until none improves. Where a
+   round would price too many walks (:func:`~sb3_pm.planning.owned_search.exhaustive`), a search
+   that tries nearby changes only and prices them with each group's own agent
    (:func:`~sb3_pm.planning.owned_search.descend_owned`) takes its place.
 
 Every candidate is priced by simulation (:func:`~sb3_pm.planning.group_patrol.solo_cost`), cached
@@ -184,9 +184,9 @@ def plan_patrol(
     n = starts.size
     owner = split_targets(tables.between, np.arange(tables.between.shape[0]), n)
     groups = [tuple(int(t) for t in np.flatnonzero(owner == i)) for i in range(n)]
+    deadline = time.monotonic() + search_seconds
     pricer.prefetch(set(groups))
     first, _ = pricer.total(groups, ())
-    deadline = time.monotonic() + search_seconds
     if not exhaustive(n, tables.between.shape[0]):
         descend = partial(descend_owned, pricer, deadline=deadline, near=nearest_targets(tables.between))
     else:

@@ -25,6 +25,29 @@ __all__ = ["BATCH_MAX_WALKS", "BATCH_MIN_WALKS", "GroupPricer"]
 BATCH_MIN_WALKS = 512
 #: The most walks priced in one NumPy batch, so that a large site's batch stays within memory.
 BATCH_MAX_WALKS = 20_000
+#: Tables of up to this many entries are held as Python lists for the one-by-one walks; larger ones
+#: turn a row into a list when a walk first reads it (a walk reads few rows; a list of every row
+#: of a 20,000-node site with 2,000 targets takes about a gigabyte).
+EAGER_ROWS_MAX_ENTRIES = 2_000_000
+
+
+class _RowsOnDemand:
+    """``table[node][column]`` for the one-by-one walks, each row made a Python list on first use."""
+
+    def __init__(self, table: np.ndarray) -> None:
+        self.table = table
+        self.rows: dict[int, list[int]] = {}
+
+    def __getitem__(self, node: int) -> list[int]:
+        row = self.rows.get(node)
+        if row is None:
+            row = self.rows[node] = self.table[node].tolist()
+        return row
+
+
+def _rows(table: np.ndarray) -> list[list[int]] | _RowsOnDemand:
+    """``table`` ``(N, T)`` as rows of Python ints, all at once where it is small."""
+    return table.tolist() if table.size <= EAGER_ROWS_MAX_ENTRIES else _RowsOnDemand(table)
 
 
 class GroupPricer:
@@ -46,8 +69,8 @@ class GroupPricer:
         n_targets = tables.between.shape[0]
         self.initial = {label: int(initial[tables.node[label]]) for label in range(n_targets)}
         self.max_cycles, self.u_max = max_cycles, u_max
-        self.distances = tables.distances.tolist()
-        self.next_hop = tables.next_hop.tolist()
+        self.distances = _rows(tables.distances)
+        self.next_hop = _rows(tables.next_hop)
         self.between = tables.between
         self.distance_array = tables.distances
         self.next_hop_array = tables.next_hop
@@ -90,7 +113,7 @@ class GroupPricer:
     def prefetch_pairs(self, pairs: Iterable[tuple[int, tuple[int, ...]]]) -> None:
         """Price every (start, group) of ``pairs`` not priced yet, in batches of at most
         :data:`BATCH_MAX_WALKS` walks."""
-        unpriced = [pair for pair in pairs if pair not in self._cache]
+        unpriced = list(dict.fromkeys(pair for pair in pairs if pair not in self._cache))
         walks = [
             (start, group, rule, ordered)
             for start, group in unpriced

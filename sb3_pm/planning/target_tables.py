@@ -46,7 +46,7 @@ class TargetTables:
             hops = graph.next_hop[:, targets].astype(np.int64)
         else:
             routes = graph.routes
-            if not isinstance(routes, TargetRoutes):  # pragma: no cover - site_routes' choice above the limit
+            if not isinstance(routes, TargetRoutes):  # the limit was lowered after the routes were built
                 routes = TargetRoutes(graph)
             to_targets = routes.from_target.T.astype(np.int64)
             hops = _next_hops(graph, targets, to_targets)
