@@ -83,8 +83,8 @@ def test_the_large_team_search_prices_what_it_plans_and_ends_below_the_split(
 
 
 def test_the_exhaustive_search_plans_where_a_round_prices_few_enough_walks() -> None:
-    assert owned_search.exhaustive(12, 100)  # city-1k's 12 agents: about 74,000 walks a round
     assert owned_search.exhaustive(16, 32) and owned_search.exhaustive(8, 17)  # paper-200, paper-100
+    assert not owned_search.exhaustive(12, 100)  # city-1k's 12 agents: about 74,000 walks a round
     assert not owned_search.exhaustive(64, 500) and not owned_search.exhaustive(16, 500)  # city-5k
 
 

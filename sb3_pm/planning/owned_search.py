@@ -36,9 +36,10 @@ __all__ = [
 ]
 
 #: The most walks a round of the exhaustive search may price (every candidate from every start)
-#: for a plan to take it; larger plans take :func:`descend_owned`. 12 agents on 100 targets
-#: (``city-1k``) are about 74,000; 64 agents on 500 targets about ten million.
-EXACT_SEARCH_MAX_WALKS = 250_000
+#: for a plan to take it; larger plans take :func:`descend_owned`. 16 agents on ``paper-200``'s
+#: 32 targets are about 16,000; 12 agents on ``city-1k``'s 100 targets about 74,000, where the
+#: exhaustive search does not finish within a minute; 64 agents on 500 targets about ten million.
+EXACT_SEARCH_MAX_WALKS = 50_000
 #: How many nearest targets (by hops) name the groups a target may join.
 NEAR_TARGETS = 8
 
