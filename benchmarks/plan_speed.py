@@ -10,7 +10,7 @@ seconds per plan (mean and worst), whether every search completed within its cap
 predicted ``avg_uncertainty``. ``--one-by-one`` prices every walk one at a time instead of in
 NumPy batches; the plans are the same (``tests/test_planning.py``), so the two runs differ in time
 only. The load average is printed: on a shared CPU the figures are higher. Large cells work too
-(``city-5k:64``: above 16 agents the search over nearby changes, docs/PLANNING.md).
+(``city-5k:64`` takes the search over nearby changes, docs/PLANNING.md).
 """
 
 from __future__ import annotations

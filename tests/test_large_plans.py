@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from sb3_pm.graphs import GraphSpec, resolve_graph
+from sb3_pm.graphs import routes as routes_module
 from sb3_pm.graphs.large_sites import city_streets
 from sb3_pm.planning import owned_search
-from sb3_pm.planning import target_tables as tables_module
 from sb3_pm.planning.group_patrol import dropped_cost, solo_cost
 from sb3_pm.planning.owned_search import nearest_targets
 from sb3_pm.planning.planner import plan_patrol
@@ -33,8 +33,8 @@ def fresh(name: str) -> GraphSpec:
 @pytest.mark.parametrize("name", ["paper-50", "rooms-4", "city-300"])
 @pytest.mark.parametrize("per_target", [False, True])
 def test_the_target_tables_hold_the_all_pairs_tables(name: str, per_target: bool, monkeypatch) -> None:
-    if per_target:  # built from one search per target, as on a large site
-        monkeypatch.setattr(tables_module, "DENSE_ROUTES_MAX", 0)
+    if per_target:  # the routes of one search per target, as on a large site
+        monkeypatch.setattr(routes_module, "DENSE_ROUTES_MAX", 0)
     graph = fresh(name)
     tables = TargetTables(graph)
     targets = graph.target_indices

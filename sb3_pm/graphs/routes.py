@@ -50,6 +50,9 @@ class Routes(Protocol):
     def to_targets(self, nodes: np.ndarray) -> np.ndarray:
         """``(len(nodes), T)`` hop distances from each of ``nodes`` to each target."""
 
+    def next_hops_to_targets(self) -> np.ndarray:
+        """``(N, T)`` int64: :meth:`next_hop` from every node towards every target, as one table."""
+
 
 class DenseRoutes:
     """:class:`Routes` read from the all-pairs tables.
@@ -73,6 +76,9 @@ class DenseRoutes:
 
     def to_targets(self, nodes: np.ndarray) -> np.ndarray:
         return self.hop_distances[np.ix_(np.asarray(nodes, dtype=np.int64), self.target_indices)]  # type: ignore[no-any-return]
+
+    def next_hops_to_targets(self) -> np.ndarray:
+        return self._next_hop[:, self.target_indices].astype(np.int64)  # type: ignore[no-any-return]
 
 
 class TargetRoutes:
@@ -117,6 +123,21 @@ class TargetRoutes:
 
     def to_targets(self, nodes: np.ndarray) -> np.ndarray:
         return self.from_target[:, np.asarray(nodes, dtype=np.int64)].T  # type: ignore[no-any-return]
+
+    def next_hops_to_targets(self) -> np.ndarray:
+        # next_hop() for every node at once, one pass over the CSR edge list per target: the first
+        # closer neighbour in a sorted row is the smallest-index one
+        n_nodes = self.row.size
+        source = np.repeat(np.arange(n_nodes), np.diff(self._indptr))
+        neighbour = self._indices.astype(np.int64)
+        result = np.empty((n_nodes, self.target_indices.size), dtype=np.int64)
+        for column, target in enumerate(self.target_indices.tolist()):
+            hops = self.from_target[column]
+            closer = np.flatnonzero(hops[neighbour] == hops[source] - 1)
+            nodes, first = np.unique(source[closer], return_index=True)
+            result[nodes, column] = neighbour[closer[first]]
+            result[target, column] = target
+        return result
 
 
 def site_routes(graph: GraphSpec) -> Routes:

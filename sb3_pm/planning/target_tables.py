@@ -8,7 +8,9 @@ The tables are indexed by *labels*: the targets are relabelled ``0 .. T-1`` in i
 order, the other nodes ``T .. N-1`` in increasing order. A target's label is then also its column,
 so code written for ``distances[a][b]`` on ``(N, N)`` tables runs unchanged on ``(N, T)`` ones, and
 every tie-break by node index (the stalest rule's lowest target, a path's smallest-index
-neighbour) falls the same way, because the relabelling keeps the order.
+neighbour) falls the same way, because the relabelling keeps the order. The tables come from the
+site's routes (:attr:`GraphSpec.routes`): the all-pairs tables' columns up to 500 nodes, one
+breadth-first search per target above.
 """
 
 from __future__ import annotations
@@ -16,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 
 from sb3_pm.graphs import GraphSpec
-from sb3_pm.graphs.routes import DENSE_ROUTES_MAX, TargetRoutes
 
 __all__ = ["TargetTables"]
 
@@ -41,15 +42,9 @@ class TargetTables:
         self.node = np.concatenate([targets, np.flatnonzero(~is_target)]).astype(np.int64)
         self.label = np.empty(n_nodes, dtype=np.int64)
         self.label[self.node] = np.arange(n_nodes)
-        if n_nodes <= DENSE_ROUTES_MAX:
-            to_targets = graph.hop_distances[:, targets].astype(np.int64)  # (N, T) in node order
-            hops = graph.next_hop[:, targets].astype(np.int64)
-        else:
-            routes = graph.routes
-            if not isinstance(routes, TargetRoutes):  # the limit was lowered after the routes were built
-                routes = TargetRoutes(graph)
-            to_targets = routes.from_target.T.astype(np.int64)
-            hops = _next_hops(graph, targets, to_targets)
+        routes = graph.routes  # all-pairs tables on small sites, one search per target on large ones
+        to_targets = routes.to_targets(np.arange(n_nodes)).astype(np.int64)  # (N, T) in node order
+        hops = routes.next_hops_to_targets()
         self.distances = np.ascontiguousarray(to_targets[self.node])
         self.next_hop = np.ascontiguousarray(self.label[hops[self.node]])
         self.between = np.ascontiguousarray(self.distances[:n_targets])
@@ -62,18 +57,3 @@ class TargetTables:
         """The nodes of ``labels``, in the same order."""
         return tuple(int(self.node[label]) for label in labels)
 
-
-def _next_hops(graph: GraphSpec, targets: np.ndarray, to_targets: np.ndarray) -> np.ndarray:
-    """``(N, T)`` int64 next hops in node indices, from ``to_targets`` ``(N, T)``, one vectorized pass
-    per target over the CSR edge list; the same nodes as ``graph.next_hop[:, targets]``."""
-    adjacency = graph.sparse_adjacency  # rows sorted: the first closer neighbour has the smallest index
-    source = np.repeat(np.arange(graph.n_nodes), np.diff(adjacency.indptr))
-    neighbour = adjacency.indices.astype(np.int64)
-    result = np.empty((graph.n_nodes, targets.size), dtype=np.int64)
-    for column, target in enumerate(targets.tolist()):
-        hops = to_targets[:, column]
-        closer = np.flatnonzero(hops[neighbour] == hops[source] - 1)
-        nodes, first = np.unique(source[closer], return_index=True)  # CSR order: first per node
-        result[nodes, column] = neighbour[closer[first]]
-        result[target, column] = target
-    return result
