@@ -38,6 +38,7 @@ class TestRegistry:
             "tour_patrol",
             "territory_patrol",
             "planned_patrol",
+            "planned_tour_patrol",
             "optimal_planner",
         ]
         for name, cls in BASELINES.items():

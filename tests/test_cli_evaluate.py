@@ -54,6 +54,7 @@ class TestEvaluate:
             (["--policy", "random", "--agents", "0"], "--agents must be at least 1"),
             (["--policy", "random", "--agents", "51"], "more agents (51) than nodes"),
             (["--policy", "random", "--json", "/no/such/dir/r.json"], "output directory does not exist"),
+            (["--policy", "territory_patrol", "--territories", "planned_tours"], "is told neither"),
         ],
     )
     def test_errors_are_one_line(self, capsys, args, message) -> None:
@@ -102,6 +103,30 @@ class TestEvaluate:
         monkeypatch.setattr("sb3_pm.commands.options.check_device", lambda device, flag: None)
         code, _, _ = run_cli(capsys, *argv, "--device", "cuda")
         assert code == 0 and loaded[-1] == (team_dir, "cuda")
+
+    def test_territories_put_a_convention_over_the_teams_own(self, capsys, tmp_path, monkeypatch) -> None:
+        told = {"advice_input": True, "graph_knowledge": "known", "target_knowledge": "known"}
+
+        class FakePPO:
+            @staticmethod
+            def load(path, graph=None, device="cpu"):
+                team = make_team("sit_on_nodes")  # acts on its own; the env's advice follows the convention
+                team.n_agents, team.resizable = 4, False
+                team.env_settings = lambda: {**told, "territories": "planned"}
+                return team
+
+        monkeypatch.setattr("sb3_pm.agents.training.team.IndependentPPO", FakePPO)
+        team_dir = tmp_path / "told_team"
+        team_dir.mkdir()
+        result = tmp_path / "r.json"
+        argv = ["evaluate", "--policy", str(team_dir), "--steps", "5", "--episodes", "1"]
+        argv += ["--json", str(result)]
+        code, _, _ = run_cli(capsys, *argv, "--territories", "planned_tours")
+        assert code == 0
+        assert json.loads(result.read_text())["config"]["env_kwargs"]["territories"] == "planned_tours"
+        result.unlink()
+        code, _, _ = run_cli(capsys, *argv)  # without the option, the team's own
+        assert json.loads(result.read_text())["config"]["env_kwargs"]["territories"] == "planned"
 
     def test_a_trained_team_deploys_with_its_own_size_by_default(self, capsys, tmp_path, monkeypatch) -> None:
         class FakePPO:

@@ -178,15 +178,15 @@ class TestCommandLine:
     def test_fail_flag_parsing(self) -> None:
         import argparse
 
-        from sb3_pm.commands.evaluate import failure_kwargs
+        from sb3_pm.commands.evaluate import env_overrides
         from sb3_pm.errors import UsageError
 
         ok = argparse.Namespace(fail=["agent_1:250", "agent_2:10"], failure_rate=0.0)
-        assert failure_kwargs(ok) == {"failures": {"agent_1": 250, "agent_2": 10}}
+        assert env_overrides(ok) == {"failures": {"agent_1": 250, "agent_2": 10}}
         for bad in (["agent_1"], ["agent_1:x"], ["agent_1:3", "agent_1:4"]):
             with pytest.raises(UsageError):
-                failure_kwargs(argparse.Namespace(fail=bad, failure_rate=0.0))
-        assert failure_kwargs(argparse.Namespace(fail=[], failure_rate=0.01)) == {"failure_rate": 0.01}
+                env_overrides(argparse.Namespace(fail=bad, failure_rate=0.0))
+        assert env_overrides(argparse.Namespace(fail=[], failure_rate=0.01)) == {"failure_rate": 0.01}
 
 
 def test_failures_do_not_change_an_episode_without_them() -> None:

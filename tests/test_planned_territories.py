@@ -27,14 +27,15 @@ def make_env(graph: str = "paper-50", n_agents: int = 4, **kwargs):
 def test_the_split_convention_is_the_territory_split() -> None:
     graph = preset("rooms-4")
     expected = territory_nodes(graph.hop_distances, graph.target_indices, 4, graph.n_nodes)
-    assert np.array_equal(team_territory("split", graph, np.array([0, 1, 2, 3]), 500, 100), expected)
+    split = team_territory("split", graph, np.array([0, 1, 2, 3]), 500, 100)
+    assert np.array_equal(split.territory, expected) and split.tours == (None,) * 4
 
 
 def test_the_planned_convention_is_the_plans_groups_for_the_starts() -> None:
     graph = preset("rgg-60")
     starts = np.array([3, 17, 29, 41])
     plan = plan_patrol(graph, starts, 500, 100, search_seconds=600.0, restarts=20, tour_groups=False)
-    territory = planned_territory(graph, starts, 500, 100)
+    territory = planned_territory(graph, starts, 500, 100).territory
     assert territory.shape == (4, graph.n_nodes)
     for agent, group in enumerate(plan.groups):
         assert set(np.flatnonzero(territory[agent]).tolist()) == set(group)
@@ -56,7 +57,7 @@ def test_the_convention_plans_with_the_rule_its_agents_play() -> None:
         controllers = [GroupController(group, distances, next_hop, "stalest") for group in groups]
         return simulate(controllers, starts, graph.target_indices, np.zeros(graph.n_nodes), 500, 100)
 
-    territory = planned_territory(graph, starts, 500, 100)
+    territory = planned_territory(graph, starts, 500, 100).territory
     groups = [tuple(np.flatnonzero(row).tolist()) for row in territory]
     plan = plan_patrol(graph, starts, 500, 100, search_seconds=600.0, restarts=20, tour_groups=False)
     assert set(plan.rules) == {"stalest"}
@@ -73,7 +74,7 @@ def test_the_planned_groups_follow_the_starts_of_each_episode() -> None:
     for seed in (1, 2):
         observations, _ = env.reset(seed=seed)
         state = env.unwrapped
-        expected = planned_territory(state.graph, state.positions, state.max_cycles, state.u_max)
+        expected = planned_territory(state.graph, state.positions, state.max_cycles, state.u_max).territory
         for i, agent in enumerate(state.possible_agents):
             column = observations[agent]["nodes"][:, -2]  # territory_input, before the advice column
             assert np.array_equal(column.astype(bool), expected[i])

@@ -9,7 +9,11 @@ from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.baselines.random_walk import RandomTeam
 from sb3_pm.baselines.registry import BASELINES, make_team
 from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
-from sb3_pm.baselines.territory_patrol import PlannedPatrolTeam, TerritoryPatrolTeam
+from sb3_pm.baselines.territory_patrol import (
+    PlannedPatrolTeam,
+    PlannedTourPatrolTeam,
+    TerritoryPatrolTeam,
+)
 from sb3_pm.baselines.tour_patrol import TourPatrolTeam, approximate_tour
 from sb3_pm.team_interface import Team
 
@@ -18,6 +22,7 @@ __all__ = [
     "GrazingTeam",
     "LocalGreedyTeam",
     "PlannedPatrolTeam",
+    "PlannedTourPatrolTeam",
     "RandomTeam",
     "SitOnNodesTeam",
     "Team",

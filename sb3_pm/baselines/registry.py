@@ -9,7 +9,11 @@ from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.baselines.optimal_planner import OptimalPlannerTeam
 from sb3_pm.baselines.random_walk import RandomTeam
 from sb3_pm.baselines.sit_on_nodes import SitOnNodesTeam
-from sb3_pm.baselines.territory_patrol import PlannedPatrolTeam, TerritoryPatrolTeam
+from sb3_pm.baselines.territory_patrol import (
+    PlannedPatrolTeam,
+    PlannedTourPatrolTeam,
+    TerritoryPatrolTeam,
+)
 from sb3_pm.baselines.tour_patrol import TourPatrolTeam
 from sb3_pm.errors import InputError
 from sb3_pm.team_interface import Team
@@ -25,6 +29,7 @@ BASELINES: dict[str, type[Team]] = {
         TourPatrolTeam,
         TerritoryPatrolTeam,
         PlannedPatrolTeam,
+        PlannedTourPatrolTeam,
         OptimalPlannerTeam,
     )
 }

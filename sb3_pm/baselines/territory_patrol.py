@@ -20,6 +20,10 @@ for the episode's start positions, which every agent computes alike from where e
 starts, before the first move. It reads the starts, never another agent's state or an
 uncertainty, and nothing is communicated while it acts; targets the plan leaves out are patrolled
 by nobody.
+
+``planned_tour_patrol`` (:class:`PlannedTourPatrolTeam`) plays the ``"planned_tours"`` convention:
+the plan may walk a group of three or more targets as a tour, and the agent then takes its tour's
+next target instead of the stalest.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from sb3_pm.baselines.local_greedy import LocalGreedyTeam
 from sb3_pm.envs.mental_map import AGE, U
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
-from sb3_pm.planning.conventions import team_territory
+from sb3_pm.planning.conventions import TeamTerritories, team_territory
 from sb3_pm.team_interface import Observation, Team
 
 
@@ -50,20 +54,22 @@ class TerritoryPatrolTeam(Team):
         #: ``(graph fingerprint, team size or starts)`` -> ``(n_agents, N)`` territories: a split
         #: depends on the site and team size alone, a plan on the starts too, so each is computed
         #: once (as ``tour_patrol`` caches its tour, and the env its plans).
-        self._territories: dict[tuple[str, Any], np.ndarray] = {}
+        self._territories: dict[tuple[str, Any], TeamTerritories] = {}
 
     def reset(self, env: Any, seed: int | None = None) -> None:
         super().reset(env, seed)
         self._fallback.reset(env, seed)
         graph = env_graph(env)
         agents = list(env.unwrapped.possible_agents)
-        territory = self._territory(env, graph, len(agents))  # (n_agents, N)
+        territories = self._territory(env, graph, len(agents))
         #: The rule, with each agent's goal kept between steps (the env's advice_input runs the same).
-        self.rule = TerritoryAdvice(territory, graph.routes, None, env.unwrapped.u_max)
+        self.rule = TerritoryAdvice(
+            territories.territory, graph.routes, None, env.unwrapped.u_max, territories.tours
+        )
         self._index = {agent: i for i, agent in enumerate(agents)}
 
-    def _territory(self, env: Any, graph: Any, n_agents: int) -> np.ndarray:
-        """``(n_agents, N)`` bool, each agent's territory by :attr:`convention`."""
+    def _territory(self, env: Any, graph: Any, n_agents: int) -> TeamTerritories:
+        """Each agent's territory by :attr:`convention`."""
         state = env.unwrapped
         starts = state.positions
         key = (graph.fingerprint, n_agents if self.convention == "split" else tuple(starts.tolist()))
@@ -97,3 +103,12 @@ class PlannedPatrolTeam(TerritoryPatrolTeam):
     name = "planned_patrol"
     omniscient = False
     convention = "planned"
+
+
+class PlannedTourPatrolTeam(TerritoryPatrolTeam):
+    """The territory rule on the plan's groups for the episode's starts, each group the plan walks
+    as a tour walked so (module docstring)."""
+
+    name = "planned_tour_patrol"
+    omniscient = False
+    convention = "planned_tours"

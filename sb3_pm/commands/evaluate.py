@@ -137,6 +137,14 @@ def register(subparsers: Any) -> None:
         "of thousands of nodes); a trained team's policies are rebuilt for it (default: the team's own, "
         "else dense)",
     )
+    parser.add_argument(
+        "--territories",
+        choices=["split", "planned", "planned_tours"],
+        default=None,
+        help="the territory convention of a team told its territory or the rule's move: split, planned "
+        "(the plan's groups for each episode's starts) or planned_tours (the same, groups the plan walks "
+        "as tours walked so); default: the team's own",
+    )
     parser.add_argument("--no-progress", action="store_true", help="never show progress")
     add_compute_options(parser)
     parser.set_defaults(func=run)
@@ -202,8 +210,23 @@ def settle_since(args: argparse.Namespace) -> int | None:
     return args.steps // 2 if args.settling is SECOND_HALF else int(args.settling)
 
 
-def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
-    """The env's ``failures`` / ``failure_rate`` from ``--fail`` and ``--failure-rate``."""
+def check_territories_option(args: argparse.Namespace, team: Any) -> None:
+    """``--territories`` needs a team told its territory or the rule's move: a one-line
+    :class:`UsageError` for any other."""
+    from sb3_pm.errors import UsageError
+
+    settings = team.env_settings()
+    if args.territories is not None and not (settings.get("territory_input") or settings.get("advice_input")):
+        raise UsageError(
+            f"--territories sets the convention of a team told its territory or the rule's move, and "
+            f"{args.policy} is told neither; a rule's convention is in its name (territory_patrol, "
+            "planned_patrol, planned_tour_patrol)"
+        )
+
+
+def env_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The env settings the command line puts over the team's own: ``--layout``, ``--territories``,
+    ``--fail`` and ``--failure-rate``."""
     from sb3_pm.errors import UsageError
 
     failures: dict[str, int] = {}
@@ -217,6 +240,8 @@ def failure_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     kwargs: dict[str, Any] = {}
     if getattr(args, "layout", None) is not None:  # over the team's own (a trained team was rebuilt for it)
         kwargs["layout"] = args.layout
+    if getattr(args, "territories", None) is not None:  # over the team's own convention
+        kwargs["territories"] = args.territories
     if failures:
         kwargs["failures"] = failures
     if args.failure_rate:
@@ -301,6 +326,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--temperature must be positive and finite, got {args.temperature}") from None
     check_evaluation_memory(args.policy, graph, args.agents, str(args.graph), args.layout)
     team = resolve_team(args.policy, graph=graph, device=args.device, layout=args.layout)
+    check_territories_option(args, team)
     if args.agents is None:  # a trained team deploys as it was trained unless told otherwise
         args.agents = team.n_agents or DEFAULT_AGENTS
     calibration = None
@@ -337,7 +363,7 @@ def run(args: argparse.Namespace) -> int:
                 ),
                 file=sys.stderr,
             )
-    env_kwargs = failure_kwargs(args)  # over the team's own env settings (evaluate() adds them)
+    env_kwargs = env_overrides(args)  # over the team's own env settings (evaluate() adds them)
     long_run = args.episodes * args.steps >= PROGRESS_MIN_STEPS
     deterministic = acting_rule(args)
     if args.neglect_bound is None and acting_filter is not None:

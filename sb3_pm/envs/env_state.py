@@ -17,6 +17,7 @@ import numpy as np
 
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
+from sb3_pm.planning.conventions import TeamTerritories, is_planned
 
 if TYPE_CHECKING:
     from sb3_pm.envs.persistent_monitoring import PersistentMonitoringEnv
@@ -48,8 +49,10 @@ class EnvState:
         state["rewards"] = self.rewards_computer.state_dict()
         state["advice"] = None if self._advice is None else self._advice.state_dict()
         # the planned territories depend on the episode's starts; a split follows from the graph
-        planned = self.territories == "planned" and self._territory is not None
-        state["territory"] = self._territory.copy() if planned else None
+        planned = is_planned(self.territories) and self._team_territories is not None
+        state["territory"] = self._team_territories.territory.copy() if planned else None
+        tours = self._team_territories.tours if planned else None
+        state["tours"] = None if tours is None else [None if tour is None else list(tour) for tour in tours]
         return state
 
     def load_state_dict(self: PersistentMonitoringEnv, state: dict[str, Any]) -> None:  # type: ignore[misc]
@@ -85,7 +88,11 @@ class EnvState:
                 territory = np.asarray(state["territory"], dtype=bool)
                 if territory.shape != (self.n_agents, self.graph.n_nodes):
                     raise InputError(f"the saved territories have shape {territory.shape}, not this env's")
-                self._set_territory(territory)
+                tours = state.get("tours") or [None] * self.n_agents
+                if len(tours) != self.n_agents:
+                    raise InputError(f"the saved tours are {len(tours)}, not one per agent of this env")
+                walks = tuple(None if tour is None else tuple(int(node) for node in tour) for tour in tours)
+                self._set_territory(TeamTerritories(territory, walks))
             if (state["advice"] is None) != (self._advice is None):
                 raise InputError("the saved env state does not match the env's territory advice")
             if self._advice is not None:

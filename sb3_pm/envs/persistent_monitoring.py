@@ -28,7 +28,7 @@ from sb3_pm.envs.rewards import RewardComputer, resolve_reward
 from sb3_pm.envs.territory_rule import TerritoryAdvice
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
-from sb3_pm.planning.conventions import check_convention
+from sb3_pm.planning.conventions import check_convention, is_planned
 
 OBSERVATION_MODES = ("map", "local")
 INITIAL_UNCERTAINTY = ("zero", "random")
@@ -146,16 +146,16 @@ class PersistentMonitoringEnv(EnvState, EnvObservations, EnvTerritories, Paralle
         self.initial_positions = initial_positions
         self.initial_uncertainty = initial_uncertainty
         self.reward_weights = resolve_reward(reward)
-        if self.territories == "planned":
+        if is_planned(self.territories):
             if not self._uses_territory():
                 raise InputError(
-                    "territories: planned sets what the territory reward, territory_input and "
-                    "advice_input read, and none of them is on"
+                    f"territories: {self.territories} sets what the territory reward, territory_input "
+                    "and advice_input read, and none of them is on"
                 )
             if "territory" in self.reward_weights and not self.territory_input:
                 # The same reason as for a family: the planned groups change with the starts.
                 raise InputError(
-                    "the territory reward with territories: planned needs territory_input: the "
+                    f"the territory reward with territories: {self.territories} needs territory_input: the "
                     "groups change every episode, so no learner could settle in one unless told it"
                 )
         self.observation_mode = observation

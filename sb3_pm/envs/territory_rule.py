@@ -19,9 +19,16 @@ Per agent and step:
    (``u`` grows by at most one per unobserved step; ties: nearest, then lowest index) and take one
    step along a shortest path of the road network;
 3. a territory of one target is held once reached.
+
+An agent whose convention walks its territory as a tour (``planned_tours``,
+:mod:`sb3_pm.planning.conventions`) chooses its goal in step 2 otherwise: from one of its targets,
+the tour's next target; from elsewhere, its nearest target (ties: lowest index). This is the plan's
+``tour`` rule (:func:`sb3_pm.planning.group_patrol.tour_move`) on the agent's own map.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -50,6 +57,7 @@ def territory_move(
     goal: int | None,
     u_max: float,
     routes: Routes,
+    tour_next: Mapping[int, int] | None = None,
 ) -> tuple[int, int | None]:
     """One agent's move by the territory rule, and the goal it keeps for its next step.
 
@@ -61,11 +69,20 @@ def territory_move(
     :param u_max: the uncertainty cap.
     :param routes: the road network's distances to targets and next hops towards them
         (:mod:`sb3_pm.graphs.routes`; ``graph.routes``).
+    :param tour_next: for an agent that walks its territory as a tour, each of its targets' next
+        target on the tour (``None``: stalest first).
     :return: ``(destination node, goal to keep or None)``.
     """
     if position in own and u[position] > 0:
         return position, None
-    if goal is None or goal == position:
+    if (goal is None or goal == position) and tour_next is not None:
+        if position in tour_next:
+            goal = tour_next[position]
+            if goal == position:
+                return position, None  # a tour of one target: hold it
+        else:  # own is sorted, so the lexsort breaks distance ties by the lowest node
+            goal = int(own[np.lexsort((own, routes.distances(position, own)))[0]])
+    elif goal is None or goal == position:
         others = own[own != position]
         if others.size == 0:
             return position, goal  # a territory of one target: hold it
@@ -88,6 +105,8 @@ class TerritoryAdvice:
     :param distances: the site's :class:`~sb3_pm.graphs.routes.Routes` (``graph.routes``), or its
         ``(N, N)`` hop distances with ``next_hop`` ``(N, N)``, the first hop of a shortest path.
     :param u_max: the uncertainty cap.
+    :param tours: per agent, its targets in tour order where it walks a tour, else ``None``
+        (default: every agent stalest first).
     """
 
     def __init__(
@@ -96,9 +115,20 @@ class TerritoryAdvice:
         distances: Routes | np.ndarray,
         next_hop: np.ndarray | None,
         u_max: float,
+        tours: Sequence[Sequence[int] | None] | None = None,
     ) -> None:
         #: Each agent's own targets, ``(T_i,)`` int node indices (empty: no territory, no advice).
         self.own = [np.flatnonzero(row) for row in territory]
+        tours = [None] * len(self.own) if tours is None else list(tours)
+        if len(tours) != len(self.own) or any(
+            tour is not None and sorted(tour) != own.tolist() for tour, own in zip(tours, self.own)
+        ):
+            raise ValueError("TerritoryAdvice's tours must order each touring agent's own targets")
+        #: Per agent, each target's next target on its tour (``None``: it walks stalest first).
+        self.tour_next: list[dict[int, int] | None] = [
+            None if tour is None else {int(a): int(b) for a, b in zip(tour, list(tour[1:]) + list(tour[:1]))}
+            for tour in tours
+        ]
         if isinstance(distances, np.ndarray):
             if next_hop is None:
                 raise ValueError("TerritoryAdvice takes (N, N) distances with an (N, N) next_hop")
@@ -125,7 +155,7 @@ class TerritoryAdvice:
         """Agent ``i``'s move by the rule (it must own a target), keeping its goal for the next
         step. ``u``, ``age``: ``(N,)`` its own map."""
         move, self.goals[i] = territory_move(
-            position, self.own[i], u, age, self.goals[i], self.u_max, self.routes
+            position, self.own[i], u, age, self.goals[i], self.u_max, self.routes, self.tour_next[i]
         )
         return move
 

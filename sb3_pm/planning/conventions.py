@@ -15,9 +15,18 @@ communication while the team acts:
   agent plays its group by the territory rule, which takes the stalest target next, so the plan
   prices every group by that rule alone: a group the plan would price by the ``tour`` rule is
   walked otherwise by the rule, and can cost far more than the plan assumed.
+* ``"planned_tours"``: the same plan, free to price each group of three or more targets by the
+  ``tour`` rule too (:func:`~sb3_pm.planning.group_patrol.tour_move`). An agent whose group the
+  plan walks as a tour gets the tour's order with its group, and the territory rule then takes the
+  tour's next target instead of the stalest (:func:`sb3_pm.envs.territory_rule.territory_move`).
+
+A convention gives a :class:`TeamTerritories`: each agent's targets, and the tour order of those
+that walk one.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,19 +38,39 @@ from sb3_pm.planning.planner import plan_patrol
 __all__ = [
     "PLAN_RESTARTS",
     "TERRITORY_CONVENTIONS",
+    "TeamTerritories",
     "check_convention",
+    "is_planned",
     "planned_territory",
     "team_territory",
 ]
 
 #: The conventions by name.
-TERRITORY_CONVENTIONS = ("split", "planned")
+TERRITORY_CONVENTIONS = ("split", "planned", "planned_tours")
 #: The planned convention's perturbed restarts of the local search.
 PLAN_RESTARTS = 20
 #: A wall-clock cap on one plan, in seconds, so that a huge site cannot stall a reset; reaching it
 #: would make the groups depend on the machine's speed, and on the published graphs and families a
 #: plan takes seconds.
 PLAN_SECONDS = 600.0
+
+
+@dataclass(frozen=True)
+class TeamTerritories:
+    """Each agent's territory by a convention.
+
+    :ivar territory: ``(n_agents, N)`` bool, ``[i, v]`` True when target ``v`` is agent ``i``'s.
+    :ivar tours: per agent, its targets in tour order where it walks them as a tour, else ``None``
+        (the stalest target next).
+    """
+
+    territory: np.ndarray
+    tours: tuple[tuple[int, ...] | None, ...]
+
+    @classmethod
+    def stalest(cls, territory: np.ndarray) -> TeamTerritories:
+        """Territories every agent walks stalest first."""
+        return cls(territory, (None,) * territory.shape[0])
 
 
 def check_convention(name: object) -> str:
@@ -51,9 +80,16 @@ def check_convention(name: object) -> str:
     return str(name)
 
 
-def planned_territory(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int) -> np.ndarray:
-    """``(n_agents, N)`` bool: ``[i, v]`` is True when target ``v`` is in the group the plan gives
-    agent ``i`` from these starts (``starts``: ``(n_agents,)`` nodes)."""
+def is_planned(name: str) -> bool:
+    """Whether convention ``name`` plans per episode from the start positions."""
+    return name != "split"
+
+
+def planned_territory(
+    graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int, tours: bool = False
+) -> TeamTerritories:
+    """The groups the plan gives the agents from these starts (``starts``: ``(n_agents,)`` nodes);
+    with ``tours``, the plan may walk a group of three or more targets as a tour."""
     starts = np.asarray(starts, dtype=np.int64)
     plan = plan_patrol(
         graph,
@@ -62,19 +98,23 @@ def planned_territory(graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_m
         u_max,
         search_seconds=PLAN_SECONDS,
         restarts=PLAN_RESTARTS,
-        tour_groups=False,
+        tour_groups=tours,
     )
     territory = np.zeros((starts.size, graph.n_nodes), dtype=bool)
     for agent, group in enumerate(plan.groups):
         territory[agent, list(group)] = True
-    return territory
+    walks = tuple(
+        tuple(int(node) for node in group) if rule == "tour" else None
+        for group, rule in zip(plan.groups, plan.rules)
+    )
+    return TeamTerritories(territory, walks)
 
 
 def team_territory(
     convention: str, graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int
-) -> np.ndarray:
-    """``(n_agents, N)`` bool, each agent's territory by ``convention``."""
-    if check_convention(convention) == "planned":
-        return planned_territory(graph, starts, max_cycles, u_max)
+) -> TeamTerritories:
+    """Each agent's territory by ``convention`` (``starts``: ``(n_agents,)`` nodes)."""
+    if is_planned(check_convention(convention)):
+        return planned_territory(graph, starts, max_cycles, u_max, tours=convention == "planned_tours")
     n_agents = int(np.asarray(starts).size)
-    return site_territory_nodes(graph, n_agents)
+    return TeamTerritories.stalest(site_territory_nodes(graph, n_agents))

@@ -308,9 +308,10 @@ ENV = Section('env', 'Environment keys (`env_kwargs`)', 'env_kwargs', keys=(
     Key('advice_input', 'bool', False,
         help='one more node feature: 1 on the node the territory rule (`sb3_pm/envs/territory_rule.py`) '
         'moves to next; needs both knowledge keys `known`'),
-    Key('territories', 'str', 'split', choices=('split', 'planned'),
-        help="each agent's territory: `split` (balanced by hop distance, fixed per graph) or `planned` (the "
-        "plan's groups for the episode's starts, see docs/PLANNING.md)"),
+    Key('territories', 'str', 'split', choices=('split', 'planned', 'planned_tours'),
+        help="each agent's territory: `split` (balanced by hop distance, fixed per graph), `planned` (the "
+        "plan's groups for the episode's starts, see docs/PLANNING.md) or `planned_tours` (the same, "
+        "with the groups the plan walks as tours walked so by the territory rule)"),
     Key('illegal_action', 'str', 'raise', choices=('raise', 'stay'),
         help='what an unmasked illegal move does (`stay` is the default for `algo: ppo`)'),
     Key('shared_map', 'bool', False,

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from sb3_pm.errors import InputError
+from sb3_pm.planning.conventions import is_planned
 from sb3_pm.team_interface import Observation, Team, without_caller_keys
 
 
@@ -295,12 +296,14 @@ class DeploymentRule(Team):
         raise NotImplementedError
 
     def _plays_planned_territories(self) -> bool:
-        """Whether the team's territories are planned per episode (``territories: planned``): in
-        the env it was last reset on, else in its own env settings."""
+        """Whether the team's territories are planned per episode (``territories: planned`` or
+        ``planned_tours``): in the env it was last reset on, else in its own env settings."""
         env = getattr(getattr(self, "env", None), "unwrapped", None)
         if env is not None:
-            return getattr(env, "territories", None) == "planned"
-        return self.env_kwargs.get("territories") == "planned"
+            convention = getattr(env, "territories", None)
+        else:
+            convention = self.env_kwargs.get("territories")
+        return convention is not None and is_planned(convention)
 
     def _bound_territories(self) -> dict[str, tuple[int, ...]]:
         """``{policy name: the targets its neglect bound of scope territory guards}``: the split
