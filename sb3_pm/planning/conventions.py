@@ -19,6 +19,9 @@ communication while the team acts:
   ``tour`` rule too (:func:`~sb3_pm.planning.group_patrol.tour_move`). An agent whose group the
   plan walks as a tour gets the tour's order with its group, and the territory rule then takes the
   tour's next target instead of the stalest (:func:`sb3_pm.envs.territory_rule.territory_move`).
+  The groups are searched both ways, free to take tours and by the stalest rule alone, and the
+  lower prediction is kept (the tours' search first on a tie), as ``optimal_planner`` does: the
+  two searches land in other local optima, and the one free to take tours is not always lower.
 
 A convention gives a :class:`TeamTerritories`: each agent's targets, and the tour order of those
 that walk one.
@@ -89,17 +92,22 @@ def planned_territory(
     graph: GraphSpec, starts: np.ndarray, max_cycles: int, u_max: int, tours: bool = False
 ) -> TeamTerritories:
     """The groups the plan gives the agents from these starts (``starts``: ``(n_agents,)`` nodes);
-    with ``tours``, the plan may walk a group of three or more targets as a tour."""
+    with ``tours``, the plan may walk a group of three or more targets as a tour (the lower of the
+    two searches of the module docstring)."""
     starts = np.asarray(starts, dtype=np.int64)
-    plan = plan_patrol(
-        graph,
-        starts,
-        max_cycles,
-        u_max,
-        search_seconds=PLAN_SECONDS,
-        restarts=PLAN_RESTARTS,
-        tour_groups=tours,
-    )
+    searches = [
+        plan_patrol(
+            graph,
+            starts,
+            max_cycles,
+            u_max,
+            search_seconds=PLAN_SECONDS,
+            restarts=PLAN_RESTARTS,
+            tour_groups=tour_groups,
+        )
+        for tour_groups in ((True, False) if tours else (False,))
+    ]
+    plan = min(searches, key=lambda searched: searched.predicted)
     territory = np.zeros((starts.size, graph.n_nodes), dtype=bool)
     for agent, group in enumerate(plan.groups):
         territory[agent, list(group)] = True
