@@ -153,10 +153,11 @@ def test_bad_territory_settings_are_refused_in_one_line(options: dict, message: 
     assert "\n" not in str(error.value)
 
 
-def test_a_territory_bound_guards_each_episodes_planned_territory() -> None:
+@pytest.mark.parametrize("convention", ["planned", "planned_tours"])
+def test_a_territory_bound_guards_each_episodes_planned_territory(convention: str) -> None:
     from sb3_pm.agents.training.team import IndependentPPO
 
-    env_kwargs = {"max_cycles": 30, "territories": "planned", "territory_input": True, **KNOWN}
+    env_kwargs = {"max_cycles": 30, "territories": convention, "territory_input": True, **KNOWN}
     team = IndependentPPO(
         "rooms-4",
         n_agents=4,

@@ -9,6 +9,7 @@ import pytest
 from sb3_pm.baselines import make_team
 from sb3_pm.envs import persistent_monitoring_v0
 from sb3_pm.envs.territory_rule import TerritoryAdvice
+from sb3_pm.errors import InputError
 from sb3_pm.graphs.generators import erdos_renyi
 from sb3_pm.graphs.large_sites import city_streets
 from sb3_pm.graphs.resolve import resolve_graph
@@ -147,10 +148,35 @@ def test_a_saved_state_resumes_the_episode_with_its_tours(street_site) -> None:
         actions = {a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in observations.items()}
         observations, *_ = env.step(actions)
     other.unwrapped.load_state_dict(env.unwrapped.state_dict())
-    assert other.unwrapped._team_territories.tours == env.unwrapped._team_territories.tours
+    tours = env.unwrapped._team_territories.tours
+    assert any(tour is not None for tour in tours)  # the state carries a tour to lose
+    assert other.unwrapped._team_territories.tours == tours
     for _ in range(30):
         actions = {a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in observations.items()}
         observations, *_ = env.step(actions)
         resumed, *_ = other.step(actions)
         for agent in observations:
             assert np.array_equal(observations[agent]["nodes"], resumed[agent]["nodes"])
+
+
+def test_a_saved_state_with_tours_that_do_not_fit_is_refused_in_one_line(street_site) -> None:
+    env = make_env(street_site)
+    env.reset(seed=5)
+    saved = env.unwrapped.state_dict()
+    touring = next(i for i, tour in enumerate(saved["tours"]) if tour is not None)
+    no_tours = {**saved, "tours": None}  # as a state saved before tours
+    one_short = {**saved, "tours": saved["tours"][:-1]}
+    wrong = {**saved, "tours": [list(tour) if tour else tour for tour in saved["tours"]]}
+    wrong["tours"][touring] = wrong["tours"][touring][:-1]
+    for state, message in [
+        (no_tours, "has no tours"),
+        (one_short, "not one per agent"),
+        (wrong, "do not order"),
+    ]:
+        with pytest.raises(InputError, match=message) as error:
+            make_env(street_site).unwrapped.load_state_dict(state)
+        assert "\n" not in str(error.value)
+    planned = make_env(street_site, territories="planned")  # walks no tours
+    with pytest.raises(InputError, match="walks tours, and this env's territories are planned"):
+        planned.unwrapped.load_state_dict(saved)
+    planned.unwrapped.load_state_dict({**saved, "tours": None})  # a planned state before tours loads

@@ -88,17 +88,37 @@ class EnvState:
                 territory = np.asarray(state["territory"], dtype=bool)
                 if territory.shape != (self.n_agents, self.graph.n_nodes):
                     raise InputError(f"the saved territories have shape {territory.shape}, not this env's")
-                tours = state.get("tours") or [None] * self.n_agents
-                if len(tours) != self.n_agents:
-                    raise InputError(f"the saved tours are {len(tours)}, not one per agent of this env")
-                walks = tuple(None if tour is None else tuple(int(node) for node in tour) for tour in tours)
-                self._set_territory(TeamTerritories(territory, walks))
+                self._set_territory(TeamTerritories(territory, self._saved_tours(state, territory)))
             if (state["advice"] is None) != (self._advice is None):
                 raise InputError("the saved env state does not match the env's territory advice")
             if self._advice is not None:
                 self._advice.load_state_dict(state["advice"])
         except (KeyError, TypeError, AttributeError) as error:
             raise InputError(f"the saved env state is incomplete or malformed ({error!r})") from None
+
+    def _saved_tours(  # type: ignore[misc]
+        self: PersistentMonitoringEnv, state: dict[str, Any], territory: np.ndarray
+    ) -> tuple[tuple[int, ...] | None, ...]:
+        """The tours of a saved state with planned territories, checked against this env's
+        convention and the saved territories (a state saved before tours has none: no agent tours)."""
+        tours = state.get("tours")
+        if tours is None:
+            if self.territories == "planned_tours":
+                raise InputError(
+                    "the saved env state has no tours, and this env's territories are planned_tours"
+                )
+            return (None,) * self.n_agents
+        if len(tours) != self.n_agents:
+            raise InputError(f"the saved tours are {len(tours)}, not one per agent of this env")
+        walks = tuple(None if tour is None else tuple(int(node) for node in tour) for tour in tours)
+        if self.territories != "planned_tours" and any(walk is not None for walk in walks):
+            raise InputError(
+                f"the saved env state walks tours, and this env's territories are {self.territories}"
+            )
+        for walk, row in zip(walks, territory):
+            if walk is not None and sorted(walk) != np.flatnonzero(row).tolist():
+                raise InputError("the saved tours do not order the saved territories' targets")
+        return walks
 
 
 __all__ = ["EnvState"]

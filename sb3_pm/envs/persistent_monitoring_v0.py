@@ -73,8 +73,10 @@ territories (``"split"``)
     and ``advice_input`` (:mod:`sb3_pm.planning.conventions`). ``"split"``: the balanced split by
     hop distance, fixed for the graph. ``"planned"``: the groups of the centralized plan for the
     episode's start positions (every agent knows where every agent starts; no uncertainty is read),
-    recomputed at each reset; targets the plan leaves out belong to nobody. ``"planned"`` needs one
-    of the three options on, and the ``territory`` reward with it needs ``territory_input``.
+    recomputed at each reset; targets the plan leaves out belong to nobody. ``"planned_tours"``: the
+    same, and each group the plan walks as a tour is walked so by the territory rule. The planned
+    conventions need one of the three options on, and the ``territory`` reward with them needs
+    ``territory_input``.
 illegal_action (``"raise"``)
     ``"raise"``: a move outside the reachable set raises ``ValueError`` naming the agent, its node
     and the reachable set; ``"stay"``: the agent stays and ``infos[agent]["illegal_action"]``

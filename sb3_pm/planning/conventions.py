@@ -52,13 +52,13 @@ __all__ = [
 TERRITORY_CONVENTIONS = ("split", "planned", "planned_tours")
 #: The planned convention's perturbed restarts of the local search.
 PLAN_RESTARTS = 20
-#: A wall-clock cap on one plan, in seconds, so that a huge site cannot stall a reset; reaching it
-#: would make the groups depend on the machine's speed, and on the published graphs and families a
-#: plan takes seconds.
+#: A wall-clock cap on one search of a plan, in seconds (``planned_tours`` runs two), so that a huge
+#: site cannot stall a reset; reaching it would make the groups depend on the machine's speed, and
+#: on the published graphs and families a plan takes seconds.
 PLAN_SECONDS = 600.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # an array field: no generated comparison
 class TeamTerritories:
     """Each agent's territory by a convention.
 
@@ -85,7 +85,7 @@ def check_convention(name: object) -> str:
 
 def is_planned(name: str) -> bool:
     """Whether convention ``name`` plans per episode from the start positions."""
-    return name != "split"
+    return name in ("planned", "planned_tours")
 
 
 def planned_territory(
