@@ -15,6 +15,7 @@ from sb3_pm.graphs.territories import territory_nodes
 from sb3_pm.planning.controllers import GroupController, simulate
 from sb3_pm.planning.conventions import planned_territory, team_territory
 from sb3_pm.planning.planner import plan_patrol
+from tests.conftest import episode_moves
 
 KNOWN = {"graph_knowledge": "known", "target_knowledge": "known"}
 
@@ -127,11 +128,7 @@ def test_planned_patrol_acts_legally_and_differs_from_the_split_where_the_plan_d
     scores = {}
     for name in ("territory_patrol", "planned_patrol"):
         env = persistent_monitoring_v0.parallel_env(graph="rooms-4", max_cycles=80)
-        team = make_team(name)
-        observations, _ = env.reset(seed=11)
-        team.reset(env, seed=11)
-        while env.agents:
-            observations, *_ = env.step(team.predict_dict(observations))  # the env raises on an illegal move
+        episode_moves(env, make_team(name), seed=11)  # the env raises on an illegal move
         scores[name] = env.unwrapped.episode_metrics()["avg_uncertainty"]
     assert scores["planned_patrol"] != scores["territory_patrol"]
 

@@ -15,6 +15,7 @@ from sb3_pm.graphs.large_sites import city_streets
 from sb3_pm.graphs.resolve import resolve_graph
 from sb3_pm.planning.conventions import team_territory
 from sb3_pm.planning.planner import plan_patrol
+from tests.conftest import episode_moves
 
 KNOWN = {"graph_knowledge": "known", "target_knowledge": "known"}
 STEPS = 120
@@ -91,11 +92,7 @@ def test_planned_tour_patrol_scores_its_plan_and_beats_the_stalest_walk(street_s
         env = persistent_monitoring_v0.parallel_env(
             graph=street_site, n_agents=4, max_cycles=STEPS, initial_positions=starts
         )
-        team = make_team(name)
-        observations, _ = env.reset(seed=0)
-        team.reset(env, seed=0)
-        while env.agents:
-            observations, *_ = env.step(team.predict_dict(observations))  # the env raises on an illegal move
+        episode_moves(env, make_team(name), seed=0)  # the env raises on an illegal move
         scores[name] = env.unwrapped.episode_metrics()["avg_uncertainty"]
     assert scores["planned_tour_patrol"] <= lower_plan(street_site, starts).predicted + 1e-9
     assert scores["planned_tour_patrol"] < scores["planned_patrol"]
