@@ -104,6 +104,14 @@ class TestEvaluate:
         code, _, _ = run_cli(capsys, *argv, "--device", "cuda")
         assert code == 0 and loaded[-1] == (team_dir, "cuda")
 
+    def test_territories_offers_every_convention(self) -> None:
+        from sb3_pm.cli import build_parser
+        from sb3_pm.planning.conventions import TERRITORY_CONVENTIONS
+
+        evaluate = build_parser()._subparsers._group_actions[0].choices["evaluate"]  # type: ignore[union-attr]
+        option = next(action for action in evaluate._actions if "--territories" in action.option_strings)
+        assert tuple(option.choices) == TERRITORY_CONVENTIONS
+
     def test_territories_put_a_convention_over_the_teams_own(self, capsys, tmp_path, monkeypatch) -> None:
         told = {"advice_input": True, "graph_knowledge": "known", "target_knowledge": "known"}
 

@@ -139,6 +139,7 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument(
         "--territories",
+        # TERRITORY_CONVENTIONS, written out: importing the planner would slow every command's start
         choices=["split", "planned", "planned_tours"],
         default=None,
         help="the territory convention of a team told its territory or the rule's move: split, planned "

@@ -20,8 +20,9 @@ communication while the team acts:
   plan walks as a tour gets the tour's order with its group, and the territory rule then takes the
   tour's next target instead of the stalest (:func:`sb3_pm.envs.territory_rule.territory_move`).
   The groups are searched both ways, free to take tours and by the stalest rule alone, and the
-  lower prediction is kept (the tours' search first on a tie), as ``optimal_planner`` does: the
-  two searches land in other local optima, and the one free to take tours is not always lower.
+  lower prediction is kept (the tours' search first on a tie), as ``optimal_planner`` does
+  (:func:`~sb3_pm.planning.planner.plan_both_ways`): the two searches land in other local optima,
+  and the one free to take tours is not always lower.
 
 A convention gives a :class:`TeamTerritories`: each agent's targets, and the tour order of those
 that walk one.
@@ -30,13 +31,14 @@ that walk one.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.territories import site_territory_nodes
-from sb3_pm.planning.planner import plan_patrol
+from sb3_pm.planning.planner import plan_both_ways, plan_patrol
 
 __all__ = [
     "PLAN_RESTARTS",
@@ -95,19 +97,8 @@ def planned_territory(
     with ``tours``, the plan may walk a group of three or more targets as a tour (the lower of the
     two searches of the module docstring)."""
     starts = np.asarray(starts, dtype=np.int64)
-    searches = [
-        plan_patrol(
-            graph,
-            starts,
-            max_cycles,
-            u_max,
-            search_seconds=PLAN_SECONDS,
-            restarts=PLAN_RESTARTS,
-            tour_groups=tour_groups,
-        )
-        for tour_groups in ((True, False) if tours else (False,))
-    ]
-    plan = min(searches, key=lambda searched: searched.predicted)
+    search = plan_both_ways if tours else partial(plan_patrol, tour_groups=False)
+    plan = search(graph, starts, max_cycles, u_max, search_seconds=PLAN_SECONDS, restarts=PLAN_RESTARTS)
     territory = np.zeros((starts.size, graph.n_nodes), dtype=bool)
     for agent, group in enumerate(plan.groups):
         territory[agent, list(group)] = True

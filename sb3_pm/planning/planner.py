@@ -34,7 +34,7 @@ from sb3_pm.planning.owned_search import descend_owned, exhaustive, nearest_targ
 from sb3_pm.planning.pricer import GroupPricer
 from sb3_pm.planning.target_tables import TargetTables
 
-__all__ = ["PatrolPlan", "plan_patrol", "uncertainty_at_reset"]
+__all__ = ["PatrolPlan", "plan_both_ways", "plan_patrol", "uncertainty_at_reset"]
 
 #: The default wall-clock cap of the search, in seconds: a plan for one episode.
 DEFAULT_SEARCH_SECONDS = 60.0
@@ -212,3 +212,24 @@ def plan_patrol(
         complete=complete,
         notes={"territory_split": first / max_cycles},
     )
+
+
+def plan_both_ways(
+    graph: GraphSpec,
+    starts: np.ndarray,
+    max_cycles: int,
+    u_max: int,
+    initial_uncertainty: np.ndarray | None = None,
+    search_seconds: float = DEFAULT_SEARCH_SECONDS,
+    restarts: int = DEFAULT_RESTARTS,
+) -> PatrolPlan:
+    """The lower of two :func:`plan_patrol` searches, each with ``search_seconds`` and ``restarts``:
+    free to walk groups as tours, and by the ``stalest`` rule alone. The two land in other local
+    optima, and the one free to take tours is not always lower; on a tie it is kept."""
+    searches = [
+        plan_patrol(
+            graph, starts, max_cycles, u_max, initial_uncertainty, search_seconds, restarts, tour_groups=tours
+        )
+        for tours in (True, False)
+    ]
+    return min(searches, key=lambda searched: searched.predicted)

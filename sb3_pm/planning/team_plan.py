@@ -31,7 +31,7 @@ from sb3_pm.planning.controllers import (
 )
 from sb3_pm.planning.group_patrol import solo_cost
 from sb3_pm.planning.pair_schedule import MAX_PATH_HOPS, PairSchedule
-from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS, PatrolPlan, plan_patrol, uncertainty_at_reset
+from sb3_pm.planning.planner import DEFAULT_SEARCH_SECONDS, PatrolPlan, plan_both_ways, uncertainty_at_reset
 
 __all__ = ["AgentOrders", "TeamPlan", "plan_team"]
 
@@ -98,11 +98,7 @@ def plan_team(
     starts = np.asarray(starts, dtype=np.int64)
     initial = uncertainty_at_reset(graph, initial_uncertainty)
     deadline = time.monotonic() + search_seconds
-    searches = [
-        plan_patrol(graph, starts, max_cycles, u_max, initial, search_seconds / 4, tour_groups=tours)
-        for tours in (True, False)
-    ]
-    groups_plan = min(searches, key=lambda searched: searched.predicted)
+    groups_plan = plan_both_ways(graph, starts, max_cycles, u_max, initial, search_seconds / 4)
     distances = graph.hop_distances.astype(np.int64).tolist()
     next_hop = graph.next_hop.astype(np.int64).tolist()
     schedules: dict[tuple[int, int], PairSchedule] = {}
