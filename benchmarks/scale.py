@@ -19,8 +19,10 @@ each agent's known edges (the ``GraphSpec`` keeps its N × N bool adjacency; the
 build all-pairs distances).
 
 ``--agents`` fixes the team size; ``--neglect-bound B|off`` sets a trained team's bound (scope
-``territory``). ``pretrained:transfer``'s ``deploy_filter: auto`` is calibrated only by
-``sb3-pm evaluate``, and only for its own 4 agents, so without ``--neglect-bound`` it acts with none.
+``territory``); ``--territories`` sets a trained team's territory convention (``planned_tours``, as
+``pretrained:transfer`` deploys on large sites; its plan is part of the build time).
+``pretrained:transfer_split``'s ``deploy_filter: auto`` is calibrated only by ``sb3-pm evaluate``,
+and only for its own 4 agents, so without ``--neglect-bound`` it acts with none.
 """
 
 from __future__ import annotations
@@ -44,9 +46,11 @@ def cell(
     layout: str = "dense",
     agents: int | None = None,
     bound: str | None = None,
+    territories: str | None = None,
 ) -> dict[str, float]:
     """One (size, policy) measurement, in this process (``agents``: the team size, default
-    ``suggested_agents``; ``bound``: a trained team's neglect bound, a number or ``off``)."""
+    ``suggested_agents``; ``bound``: a trained team's neglect bound, a number or ``off``;
+    ``territories``: a trained team's convention, default its own)."""
     import torch
 
     torch.set_num_threads(1)
@@ -63,7 +67,8 @@ def cell(
         else:
             team.set_filter(neglect_bound=float(bound), neglect_scope="territory")
     n_agents = agents or suggested_agents(size)
-    env = team.make_env(graph, n_agents=n_agents, max_cycles=steps, layout=layout)
+    conventions = {} if territories is None or policy in BASELINES else {"territories": territories}
+    env = team.make_env(graph, n_agents=n_agents, max_cycles=steps, layout=layout, **conventions)
     observations, _ = env.reset(seed=seed)
     team.reset(env, seed=seed)
     built = time.perf_counter() - start
@@ -89,6 +94,8 @@ def exponent(sizes: list[int], seconds: list[float]) -> float:
 
 
 def main() -> None:
+    from sb3_pm.planning.conventions import TERRITORY_CONVENTIONS
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[250, 500, 1000, 2000])
     parser.add_argument("--policies", nargs="+", default=["random", "grazing", "territory_patrol"])
@@ -103,12 +110,27 @@ def main() -> None:
         help="a trained team's neglect bound (territory scope): a number, or off (default: the team's "
         "own, which for a deploy_filter auto means none here, as nothing calibrates it)",
     )
+    parser.add_argument(
+        "--territories",
+        choices=TERRITORY_CONVENTIONS,
+        default=None,
+        help="a trained team's territory convention (default: its own)",
+    )
     parser.add_argument("--json", default=None, help="also write the rows to this file")
     parser.add_argument("--cell", nargs=2, metavar=("SIZE", "POLICY"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.cell:
         size, policy = int(args.cell[0]), args.cell[1]
-        row = cell(size, policy, args.steps, args.seed, args.layout, args.agents, args.neglect_bound)
+        row = cell(
+            size,
+            policy,
+            args.steps,
+            args.seed,
+            args.layout,
+            args.agents,
+            args.neglect_bound,
+            args.territories,
+        )
         print(json.dumps(row))
         return
     environment = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -120,6 +142,7 @@ def main() -> None:
             command += ["--layout", args.layout]
             command += [] if args.agents is None else ["--agents", str(args.agents)]
             command += [] if args.neglect_bound is None else ["--neglect-bound", args.neglect_bound]
+            command += [] if args.territories is None else ["--territories", args.territories]
             done = subprocess.run(
                 [*command, "--seed", str(args.seed)], capture_output=True, text=True, env=environment
             )

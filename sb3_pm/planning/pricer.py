@@ -21,8 +21,10 @@ from sb3_pm.planning.target_tables import TargetTables
 
 __all__ = ["BATCH_MAX_WALKS", "BATCH_MIN_WALKS", "GroupPricer"]
 
-#: The fewest unpriced walks that :meth:`GroupPricer.prefetch` prices as one NumPy batch.
-BATCH_MIN_WALKS = 512
+#: The fewest unpriced walks that :meth:`GroupPricer.prefetch` prices as one NumPy batch (below it
+#: the walks go one by one in Python, whose cost grows with the walk's length and the group's
+#: size, where a batch's is mostly a fixed cost per step: research/LOG.md §3u).
+BATCH_MIN_WALKS = 64
 #: The most walks priced in one NumPy batch, so that a large site's batch stays within memory.
 BATCH_MAX_WALKS = 20_000
 #: Tables of up to this many entries are held as Python lists for the one-by-one walks; larger ones
