@@ -721,7 +721,8 @@ def test_one_key_experiments_change_only_what_they_name(tmp_path: Path) -> None:
     assert transfer_known["known_map"].policy_kwargs == {"advice_prior": 0.0}  # pinned: no prior
 
 
-#: The experiment files built on zoo/ippo_transfer.yml, with the map knowledge, territory
+#: The experiment files built on zoo/ippo_transfer_split.yml (zoo/ippo_transfer.yml when they were
+#: measured), with the map knowledge, territory
 #: settings, the rule's advice (input, and the variants' priors) and deploy filter each measured.
 #: The advice columns: the variants with ``advice_input`` on; the priors: each variant's
 #: ``advice_prior`` where it is not 0.
@@ -777,11 +778,11 @@ TRANSFER_EXPERIMENTS = [
 
 
 def _built_on_ippo_transfer(config: object) -> bool:
-    return config is not None and Path(str(config)).name == "ippo_transfer.yml"
+    return config is not None and Path(str(config)).name in ("ippo_transfer.yml", "ippo_transfer_split.yml")
 
 
 def test_every_experiment_built_on_ippo_transfer_is_checked_for_what_it_measured() -> None:
-    """A new file that trains zoo/ippo_transfer.yml must join TRANSFER_EXPERIMENTS (and so pin
+    """A new file that trains a transfer config must join TRANSFER_EXPERIMENTS (and so pin
     the settings it measures), or a change of the config would change what it measures."""
     built_on = set()
     for path in every_experiment_file():
@@ -804,8 +805,8 @@ def test_the_transfer_experiments_train_under_the_env_settings_they_measured(
     priors: dict[str, float],
     deploy: dict | None,
 ) -> None:
-    """zoo/ippo_transfer.yml gives a known map, the territory input and reward, the rule's advice
-    with a prior, and the calibrated bound; the files that measured other settings pin them, so
+    """zoo/ippo_transfer_split.yml gives a known map, the territory input and reward, the rule's
+    advice with a prior, and the calibrated bound; the files that measured other settings pin them, so
     every variant built on it trains (and, keeping its env settings, deploys) as measured."""
     experiment = load_experiment(experiment_file(name))
     learned = 0
@@ -1256,11 +1257,11 @@ def test_jobs_side_by_side_share_the_cores_between_their_teams(
     ],
 )
 def test_the_shipped_transfer_team_rows_train_on_the_config_family(name: str, variant: str) -> None:
-    """The rows that measure today's zoo/ippo_transfer.yml train where the config does (family:er),
+    """The rows that measure zoo/ippo_transfer_split.yml train where the config does (family:er),
     and the rows of the team before it on paper-50."""
     from sb3_pm.zoo.config import default_env
 
     variants = {v.key: v for v in load_experiment(experiment_file(name)).variants}
-    assert str(variants[variant].train_env) == default_env("ippo_transfer") == "family:er"
+    assert str(variants[variant].train_env) == default_env("ippo_transfer_split") == "family:er"
     before = "advice_prior" if name == "transfer_advice" else "transfer_advice"
     assert str(variants[before].train_env) == "paper-50"

@@ -1,4 +1,4 @@
-"""Deploying ``pretrained:transfer`` on large sites in the env's edges layout.
+"""Deploying ``pretrained:transfer_split`` on large sites in the env's edges layout.
 
 What a large site computes without the all-pairs tables must be what the small sites compute with
 them: per-target routes (:mod:`sb3_pm.graphs.routes`) against ``GraphSpec``'s ``hop_distances``
@@ -6,7 +6,8 @@ and ``next_hop``, the territory split, rule and advice on either, the neglect bo
 edge lists against its dense search, and the actor's logits from the allowed nodes'
 neighbourhoods (:mod:`sb3_pm.policies.local_pass`) against the full pass. Then short episodes of
 the transfer team on a 1,000-node site and on the 5,000-node city with 64 agents, each in a process
-of its own, with its peak memory.
+of its own, with its peak memory: ``pretrained:transfer_split``, which needs no plan, and (marked
+slow) the shipped ``pretrained:transfer`` on the plan's tours.
 """
 
 from __future__ import annotations
@@ -170,7 +171,7 @@ def transfer_on_small_city() -> tuple[object, GraphSpec]:
     from sb3_pm.evaluation import resolve_team
 
     graph = city_streets(300, seed=3)
-    team = resolve_team("pretrained:transfer", graph=graph, layout="edges")
+    team = resolve_team("pretrained:transfer_split", graph=graph, layout="edges")
     team.set_filter(neglect_bound=None)  # no calibration here: the bound is compared on its own
     return team, graph
 
@@ -267,7 +268,7 @@ EPISODE = textwrap.dedent(
     from sb3_pm.evaluation import resolve_team
     from sb3_pm.graphs.large_sites import city_streets
     graph = city_streets(1000, seed=1)
-    team = resolve_team("pretrained:transfer", graph=graph, layout="edges")
+    team = resolve_team("pretrained:transfer_split", graph=graph, layout="edges")
     team.set_filter(neglect_bound=60.0, neglect_scope="territory")
     env = team.make_env(graph, n_agents=12, max_cycles=20)
     observations, _ = env.reset(seed=0)
@@ -306,7 +307,7 @@ SITE_5K = textwrap.dedent(
     from sb3_pm.evaluation import resolve_team
     from sb3_pm.graphs import resolve_graph
     graph = resolve_graph("city-5k")
-    team = resolve_team("pretrained:transfer", graph=graph, layout="edges")
+    team = resolve_team("pretrained:transfer_split", graph=graph, layout="edges")
     team.set_filter(neglect_bound=None)  # as the zero-shot records run it (--neglect-bound off)
     env = team.make_env(graph, n_agents=64, max_cycles=10)
     observations, _ = env.reset(seed=0)
@@ -334,11 +335,25 @@ def test_a_transfer_episode_on_the_5000_node_city_with_64_agents_fits_in_2_gb() 
     assert result["peak_mb"] < 2048, result
 
 
+@pytest.mark.slow
+def test_the_shipped_transfer_team_on_the_5000_node_city_on_planned_tours_fits_in_2_gb() -> None:
+    """``pretrained:transfer`` as deployed there (``--territories planned_tours``): the plan for
+    the episode's starts, then 10 steps, in a process of its own."""
+    script = SITE_5K.replace('"pretrained:transfer_split"', '"pretrained:transfer"').replace(
+        "n_agents=64, max_cycles=10)", "n_agents=64, max_cycles=10, territories='planned_tours')"
+    )
+    assert "territories='planned_tours'" in script and '"pretrained:transfer"' in script
+    result = child_result(script, timeout=1200)
+    assert result["moves"] == 64 * 10 and result["legal"] == result["moves"]
+    assert not result["all_pairs"]
+    assert result["peak_mb"] < 2048, result
+
+
 def test_sb3_pm_evaluate_takes_the_layout(capsys, tmp_path) -> None:
     from sb3_pm.cli import main
 
     out = tmp_path / "run.json"
-    argv = ["evaluate", "--policy", "pretrained:transfer", "--graph", "city-1k", "--agents", "12"]
+    argv = ["evaluate", "--policy", "pretrained:transfer_split", "--graph", "city-1k", "--agents", "12"]
     argv += ["--layout", "edges", "--steps", "5", "--episodes", "1", "--neglect-bound", "off"]
     assert main([*argv, "--json", str(out), "--no-progress"]) == 0
     assert json.loads(out.read_text())["mean"]["steps"] == 5

@@ -13,7 +13,7 @@ from sb3_pm.pretrained import pretrained_names, pretrained_path, provenance
 
 
 def test_every_pretrained_team_says_how_it_was_made() -> None:
-    assert {"paper-50", "transfer"} <= set(pretrained_names())
+    assert {"paper-50", "transfer", "transfer_split"} <= set(pretrained_names())
     for name in pretrained_names():
         record = provenance(name)
         assert record["seed"] == 0 and "sb3-pm train" in record["command"] and "commit" in record["code"]
@@ -75,5 +75,6 @@ def test_the_transfer_team_acts_legally_on_a_graph_it_never_saw() -> None:
 
 
 def test_an_unknown_pretrained_team_is_one_line() -> None:
-    with pytest.raises(InputError, match="no pretrained team 'nope': use one of paper-50, transfer"):
+    names = "paper-50, transfer, transfer_split"
+    with pytest.raises(InputError, match=f"no pretrained team 'nope': use one of {names}"):
         pretrained_path("pretrained:nope")

@@ -3,8 +3,9 @@
 * rl-zoo YAMLs (``zoo/<algo>.yml``, all but the team files ``zoo/ippo*.yml``): each entry is read
   by rl-zoo's own :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
   ``rl_zoo3.train`` would (schedules, env_kwargs, policy_kwargs, n_envs).
-* ``zoo/ippo.yml``, ``zoo/ippo_split.yml``, ``zoo/ippo_paper.yml``, ``zoo/ippo_improved.yml`` and
-  ``zoo/ippo_transfer.yml`` (our team format): each entry builds an :class:`IndependentPPO` team.
+* ``zoo/ippo.yml``, ``zoo/ippo_split.yml``, ``zoo/ippo_paper.yml``, ``zoo/ippo_improved.yml``,
+  ``zoo/ippo_transfer.yml`` and ``zoo/ippo_transfer_split.yml`` (our team format): each entry
+  builds an :class:`IndependentPPO` team.
 * ``python -m rl_zoo3.train --gym-packages sb3_pm ...`` (a subprocess) and our launcher
   ``python -m sb3_pm.zoo --algo dcbf_ppo ...`` run end to end and save a model.
 """
@@ -35,7 +36,14 @@ th.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]
 ZOO = ROOT / "zoo"
 #: Files in zoo/ that are not rl-zoo hyperparameter files.
-NOT_RL_ZOO = {"ippo.yml", "ippo_split.yml", "ippo_paper.yml", "ippo_improved.yml", "ippo_transfer.yml"}
+NOT_RL_ZOO = {
+    "ippo.yml",
+    "ippo_split.yml",
+    "ippo_paper.yml",
+    "ippo_improved.yml",
+    "ippo_transfer.yml",
+    "ippo_transfer_split.yml",
+}
 RL_ZOO_FILES = sorted(p for p in ZOO.glob("*.yml") if p.name not in NOT_RL_ZOO)
 #: Small settings so that building (and the end-to-end runs) stay fast.
 TINY = {"n_envs": 1, "n_steps": 32, "batch_size": 32}
@@ -214,15 +222,16 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_te
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
     d_policy = dict(d_kwargs["hyperparams"].pop("policy_kwargs"))
     assert t_policy.pop("laplacian") == "none" and "laplacian" not in d_policy
-    # The territory rule's move as an input, with a prior of 2 on its logit.
-    assert t_policy.pop("advice_prior") == 2.0 and "advice_prior" not in d_policy
+    # The territory rule's move as an input, with a prior of 4 on its logit.
+    assert t_policy.pop("advice_prior") == 4.0 and "advice_prior" not in d_policy
     # A known static map: each agent's map lists the targets and edges from the first step; the
     # default knows the edges only and discovers the targets.
     t_env, d_env = dict(t_kwargs.pop("env_kwargs")), dict(d_kwargs.pop("env_kwargs"))
     assert (t_env.pop("target_knowledge"), t_env.pop("graph_knowledge")) == ("known", "known")
     assert "target_knowledge" not in d_env and d_env.pop("graph_knowledge") == "known"
-    # Told its territory on whatever graph it runs (computed from the known map), and paid the
-    # territory reward as the default is: the convention travels with the team.
+    # Told its group of the plan for the episode's starts on whatever graph it runs (computed
+    # from the known map), and paid the territory reward as the default is.
+    assert t_env.pop("territories") == "planned" and "territories" not in d_env
     assert t_env.pop("territory_input") is True and "territory_input" not in d_env
     assert t_env.pop("advice_input") is True and "advice_input" not in d_env
     assert t_env["reward"] == d_env["reward"] and t_env["reward"]["territory"] == 0.04
@@ -234,14 +243,27 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_te
     assert t_kwargs.pop("per_agent") == {} and len(d_kwargs.pop("per_agent")) == default.n_agents
     # 10 passes over each rollout, as the transfer figures were measured; the default makes 5.
     assert (t_kwargs["hyperparams"].pop("n_epochs"), d_kwargs["hyperparams"].pop("n_epochs")) == (10, 5)
-    # No fixed bound: B = 50 belongs to paper-50; wherever it is deployed the bound is calibrated
-    # there (auto), since a fixed one forced a third to two thirds of the moves elsewhere.
-    assert t_kwargs.pop("deploy_filter") == {"neglect_bound": "auto", "neglect_scope": "territory"}
+    # No bound: B = 50 belongs to paper-50's split territories.
+    assert t_kwargs.pop("deploy_filter") is None
     assert d_kwargs.pop("deploy_filter") == {"neglect_bound": 50.0, "neglect_scope": "territory"}
     assert t_policy == d_policy and t_kwargs == d_kwargs and t_env == d_env
     # It names what it trains on without --env, a graph family; the default trains on the
     # command line's graph.
     assert (transfer.env, default.env) == ("family:er", None)
+
+
+def test_ippo_transfer_split_is_the_transfer_config_before_planned_territories() -> None:
+    """zoo/ippo_transfer_split.yml, the transfer config the earlier records measured: the same as
+    zoo/ippo_transfer.yml but on split territories, with a prior of 2 and the calibrated bound."""
+    transfer, split = load_config("ippo_transfer", "paper-50"), load_config("ippo_transfer_split", "paper-50")
+    t_kwargs, s_kwargs = transfer.team_kwargs(), split.team_kwargs()
+    assert t_kwargs["hyperparams"]["policy_kwargs"].pop("advice_prior") == 4.0
+    assert s_kwargs["hyperparams"]["policy_kwargs"].pop("advice_prior") == 2.0
+    assert t_kwargs["env_kwargs"].pop("territories") == "planned"
+    assert "territories" not in s_kwargs["env_kwargs"]
+    assert t_kwargs.pop("deploy_filter") is None
+    assert s_kwargs.pop("deploy_filter") == {"neglect_bound": "auto", "neglect_scope": "territory"}
+    assert t_kwargs == s_kwargs and (transfer.env, split.env) == ("family:er", "family:er")
 
 
 def test_a_config_env_is_what_train_uses_without_env(tmp_path: Path) -> None:
