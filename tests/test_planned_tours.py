@@ -112,6 +112,43 @@ def test_the_convention_keeps_the_stalest_search_where_it_plans_lower() -> None:
         assert set(np.flatnonzero(territories.territory[agent]).tolist()) == set(group)
 
 
+@pytest.mark.parametrize("tours_lower", [True, False])
+def test_the_two_searches_in_two_processes_plan_as_in_one(
+    street_site, monkeypatch, tours_lower: bool
+) -> None:
+    """On large sites the search free to take tours runs in a worker process: the same plan as both
+    searches in this one, the lower kept either way (the street site plans lower with tours, the
+    small-world starts above lower without)."""
+    from sb3_pm.planning import planner
+
+    graph, starts = (
+        (street_site, np.array([3, 40, 77, 110]))
+        if tours_lower
+        else (
+            resolve_graph("small-world-60"),
+            np.array([23, 1, 41, 51]),
+        )
+    )
+    monkeypatch.setattr(planner, "_second_core_free", lambda: False)
+    alone = planner.plan_both_ways(graph, starts, 200, 100, search_seconds=600.0, restarts=2)
+    started = []
+    start_search = planner._start_search
+    monkeypatch.setattr(planner, "_start_search", lambda *a: started.append(a) or start_search(*a))
+    monkeypatch.setattr(planner, "_second_core_free", lambda: True)
+    monkeypatch.setattr(planner, "PARALLEL_MIN_NODES", 0)
+    beside = planner.plan_both_ways(graph, starts, 200, 100, search_seconds=600.0, restarts=2)
+    assert len(started) == 1 and beside == alone
+    assert ("tour" in alone.rules) is tours_lower
+
+
+def test_a_failed_search_worker_is_one_line() -> None:
+    from sb3_pm.planning import planner
+
+    worker = planner._start_search(("not a graph",), {})
+    with pytest.raises(RuntimeError, match=r"the plan search's worker process failed \(exit status 1\)"):
+        planner._plan_of(worker)
+
+
 def make_env(graph, **kwargs):
     options = {"max_cycles": 60, "advice_input": True, "territories": "planned_tours", **KNOWN, **kwargs}
     return persistent_monitoring_v0.parallel_env(graph=graph, n_agents=4, **options)

@@ -21,6 +21,11 @@ per (start, group). The plan is an upper bound on the optimum once replayed thro
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+import pickle
+import subprocess
+import sys
 import time
 from dataclasses import dataclass, field
 from functools import partial
@@ -34,8 +39,11 @@ from sb3_pm.planning.owned_search import descend_owned, exhaustive, nearest_targ
 from sb3_pm.planning.pricer import GroupPricer
 from sb3_pm.planning.target_tables import TargetTables
 
-__all__ = ["PatrolPlan", "plan_both_ways", "plan_patrol", "uncertainty_at_reset"]
+__all__ = ["PARALLEL_MIN_NODES", "PatrolPlan", "plan_both_ways", "plan_patrol", "uncertainty_at_reset"]
 
+#: Sites of this many nodes or more run :func:`plan_both_ways`' two searches in two processes: a
+#: search there takes seconds, well above the second process's start (about a second).
+PARALLEL_MIN_NODES = 1000
 #: The default wall-clock cap of the search, in seconds: a plan for one episode.
 DEFAULT_SEARCH_SECONDS = 60.0
 #: The default number of perturbed restarts of the local search.
@@ -225,11 +233,55 @@ def plan_both_ways(
 ) -> PatrolPlan:
     """The lower of two :func:`plan_patrol` searches, each with ``search_seconds`` and ``restarts``:
     free to walk groups as tours, and by the ``stalest`` rule alone. The two land in other local
-    optima, and the one free to take tours is not always lower; on a tie it is kept."""
-    searches = [
-        plan_patrol(
-            graph, starts, max_cycles, u_max, initial_uncertainty, search_seconds, restarts, tour_groups=tours
-        )
-        for tours in (True, False)
-    ]
+    optima, and the one free to take tours is not always lower; on a tie it is kept.
+
+    On sites of :data:`PARALLEL_MIN_NODES` nodes or more, where a second core is free, the search
+    free to take tours runs in a process of its own beside the other (the same plans either way).
+    """
+    arguments = (graph, starts, max_cycles, u_max, initial_uncertainty, search_seconds, restarts)
+    if graph.n_nodes >= PARALLEL_MIN_NODES and _second_core_free():
+        worker = _start_search(arguments, {"tour_groups": True})
+        try:
+            stalest = plan_patrol(*arguments, tour_groups=False)
+            searches = [_plan_of(worker), stalest]
+        finally:
+            if worker.poll() is None:  # this search failed or was interrupted: stop the other
+                worker.kill()
+                worker.wait()
+    else:
+        searches = [plan_patrol(*arguments, tour_groups=tours) for tours in (True, False)]
     return min(searches, key=lambda searched: searched.predicted)
+
+
+def _start_search(args: tuple, kwargs: dict) -> subprocess.Popen:
+    """Start :func:`plan_patrol` on ``args`` and ``kwargs`` in a worker process of its own
+    (:mod:`sb3_pm.planning.search_worker`, one torch thread)."""
+    worker = subprocess.Popen(
+        [sys.executable, "-m", "sb3_pm.planning.search_worker"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
+    assert worker.stdin is not None
+    worker.stdin.write(pickle.dumps((args, kwargs)))
+    worker.stdin.close()
+    return worker
+
+
+def _plan_of(worker: subprocess.Popen) -> PatrolPlan:
+    """The plan :func:`_start_search`'s worker found, once it is done.
+
+    :raises RuntimeError: if the worker failed (its error is on standard error).
+    """
+    assert worker.stdout is not None
+    output = worker.stdout.read()
+    if worker.wait() != 0:
+        raise RuntimeError(f"the plan search's worker process failed (exit status {worker.returncode})")
+    return pickle.loads(output)  # our own worker's reply to our own arguments, not a file
+
+
+def _second_core_free() -> bool:
+    """Whether this process may start a worker on a second core: it has two cores or more, and it
+    is not a daemon (a vectorized env's worker, whose siblings share the cores already)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return cores >= 2 and not multiprocessing.current_process().daemon
