@@ -121,6 +121,37 @@ def _generator(state: Any) -> np.random.Generator:
     return np.random.Generator(bit_generator)
 
 
+#: The array of :func:`state_bytes`' archive that holds the JSON tree, as UTF-8 bytes.
+TREE_ARRAY = "__tree__"
+
+
+def state_bytes(value: Any) -> bytes:
+    """``value`` as one in-memory ``.npz``: its arrays, and its JSON tree as the bytes of the array
+    :data:`TREE_ARRAY` (for passing plain state to another process of ours)."""
+    arrays: dict[str, np.ndarray] = {}
+    tree = encode(value, arrays)
+    arrays[TREE_ARRAY] = np.frombuffer(json.dumps(tree).encode(), dtype=np.uint8)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]  # names are strings
+    return buffer.getvalue()
+
+
+def state_from_bytes(data: bytes) -> Any:
+    """The value :func:`state_bytes` wrote; never unpickles (``allow_pickle=False``).
+
+    :raises StateFormatError: if ``data`` is malformed or holds anything but plain state.
+    """
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files}
+        tree = json.loads(arrays.pop(TREE_ARRAY).tobytes().decode())
+        return decode(tree, arrays)
+    except StateFormatError:
+        raise
+    except (ValueError, OSError, EOFError, KeyError, TypeError) as error:
+        raise StateFormatError(f"plain state cannot be read ({error})") from None
+
+
 def write_state(value: Any, json_path: Path, arrays_path: Path) -> None:
     """Write ``value`` as ``json_path`` (the tree) and ``arrays_path`` (its arrays, ``.npz``)."""
     arrays: dict[str, np.ndarray] = {}
@@ -153,4 +184,14 @@ def read_state(json_path: Path, arrays_path: Path) -> Any:
         raise StateFormatError(f"{json_path.name} holds a malformed entry ({error})") from None
 
 
-__all__ = ["BIT_GENERATORS", "StateFormatError", "decode", "encode", "read_state", "write_state"]
+__all__ = [
+    "BIT_GENERATORS",
+    "TREE_ARRAY",
+    "StateFormatError",
+    "decode",
+    "encode",
+    "read_state",
+    "state_bytes",
+    "state_from_bytes",
+    "write_state",
+]

@@ -144,7 +144,9 @@ def test_the_two_searches_in_two_processes_plan_as_in_one(
 def test_a_failed_search_worker_is_one_line() -> None:
     from sb3_pm.planning import planner
 
-    worker = planner._start_search(("not a graph",), {})
+    worker = planner._start_search(
+        resolve_graph("karate"), {"starts": np.array([0, 1]), "no_such_argument": 1}
+    )
     with pytest.raises(RuntimeError, match=r"the plan search's worker process failed \(exit status 1\)"):
         planner._plan_of(worker)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import io
 import json
 import pathlib
 import pickle
@@ -28,7 +29,7 @@ from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.evaluation.teams import load_trained_team
 from sb3_pm.graphs import erdos_renyi
-from sb3_pm.plain_state import StateFormatError, read_state
+from sb3_pm.plain_state import StateFormatError, read_state, state_bytes, state_from_bytes
 from tests.test_checkpoints import _assert_same
 from tests.test_checkpoints import _state as _tensors
 
@@ -363,6 +364,27 @@ def test_a_state_file_with_anything_but_plain_state_is_refused(checkpoint, tmp_p
         state.write_text(json.dumps(tree))
         with pytest.raises(StateFormatError):
             read_state(state, checkpoint / "state.npz")
+
+
+def test_plain_state_in_memory_round_trips_and_never_unpickles(tmp_path) -> None:
+    """The form a plan search's worker process reads and answers in (sb3_pm.planning.search_worker)."""
+    value = {"groups": ((3, 7), ()), "predicted": 33.07, "starts": np.array([1, 2]), "initial": None}
+    back = state_from_bytes(state_bytes(value))
+    assert back["groups"] == ((3, 7), ()) and back["predicted"] == 33.07 and back["initial"] is None
+    assert np.array_equal(back["starts"], value["starts"])
+    marker = tmp_path / "MARKER"
+    for payload in (pickle.dumps(Payload(marker)), _object_array_npz(marker), b"not an archive"):
+        with pytest.raises(StateFormatError):
+            state_from_bytes(payload)
+    assert not marker.exists()
+
+
+def _object_array_npz(marker: Path) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(
+        buffer, __tree__=np.frombuffer(b'{"__array__": "a0"}', dtype=np.uint8), a0=np.array([Payload(marker)])
+    )
+    return buffer.getvalue()
 
 
 def test_an_old_checkpoint_is_refused_in_one_line(checkpoint, tmp_path) -> None:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import pickle
 import subprocess
 import sys
 import time
@@ -238,24 +237,33 @@ def plan_both_ways(
     On sites of :data:`PARALLEL_MIN_NODES` nodes or more, where a second core is free, the search
     free to take tours runs in a process of its own beside the other (the same plans either way).
     """
-    arguments = (graph, starts, max_cycles, u_max, initial_uncertainty, search_seconds, restarts)
+    arguments = {
+        "starts": starts,
+        "max_cycles": max_cycles,
+        "u_max": u_max,
+        "initial_uncertainty": initial_uncertainty,
+        "search_seconds": search_seconds,
+        "restarts": restarts,
+    }
     if graph.n_nodes >= PARALLEL_MIN_NODES and _second_core_free():
-        worker = _start_search(arguments, {"tour_groups": True})
+        worker = _start_search(graph, {**arguments, "tour_groups": True})
         try:
-            stalest = plan_patrol(*arguments, tour_groups=False)
+            stalest = plan_patrol(graph, **arguments, tour_groups=False)
             searches = [_plan_of(worker), stalest]
         finally:
             if worker.poll() is None:  # this search failed or was interrupted: stop the other
                 worker.kill()
                 worker.wait()
     else:
-        searches = [plan_patrol(*arguments, tour_groups=tours) for tours in (True, False)]
+        searches = [plan_patrol(graph, **arguments, tour_groups=tours) for tours in (True, False)]
     return min(searches, key=lambda searched: searched.predicted)
 
 
-def _start_search(args: tuple, kwargs: dict) -> subprocess.Popen:
-    """Start :func:`plan_patrol` on ``args`` and ``kwargs`` in a worker process of its own
-    (:mod:`sb3_pm.planning.search_worker`, one torch thread)."""
+def _start_search(graph: GraphSpec, arguments: dict) -> subprocess.Popen:
+    """Start :func:`plan_patrol` on ``graph`` with keyword ``arguments`` in a worker process of its
+    own (:mod:`sb3_pm.planning.search_worker`, one torch thread)."""
+    from sb3_pm.planning.search_worker import request
+
     worker = subprocess.Popen(
         [sys.executable, "-m", "sb3_pm.planning.search_worker"],
         stdin=subprocess.PIPE,
@@ -263,7 +271,7 @@ def _start_search(args: tuple, kwargs: dict) -> subprocess.Popen:
         env={**os.environ, "OMP_NUM_THREADS": "1"},
     )
     assert worker.stdin is not None
-    worker.stdin.write(pickle.dumps((args, kwargs)))
+    worker.stdin.write(request(graph, arguments))
     worker.stdin.close()
     return worker
 
@@ -273,11 +281,13 @@ def _plan_of(worker: subprocess.Popen) -> PatrolPlan:
 
     :raises RuntimeError: if the worker failed (its error is on standard error).
     """
+    from sb3_pm.planning.search_worker import plan_from
+
     assert worker.stdout is not None
     output = worker.stdout.read()
     if worker.wait() != 0:
         raise RuntimeError(f"the plan search's worker process failed (exit status {worker.returncode})")
-    return pickle.loads(output)  # our own worker's reply to our own arguments, not a file
+    return plan_from(output)
 
 
 def _second_core_free() -> bool:
