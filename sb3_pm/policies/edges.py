@@ -7,7 +7,7 @@ here turn a batch of them into what the graph layers read:
 
 * :func:`batched_edges`: the sparse kernel's edge list, in exactly the order
   :func:`~sb3_pm.policies.attention.batched_edge_index` lists the same maps' dense adjacencies
-  (so the two layouts give the same sums, bit for bit);
+  (so the two layouts give the same sums, bit for bit, below :data:`LARGE_SITE_NODES`);
 * :func:`edges_to_adjacency`: the dense adjacency, for what needs one (the dense kernel, the
   Laplacian encoding; the neglect bound searches the edge list itself,
   :func:`~sb3_pm.policies.neglect_bound.edge_hop_distances`);
@@ -23,6 +23,13 @@ from sb3_pm.policies.attention import dense_by_counts
 #: The keys of a map observation in the dense and in the edges layout.
 DENSE_MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
 EDGE_MAP_KEYS = ("nodes", "edge_index", "edge_mask", "position", "dwell", "action_mask")
+#: Nodes per map from which the policy computes edges-layout maps the large-site way: the GAT sums
+#: over neighbours by sparse products (:mod:`sb3_pm.policies.neighbour_sum`), and the actor
+#: computes logits on the allowed nodes alone (:mod:`sb3_pm.policies.heads`
+#: in training, :mod:`sb3_pm.policies.local_pass` when acting). The same function, rounded
+#: otherwise; below it both layouts give the same results bit for bit, so every recorded training
+#: on the published graphs and families repeats.
+LARGE_SITE_NODES = 1000
 
 
 def is_edge_layout(keys: object) -> bool:
@@ -70,6 +77,12 @@ def edges_to_adjacency(edge_index: th.Tensor, edge_mask: th.Tensor, n_nodes: int
     return adjacency
 
 
+def is_large_site(observations: object, n_nodes: int) -> bool:
+    """Whether maps of ``n_nodes`` nodes with these keys take the large-site path
+    (:data:`LARGE_SITE_NODES`)."""
+    return n_nodes >= LARGE_SITE_NODES and is_edge_layout(observations)
+
+
 def use_dense_edges(edge_mask: th.Tensor, n_nodes: int, backend: str) -> bool:
     """:func:`~sb3_pm.policies.attention.use_dense` for the maps whose known edges are
     ``edge_mask`` ``(B, E)``: the same decision, from the same counts, without the adjacency."""
@@ -86,9 +99,11 @@ def dense_adjacency(observations: dict[str, th.Tensor], n_nodes: int) -> th.Tens
 __all__ = [
     "DENSE_MAP_KEYS",
     "EDGE_MAP_KEYS",
+    "LARGE_SITE_NODES",
     "batched_edges",
     "dense_adjacency",
     "edges_to_adjacency",
     "is_edge_layout",
+    "is_large_site",
     "use_dense_edges",
 ]

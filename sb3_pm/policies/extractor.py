@@ -16,9 +16,11 @@ per distinct adjacency of the batch and shared by the layers.
 
 Maps in the env's edges layout (``edge_index`` and ``edge_mask`` in place of ``adjacency``,
 :mod:`sb3_pm.policies.edges`) run the sparse kernel straight on their edge lists when the batch is
-sparse and ``laplacian="none"``; otherwise (the dense kernel, or the Laplacian encoding, both
-``(N, N)`` per map anyway) their dense adjacencies are built and the batch runs as a dense-layout
-one. Either way the results are those of the same maps in the dense layout.
+sparse and ``laplacian="none"`` (on large sites, :data:`~sb3_pm.policies.edges.LARGE_SITE_NODES`,
+summing over neighbours by sparse products, :mod:`sb3_pm.policies.neighbour_sum`); otherwise (the
+dense kernel, or the Laplacian encoding, both ``(N, N)`` per map anyway) their dense adjacencies
+are built and the batch runs as a dense-layout one. Either way the results are those of the same
+maps in the dense layout: bit for bit, except on large sites, where they agree up to rounding.
 """
 
 from __future__ import annotations
@@ -30,9 +32,16 @@ from torch import nn
 
 from sb3_pm.errors import InputError
 from sb3_pm.policies.attention import BACKENDS, UNIQUE_MIN_BATCH, attention_bias, unique_graphs, use_dense
-from sb3_pm.policies.edges import batched_edges, dense_adjacency, is_edge_layout, use_dense_edges
+from sb3_pm.policies.edges import (
+    batched_edges,
+    dense_adjacency,
+    is_edge_layout,
+    is_large_site,
+    use_dense_edges,
+)
 from sb3_pm.policies.encodings import LAPLACIAN_MODES, encoding_dim, positional_encoding
 from sb3_pm.policies.layers import GraphAttention
+from sb3_pm.policies.neighbour_sum import TargetSortedEdges
 
 
 class GATFeaturesExtractor(BaseFeaturesExtractor):
@@ -181,8 +190,11 @@ class GATFeaturesExtractor(BaseFeaturesExtractor):
             return self.node_embeddings({**observations, "adjacency": adjacency})
         x = self.node_features(observations)
         edges = batched_edges(edge_index, edge_mask, self.n_nodes)  # shared by every GAT layer
+        target_sorted = None
+        if is_large_site(observations, self.n_nodes):  # sums by sparse products
+            target_sorted = TargetSortedEdges.of(edges, x.shape[0] * self.n_nodes)
         for layer in self.gat:
-            x = self.activation(layer(x, None, dense=False, edge_index=edges))
+            x = self.activation(layer(x, None, dense=False, edge_index=edges, target_sorted=target_sorted))
         return x
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:  # type: ignore[override]

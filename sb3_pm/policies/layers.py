@@ -16,6 +16,7 @@ from torch import nn
 from torch_geometric.nn import GATConv
 
 from sb3_pm.errors import InputError
+from sb3_pm.policies import neighbour_sum
 from sb3_pm.policies.attention import (
     BACKENDS,
     attention_bias,
@@ -80,6 +81,7 @@ class GraphAttention(nn.Module):
         bias: th.Tensor | tuple[th.Tensor, th.Tensor] | None = None,
         encoding: tuple[th.Tensor, th.Tensor] | None = None,
         edge_index: th.Tensor | None = None,
+        target_sorted: neighbour_sum.TargetSortedEdges | None = None,
     ) -> th.Tensor:
         """Attend over ``adjacency`` (plus self loops).
 
@@ -92,6 +94,9 @@ class GraphAttention(nn.Module):
         :param edge_index: sparse kernel: the batch's edges ``(2, E)`` long as
             :func:`~sb3_pm.policies.attention.batched_edge_index` gives them (``adjacency`` may
             then be ``None``: maps in the env's edges layout, :mod:`sb3_pm.policies.edges`).
+        :param target_sorted: sparse kernel: the same edges with self loops, sorted by target, to
+            sum over neighbours by sparse products (:mod:`sb3_pm.policies.neighbour_sum`; the same
+            function, rounded otherwise) instead of PyG's gather and scatter.
         """
         if dense is None:
             # an edge list is the sparse kernel's input; an adjacency decides by its density
@@ -113,7 +118,10 @@ class GraphAttention(nn.Module):
         if edge_index is None:
             assert adjacency is not None
             edge_index = batched_edge_index(adjacency)
-        out = self.conv(x.reshape(batch * n, -1), edge_index)
+        if target_sorted is not None and neighbour_sum.applies_to(self.conv, self.training):
+            out = neighbour_sum.gat_by_products(self.conv, x.reshape(batch * n, -1), target_sorted)
+        else:
+            out = self.conv(x.reshape(batch * n, -1), edge_index)
         return out.view(batch, n, -1)
 
     def _project(self, x: th.Tensor, encoding: tuple[th.Tensor, th.Tensor] | None) -> th.Tensor:

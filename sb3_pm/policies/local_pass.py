@@ -27,22 +27,17 @@ from typing import Any
 
 import torch as th
 
-from sb3_pm.policies.edges import is_edge_layout
+from sb3_pm.policies.edges import is_large_site
 from sb3_pm.policies.heads import own_positions
-
-#: Smallest site whose acting logits come from the neighbourhoods (below it a full pass is cheap,
-#: and stays the reference).
-LOCAL_MIN_NODES = 1000
 
 
 def applies(policy: Any, pre: dict[str, th.Tensor]) -> bool:
     """Whether :func:`allowed_logits` may stand for ``policy``'s full pass on ``pre``: edges-layout
-    maps of at least :data:`LOCAL_MIN_NODES` nodes, a GAT without the Laplacian encoding (which
-    reads the whole adjacency)."""
+    maps of a large site (:data:`~sb3_pm.policies.edges.LARGE_SITE_NODES`), a GAT without the
+    Laplacian encoding (which reads the whole adjacency)."""
     extractor = getattr(policy, "features_extractor", None)
     return (
-        is_edge_layout(pre)
-        and getattr(policy, "n_nodes", 0) >= LOCAL_MIN_NODES
+        is_large_site(pre, getattr(policy, "n_nodes", 0))
         and getattr(extractor, "laplacian", None) == "none"
         and hasattr(extractor, "gat")
     )
@@ -142,4 +137,4 @@ def _all_edges(pre: dict[str, th.Tensor], n: int) -> EdgeFinder:
     return find
 
 
-__all__ = ["LOCAL_MIN_NODES", "allowed_logits", "applies"]
+__all__ = ["allowed_logits", "applies"]
