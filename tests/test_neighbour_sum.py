@@ -10,10 +10,12 @@ from torch_geometric.nn import GATConv
 
 from sb3_pm.envs.single_agent import SingleAgentMonitoringEnv
 from sb3_pm.graphs import erdos_renyi
-from sb3_pm.policies import DCBFActorCriticPolicy, edges, extractor
+from sb3_pm.policies import DCBFActorCriticPolicy, edges
 from sb3_pm.policies.neighbour_sum import TargetSortedEdges, applies_to, gat_by_products
 
 SITE = erdos_renyi(60, 0.06, n_targets=6, seed=3)
+#: The env settings under which an agent is told the territory rule's move.
+ADVISED = {"advice_input": True, "graph_knowledge": "known", "target_knowledge": "known"}
 FIELDS = ("source", "target", "target_rows", "by_source", "source_rows")
 
 
@@ -29,10 +31,10 @@ def random_edges(n_nodes: int, count: int, seed: int) -> th.Tensor:
 def test_values_and_gradients_are_gatconvs(heads: int) -> None:
     th.manual_seed(heads)
     n_nodes = 200
-    conv = GATConv(6, 8, heads=heads, concat=False, add_self_loops=True)
+    conv = GATConv(6, 8, heads=heads, concat=False, add_self_loops=True, negative_slope=0.3)
     with th.no_grad():
         conv.bias.normal_()  # PyG starts it at 0, which would hide a missing bias
-    edges = random_edges(n_nodes, 900, seed=heads)
+    edges = random_edges(n_nodes, 300, seed=heads)  # sparse enough to leave some nodes isolated
     x = th.randn(n_nodes, 6, requires_grad=True)
     upstream = th.randn(n_nodes, 8)
 
@@ -72,7 +74,14 @@ def test_it_stands_aside_where_it_would_compute_otherwise() -> None:
     conv = GATConv(4, 4, heads=2, concat=False, dropout=0.2)
     assert applies_to(conv, training=False)
     assert not applies_to(conv, training=True)  # attention dropout
-    assert not applies_to(GATConv(4, 4, heads=2, concat=True), training=False)  # heads concatenated
+    for other in (
+        dict(concat=True),  # heads concatenated
+        dict(concat=False, add_self_loops=False),
+        dict(concat=False, residual=True),
+        dict(concat=False, edge_dim=2),
+    ):
+        assert not applies_to(GATConv(4, 4, heads=2, **other), training=False), other
+    assert not applies_to(GATConv((4, 3), 4, heads=2, concat=False, add_self_loops=False), training=False)
 
 
 def _observations(env: SingleAgentMonitoringEnv, steps: int = 10) -> dict[str, th.Tensor]:
@@ -85,23 +94,39 @@ def _observations(env: SingleAgentMonitoringEnv, steps: int = 10) -> dict[str, t
     return {key: th.as_tensor(np.stack([np.asarray(o[key]) for o in collected])).float() for key in obs}
 
 
-def _policy(env: SingleAgentMonitoringEnv) -> DCBFActorCriticPolicy:
+def _policy(env: SingleAgentMonitoringEnv, **settings: object) -> DCBFActorCriticPolicy:
     th.manual_seed(0)
-    return DCBFActorCriticPolicy(
-        env.observation_space, env.action_space, lambda _: 3e-4, laplacian="none", gat_backend="sparse"
-    )
+    settings = {"laplacian": "none", "gat_backend": "sparse", **settings}
+    return DCBFActorCriticPolicy(env.observation_space, env.action_space, lambda _: 3e-4, **settings)
 
 
-def test_the_policy_takes_the_large_site_path_only_there(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize(
+    "settings",
+    [{}, {"net_arch": {"pi": [], "vf": [16]}}, {"use_estimator": False, "advice_prior": 2.0}],
+    ids=["default", "actor-without-hidden-layer", "no-estimator-with-advice"],
+)
+def test_the_policy_takes_the_large_site_path_only_there(
+    monkeypatch: pytest.MonkeyPatch, settings: dict[str, object]
+) -> None:
     """Below :data:`~sb3_pm.policies.edges.LARGE_SITE_NODES` the edges layout runs PyG's kernel
     and the actor on every node, so recorded trainings repeat bit for bit; from there on, the
     products and the actor on the allowed nodes alone, whose update (values, log-probabilities,
     entropies and every parameter's gradient) agrees up to rounding."""
-    env = SingleAgentMonitoringEnv(SITE, n_agents=2, max_cycles=20, layout="edges")
+    advice = "advice_prior" in settings
+    env = SingleAgentMonitoringEnv(
+        SITE, n_agents=2, max_cycles=20, layout="edges", **(ADVISED if advice else {})
+    )
     obs = _observations(env)
-    calls: list[int] = []
-    products = extractor.TargetSortedEdges.of
-    monkeypatch.setattr(extractor.TargetSortedEdges, "of", lambda *a: calls.append(1) or products(*a))
+    calls: list[str] = []
+    from sb3_pm.policies import layers
+
+    products = layers.neighbour_sum.gat_by_products
+
+    def counted(*args: object) -> th.Tensor:
+        calls.append("gat")
+        return products(*args)
+
+    monkeypatch.setattr(layers.neighbour_sum, "gat_by_products", counted)
 
     def update(policy: DCBFActorCriticPolicy) -> list[th.Tensor]:
         with th.no_grad():
@@ -112,12 +137,12 @@ def test_the_policy_takes_the_large_site_path_only_there(monkeypatch: pytest.Mon
         grads = [p.grad if p.grad is not None else th.zeros_like(p) for p in policy.parameters()]
         return [values, log_prob, entropy, *grads]
 
-    below = update(_policy(env))
+    below = update(_policy(env, **settings))
     assert not calls
     assert SITE.n_nodes < edges.LARGE_SITE_NODES
     monkeypatch.setattr(edges, "LARGE_SITE_NODES", SITE.n_nodes)
-    at = update(_policy(env))
-    assert calls
+    at = update(_policy(env, **settings))
+    assert calls.count("gat") == 2  # both GAT layers, forward
     assert any(not th.equal(a, b) for a, b in zip(at, below))  # another path, rounded otherwise
     for a, b in zip(at, below):
         th.testing.assert_close(a.detach(), b.detach(), rtol=1e-4, atol=1e-5)

@@ -25,10 +25,10 @@ DENSE_MAP_KEYS = ("nodes", "adjacency", "position", "dwell", "action_mask")
 EDGE_MAP_KEYS = ("nodes", "edge_index", "edge_mask", "position", "dwell", "action_mask")
 #: Nodes per map from which the policy computes edges-layout maps the large-site way: the GAT sums
 #: over neighbours by sparse products (:mod:`sb3_pm.policies.neighbour_sum`), and the actor
-#: computes logits on the allowed nodes alone (:mod:`sb3_pm.policies.heads`
-#: in training, :mod:`sb3_pm.policies.local_pass` when acting). The same function, rounded
-#: otherwise; below it both layouts give the same results bit for bit, so every recorded training
-#: on the published graphs and families repeats.
+#: computes logits on the allowed nodes alone (:mod:`sb3_pm.policies.heads` in training,
+#: :mod:`sb3_pm.policies.local_pass` when a team acts). The same function, rounded otherwise; below
+#: it both layouts give the same results bit for bit, so every recorded training on the published
+#: graphs and families repeats.
 LARGE_SITE_NODES = 1000
 
 

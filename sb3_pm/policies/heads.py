@@ -111,7 +111,7 @@ class ActorCriticHeads:
             estimate = u_hat / self.u_max  # (B, N)
             inputs = th.cat((inputs, estimate.reshape(-1)[rows].unsqueeze(-1)), dim=-1)
             means.append(estimate.mean(1, keepdim=True))
-        own_term = self._actor_own_term(own)[of_map]  # (R, w)
+        own_term = self._rows_own_term(own, of_map)  # (R, w), or None
         hidden = self._actor_hidden(inputs.unsqueeze(1), own[of_map], own_term)  # (R, 1, w')
         allowed = self._actor_output(hidden).reshape(-1)  # (R,)
         logits = th.zeros(batch * n, dtype=allowed.dtype, device=allowed.device).index_put((rows,), allowed)
@@ -152,6 +152,13 @@ class ActorCriticHeads:
         policy by policy, to round as this policy does alone."""
         first: nn.Linear = self.actor_body[0]  # type: ignore[assignment]
         return nn.functional.linear(own, first.weight[:, first.weight.shape[1] - own.shape[-1] :])
+
+    def _rows_own_term(self, own: th.Tensor, of_map: th.Tensor) -> th.Tensor | None:
+        """:meth:`_actor_own_term` once per map, then per row of ``of_map`` ``(R,)``: ``(R, w)``;
+        ``None`` for an actor without a hidden layer, which has no such term."""
+        if not len(self.actor_body) or not isinstance(self.actor_body[0], nn.Linear):
+            return None
+        return self._actor_own_term(own)[of_map]
 
     def _actor_hidden(
         self, embeddings: th.Tensor, own: th.Tensor, own_term: th.Tensor | None = None

@@ -78,7 +78,7 @@ def allowed_logits(policy: Any, pre: dict[str, th.Tensor], u_hat: th.Tensor, mas
         embedded = th.cat((embedded, (u_hat.reshape(-1)[rows] / policy.u_max).unsqueeze(-1)), dim=-1)
     own_embedding = x[local[own]]  # (B, h)
     of_map = rows // n  # (R,) each allowed node's map
-    own_term = policy._actor_own_term(own_embedding)[of_map]  # (R, w)
+    own_term = policy._rows_own_term(own_embedding, of_map)  # (R, w), or None
     hidden = policy._actor_hidden(embedded.unsqueeze(1), own_embedding[of_map], own_term=own_term)
     logits = th.zeros(batch * n, dtype=hidden.dtype, device=device)
     logits[rows] = policy._actor_output(hidden).reshape(-1)

@@ -21,10 +21,10 @@ the env's edges layout (:data:`~sb3_pm.policies.edges.LARGE_SITE_NODES`).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import torch as th
+from torch_geometric.nn import GATConv
 from torch_geometric.utils import softmax
 
 
@@ -85,11 +85,10 @@ class TargetSortedEdges:
             rows, columns, values = self.source_rows, self.target[self.by_source], values[self.by_source]
         else:
             rows, columns = self.target_rows, self.source
-        with warnings.catch_warnings():  # torch warns once that CSR tensors are a beta feature
-            warnings.simplefilter("ignore", UserWarning)
-            return th.sparse_csr_tensor(
-                rows, columns, values, size=(self.n_nodes, self.n_nodes), check_invariants=False
-            )
+        # torch warns once per process that CSR tensors are a beta feature; silencing it here
+        # would change the process's warning filters from the learners' threads
+        size = (self.n_nodes, self.n_nodes)
+        return th.sparse_csr_tensor(rows, columns, values, size=size, check_invariants=False)
 
 
 class _NeighbourSum(th.autograd.Function):
@@ -137,38 +136,38 @@ def neighbour_sum(alpha: th.Tensor, h: th.Tensor, edges: TargetSortedEdges) -> t
     return _NeighbourSum.apply(alpha, h.contiguous(), edges)  # type: ignore[no-any-return]
 
 
-def gat_by_products(conv: object, x: th.Tensor, edges: TargetSortedEdges) -> th.Tensor:
-    """A :class:`~torch_geometric.nn.GATConv` (heads averaged, no edge features, no attention
-    dropout or residual) on ``x``, its weighted sum by :func:`neighbour_sum`.
+def gat_by_products(conv: GATConv, x: th.Tensor, edges: TargetSortedEdges) -> th.Tensor:
+    """A :class:`~torch_geometric.nn.GATConv` for which :func:`applies_to` holds, on ``x``, its
+    weighted sum by :func:`neighbour_sum`.
 
     Shapes:
         - x: ``(N, in_channels)``
         - output: ``(N, out_channels)``
     """
-    heads, channels = conv.heads, conv.out_channels  # type: ignore[attr-defined]
-    h = conv.lin(x).view(-1, heads, channels)  # type: ignore[attr-defined]
+    heads, channels = conv.heads, conv.out_channels
+    h = conv.lin(x).view(-1, heads, channels)
     # (N, heads) each, by products rather than through an (N, heads, channels) temporary
-    score_source = th.einsum("nhc,hc->nh", h, conv.att_src[0])  # type: ignore[attr-defined]
-    score_target = th.einsum("nhc,hc->nh", h, conv.att_dst[0])  # type: ignore[attr-defined]
-    scores = th.nn.functional.leaky_relu(
-        score_source[edges.source] + score_target[edges.target],
-        conv.negative_slope,  # type: ignore[attr-defined]
-    )
+    score_source = th.einsum("nhc,hc->nh", h, conv.att_src[0])
+    score_target = th.einsum("nhc,hc->nh", h, conv.att_dst[0])
+    scores = score_source[edges.source] + score_target[edges.target]  # (E, heads)
+    scores = th.nn.functional.leaky_relu(scores, conv.negative_slope)
     alpha = softmax(scores, edges.target, num_nodes=edges.n_nodes)  # (E, heads)
     summed = neighbour_sum(alpha, h, edges)
     out = summed[:, 0] if heads == 1 else summed.mean(1)  # one head: its mean is itself, uncopied
-    return out + conv.bias if conv.bias is not None else out  # type: ignore[attr-defined]
+    return out + conv.bias if conv.bias is not None else out
 
 
-def applies_to(conv: object, training: bool) -> bool:
-    """Whether :func:`gat_by_products` computes ``conv``'s function: heads averaged, no attention
-    dropout while training, no residual, no edge features."""
+def applies_to(conv: GATConv, training: bool) -> bool:
+    """Whether :func:`gat_by_products` computes ``conv``'s function: heads averaged, one self loop
+    per node added, one projection for sources and targets, no attention dropout while training,
+    no residual, no edge features."""
     return (
-        not getattr(conv, "concat", True)
-        and not (training and getattr(conv, "dropout", 0.0) > 0)
+        not conv.concat
+        and bool(conv.add_self_loops)
+        and getattr(conv, "lin", None) is not None
+        and not (training and conv.dropout > 0)
         and getattr(conv, "res", None) is None
         and getattr(conv, "lin_edge", None) is None
-        and getattr(conv, "lin", None) is not None
     )
 
 
