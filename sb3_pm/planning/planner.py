@@ -34,6 +34,7 @@ import numpy as np
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
 from sb3_pm.graphs.territories import split_targets
+from sb3_pm.machine import usable_cores
 from sb3_pm.planning.owned_search import descend_owned, exhaustive, nearest_targets
 from sb3_pm.planning.pricer import GroupPricer
 from sb3_pm.planning.target_tables import TargetTables
@@ -293,5 +294,4 @@ def _plan_of(worker: subprocess.Popen) -> PatrolPlan:
 def _second_core_free() -> bool:
     """Whether this process may start a worker on a second core: it has two cores or more, and it
     is not a daemon (a vectorized env's worker, whose siblings share the cores already)."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return cores >= 2 and not multiprocessing.current_process().daemon
+    return usable_cores() >= 2 and not multiprocessing.current_process().daemon

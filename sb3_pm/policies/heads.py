@@ -105,18 +105,38 @@ class ActorCriticHeads:
         batch, n, width = embeddings.shape
         own = embeddings[th.arange(batch, device=embeddings.device), own_positions(pre)]  # (B, h)
         rows = masks.reshape(-1).nonzero().squeeze(-1)  # (R,) allowed nodes, as indices of B * N
-        of_map = rows // n
-        inputs, means = embeddings.reshape(-1, width)[rows], [embeddings.mean(1)]  # (R, h), (B, h)
+        logits = self._allowed_logits(embeddings.reshape(-1, width)[rows], own, u_hat, rows, pre)
+        means = [embeddings.mean(1)]  # (B, h)
         if self.use_estimator:
-            estimate = u_hat / self.u_max  # (B, N)
-            inputs = th.cat((inputs, estimate.reshape(-1)[rows].unsqueeze(-1)), dim=-1)
-            means.append(estimate.mean(1, keepdim=True))
-        own_term = self._rows_own_term(own, of_map)  # (R, w), or None
-        hidden = self._actor_hidden(inputs.unsqueeze(1), own[of_map], own_term)  # (R, 1, w')
-        allowed = self._actor_output(hidden).reshape(-1)  # (R,)
-        logits = th.zeros(batch * n, dtype=allowed.dtype, device=allowed.device).index_put((rows,), allowed)
-        values = self.value_net(self.critic_body(th.cat((*means, own), dim=-1)))
-        return self._with_advice(logits.reshape(batch, n), pre), values
+            means.append((u_hat / self.u_max).mean(1, keepdim=True))
+        return logits, self.value_net(self.critic_body(th.cat((*means, own), dim=-1)))
+
+    def _allowed_logits(
+        self,
+        embedded: th.Tensor,
+        own: th.Tensor,
+        u_hat: th.Tensor,
+        rows: th.Tensor,
+        pre: dict[str, th.Tensor],
+    ) -> th.Tensor:
+        """The actor's logits, with the advice, on the allowed nodes ``rows`` alone, 0 elsewhere:
+        the last step of :meth:`_large_site_heads` and of acting from the allowed nodes'
+        neighbourhoods (:func:`sb3_pm.policies.local_pass.allowed_logits`).
+
+        Shapes: embedded ``(R, h)`` (the rows' embeddings), own ``(B, h)``, u_hat ``(B, N)``, rows
+        ``(R,)`` indices of ``B * N`` -> ``(B, N)``.
+        """
+        batch, n = u_hat.shape
+        of_map = rows // n  # (R,) each row's map
+        if self.use_estimator:
+            embedded = th.cat((embedded, (u_hat.reshape(-1)[rows] / self.u_max).unsqueeze(-1)), dim=-1)
+        own_term = None  # an actor without a hidden layer has no separate product with own
+        if len(self.actor_body) and isinstance(self.actor_body[0], nn.Linear):
+            own_term = self._actor_own_term(own)[of_map]  # (R, w)
+        hidden = self._actor_hidden(embedded.unsqueeze(1), own[of_map], own_term=own_term)  # (R, 1, w')
+        logits = th.zeros(batch * n, dtype=hidden.dtype, device=hidden.device)
+        logits[rows] = self._actor_output(hidden).reshape(-1)
+        return self._with_advice(logits.reshape(batch, n), pre)
 
     def _value(self, embeddings: th.Tensor, own: th.Tensor) -> th.Tensor:
         """The critic on ``[mean_m embeddings_m, own]``: ``(B, N, d)``, ``(B, h)`` -> ``(B, 1)``."""
@@ -152,13 +172,6 @@ class ActorCriticHeads:
         policy by policy, to round as this policy does alone."""
         first: nn.Linear = self.actor_body[0]  # type: ignore[assignment]
         return nn.functional.linear(own, first.weight[:, first.weight.shape[1] - own.shape[-1] :])
-
-    def _rows_own_term(self, own: th.Tensor, of_map: th.Tensor) -> th.Tensor | None:
-        """:meth:`_actor_own_term` once per map, then per row of ``of_map`` ``(R,)``: ``(R, w)``;
-        ``None`` for an actor without a hidden layer, which has no such term."""
-        if not len(self.actor_body) or not isinstance(self.actor_body[0], nn.Linear):
-            return None
-        return self._actor_own_term(own)[of_map]
 
     def _actor_hidden(
         self, embeddings: th.Tensor, own: th.Tensor, own_term: th.Tensor | None = None

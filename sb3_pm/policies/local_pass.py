@@ -73,16 +73,8 @@ def allowed_logits(policy: Any, pre: dict[str, th.Tensor], u_hat: th.Tensor, mas
     x = extractor.node_features(pre).reshape(batch * n, -1)[nodes]  # (M, F)
     for layer in extractor.gat:  # GraphAttention's sparse kernel on the subgraph
         x = extractor.activation(layer.conv(x, edges))
-    embedded = x[local[rows]]  # (R, h)
-    if policy.use_estimator:
-        embedded = th.cat((embedded, (u_hat.reshape(-1)[rows] / policy.u_max).unsqueeze(-1)), dim=-1)
     own_embedding = x[local[own]]  # (B, h)
-    of_map = rows // n  # (R,) each allowed node's map
-    own_term = policy._rows_own_term(own_embedding, of_map)  # (R, w), or None
-    hidden = policy._actor_hidden(embedded.unsqueeze(1), own_embedding[of_map], own_term=own_term)
-    logits = th.zeros(batch * n, dtype=hidden.dtype, device=device)
-    logits[rows] = policy._actor_output(hidden).reshape(-1)
-    return policy._with_advice(logits.reshape(batch, n), pre)  # type: ignore[no-any-return]
+    return policy._allowed_logits(x[local[rows]], own_embedding, u_hat, rows, pre)  # type: ignore[no-any-return]
 
 
 def _one_edge_list(edge_index: th.Tensor) -> bool:

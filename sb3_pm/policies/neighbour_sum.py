@@ -22,6 +22,7 @@ the env's edges layout (:data:`~sb3_pm.policies.edges.LARGE_SITE_NODES`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch as th
 from torch_geometric.nn import GATConv
@@ -35,17 +36,32 @@ class TargetSortedEdges:
     :ivar source: ``(E,)`` each edge's source, edges sorted by target then source.
     :ivar target: ``(E,)`` each edge's target, in the same order.
     :ivar target_rows: ``(N + 1,)`` row pointers of the edges by target.
-    :ivar by_source: ``(E,)`` the edges' order sorted by source then target.
-    :ivar source_rows: ``(N + 1,)`` row pointers of the edges in that order.
     :ivar n_nodes: ``N``, the nodes of the whole batch.
+
+    The order by source (:attr:`by_source`, :attr:`source_rows`), which only a backward pass reads,
+    is sorted on first use: a rollout step without gradients never pays for it.
     """
 
     source: th.Tensor
     target: th.Tensor
     target_rows: th.Tensor
-    by_source: th.Tensor
-    source_rows: th.Tensor
     n_nodes: int
+
+    @cached_property
+    def by_source(self) -> th.Tensor:
+        """``(E,)`` the edges' order sorted by source then target."""
+        return th.argsort(self.source * self.n_nodes + self.target)
+
+    @cached_property
+    def source_rows(self) -> th.Tensor:
+        """``(N + 1,)`` row pointers of the edges in :attr:`by_source`'s order."""
+        nodes = th.arange(self.n_nodes + 1, device=self.source.device)
+        return th.searchsorted(self.source[self.by_source], nodes)
+
+    @cached_property
+    def _target_by_source(self) -> th.Tensor:
+        """``(E,)`` the targets in :attr:`by_source`'s order: the transposed matrix's columns."""
+        return self.target[self.by_source]
 
     @classmethod
     def of(cls, edge_index: th.Tensor, n_nodes: int) -> TargetSortedEdges:
@@ -67,22 +83,14 @@ class TargetSortedEdges:
         else:
             order = th.argsort(th.cat((key, loop_key)))
         source, target = th.cat((source, loops))[order], th.cat((target, loops))[order]
-        by_source = th.argsort(source * n_nodes + target)
         nodes = th.arange(n_nodes + 1, device=edge_index.device)
-        return cls(
-            source=source,
-            target=target,
-            target_rows=th.searchsorted(target, nodes),
-            by_source=by_source,
-            source_rows=th.searchsorted(source[by_source], nodes),
-            n_nodes=n_nodes,
-        )
+        return cls(source=source, target=target, target_rows=th.searchsorted(target, nodes), n_nodes=n_nodes)
 
     def matrix(self, values: th.Tensor, transposed: bool = False) -> th.Tensor:
         """The ``(N, N)`` sparse CSR matrix with ``values`` ``(E,)`` at ``[target, source]``, or at
         ``[source, target]`` when ``transposed``."""
         if transposed:
-            rows, columns, values = self.source_rows, self.target[self.by_source], values[self.by_source]
+            rows, columns, values = self.source_rows, self._target_by_source, values[self.by_source]
         else:
             rows, columns = self.target_rows, self.source
         # torch warns once per process that CSR tensors are a beta feature; silencing it here
