@@ -261,6 +261,7 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
             "transfer_planned_prior8": 0.25,
             "transfer_planned_prior4_no_rule6": 0.25,
             "transfer_planned_tours_prior4": 0.25,
+            "transfer_planned_prior4_imitation": 0.25,
         },
     }
     assert experiment_record(load_experiment(experiment_file("transfer_known_map")))[

@@ -738,6 +738,7 @@ TRANSFER_EXPERIMENTS = [
             "transfer_planned_prior8",
             "transfer_planned_prior4_no_rule6",
             "transfer_planned_tours_prior4",
+            "transfer_planned_prior4_imitation",
         },
         {
             "transfer_planned": 2.0,
@@ -745,6 +746,7 @@ TRANSFER_EXPERIMENTS = [
             "transfer_planned_prior8": 8.0,
             "transfer_planned_prior4_no_rule6": 4.0,
             "transfer_planned_tours_prior4": 4.0,
+            "transfer_planned_prior4_imitation": 4.0,
         },
         None,
     ),

@@ -172,18 +172,19 @@ def check_advice_prior(value: Any, observation_space: spaces.Dict) -> float:
     return float(value)
 
 
-def check_advice_source(policies: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
-    """Refuse a policy's ``advice_prior`` unless the env appends the advice column: the policy
-    adds it to the map's *last* column, which without ``advice_input`` is another feature (the
-    territory's, with ``territory_input``). ``policies``: name -> policy (or anything else)."""
+def check_advice_source(owners: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
+    """Refuse a policy's ``advice_prior`` or a learner's ``advice_imitation`` unless the env
+    appends the advice column: both read the map's *last* column, which without ``advice_input``
+    is another feature (the territory's, with ``territory_input``). ``owners``: name -> policy or
+    learner (or anything else)."""
     if env_kwargs.get("advice_input") is True:
         return
-    with_prior = [name for name, policy in policies.items() if getattr(policy, "advice_prior", 0.0)]
-    if with_prior:
-        raise InputError(
-            f"advice_prior (set for {with_prior}) needs env_kwargs advice_input: true, "
-            "whose column it adds to the logits"
-        )
+    for key in ("advice_prior", "advice_imitation"):
+        with_key = [name for name, owner in owners.items() if getattr(owner, key, 0.0)]
+        if with_key:
+            raise InputError(
+                f"{key} (set for {with_key}) needs env_kwargs advice_input: true, whose column it reads"
+            )
 
 
 _PARTS: dict[str, type] = {

@@ -15,6 +15,8 @@
   its minibatch orders before the update phase (so team learners can update side by side);
 * with ``update_device``, ``train()`` runs on another device than the rollouts
   (:mod:`sb3_pm.ppo_dcbf.update_device`: rollouts on the CPU, updates on a GPU);
+* with ``advice_imitation``, ``train()`` ends with a pass that teaches the actor the env's advice
+  (:mod:`sb3_pm.ppo_dcbf.imitation`);
 * ``learn`` attaches :class:`~sb3_pm.callbacks.EstimatorCallback` when the policy has an
   estimator, and ``_get_torch_save_params`` adds the estimator's optimizer so that save/load
   round-trips it (the estimator's weights are part of the policy's state dict).
@@ -45,10 +47,12 @@ from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_pm.callbacks import EstimatorCallback
+from sb3_pm.envs.mental_map import FEATURES
 from sb3_pm.errors import InputError
 from sb3_pm.machine import release_freed_memory
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
 from sb3_pm.ppo_dcbf.buffers import OrderedRolloutBuffer
+from sb3_pm.ppo_dcbf.imitation import check_advice_imitation, imitation_pass
 from sb3_pm.ppo_dcbf.policies import DCBFPolicy
 from sb3_pm.ppo_dcbf.update_device import check_update_device, on_update_device
 
@@ -74,6 +78,9 @@ class DCBFPPO(MaskablePPO):
     :param update_device: torch device of the update phase (``train()``) alone, e.g. ``"cuda"``
         for a learner whose ``device`` is the CPU; ``None`` (default) updates on ``device``. Not
         saved with the model (like ``device``): set it again after loading.
+    :param advice_imitation: the weight of the advice-imitation pass after each update
+        (:mod:`sb3_pm.ppo_dcbf.imitation`; it needs the env's ``advice_input``); ``0`` (default):
+        no pass.
 
     Policy options (ablation flags and the filter's settings) are policy kwargs, see
     :class:`~sb3_pm.policies.DCBFActorCriticPolicy`.
@@ -86,9 +93,11 @@ class DCBFPPO(MaskablePPO):
         self,
         *args: Any,
         update_device: str | th.device | None = None,
+        advice_imitation: float = 0.0,
         **kwargs: Any,
     ) -> None:
         self.update_device = check_update_device(update_device)
+        self.advice_imitation = check_advice_imitation(advice_imitation)
         #: where a rollout step's logits, values and masks come from instead of this learner's own
         #: forward pass (:meth:`collect_rollouts`): a callable given the learner's last observation
         #: that returns ``(logits, values, masks)`` equal to ``policy.rollout_heads`` on it (and
@@ -106,6 +115,10 @@ class DCBFPPO(MaskablePPO):
         try:
             with on_update_device(self, self.update_device):
                 super().train()
+                if self.advice_imitation > 0:
+                    loss, probability = imitation_pass(self)
+                    self.logger.record("train/imitation_loss", loss)
+                    self.logger.record("train/advice_probability", probability)
         finally:
             release_freed_memory()
 
@@ -115,6 +128,11 @@ class DCBFPPO(MaskablePPO):
         super()._setup_model()
         if not isinstance(self.policy, DCBFActorCriticPolicy):
             raise InputError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")
+        columns = self.observation_space["nodes"].shape  # type: ignore[index]
+        if self.advice_imitation > 0 and columns[-1] <= len(FEATURES):
+            raise InputError(
+                "advice_imitation teaches the node the env's advice_input flags: it needs advice_input: true"
+            )
 
     def _excluded_save_params(self) -> list[str]:
         # update_device is this machine's, as device is: a model saved beside a GPU loads without one

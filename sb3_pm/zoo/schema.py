@@ -196,6 +196,9 @@ ALGORITHM = Section('algorithm', 'Algorithm keys', 'entry', keys=(
         help='arguments of the rollout buffer'),
     Key('target_kl', 'float', None, low=0.0, low_open=True, nullable=True,
         help="stop an update's epochs early past this KL divergence; `null`: never"),
+    Key('advice_imitation', 'float', 0.0, low=0.0, algos=('dcbf_ppo',),
+        help="weight of the passes after each update that teach the actor the node `env_kwargs.advice_input` "
+        'flags; `0`: none; see [below](#advice-prior)'),
     Key('stats_window_size', 'int', 100, low=1,
         help='episodes averaged in the logged statistics'),
     Key('policy_kwargs', 'mapping', None, nullable=True,
