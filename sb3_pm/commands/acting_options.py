@@ -49,7 +49,7 @@ def resolve_auto_bound(args: argparse.Namespace, team: Any, graph: Any, env_kwar
     require_filter(team)
     if args.neglect_scope not in (None, "territory"):
         raise UsageError(
-            f"--neglect-bound auto is a territory bound (calibrated on the territory rule); "
+            f"--neglect-bound auto is a territory bound (calibrated on territory_patrol); "
             f"--neglect-scope {args.neglect_scope} cannot go with it"
         )
     trained = team.n_agents

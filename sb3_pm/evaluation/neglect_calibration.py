@@ -5,26 +5,23 @@ its own territory below ``B``. Its guarantee holds for one due target at a time,
 territories cannot keep forces move after move and costs more than it saves: on the held-out
 graphs where every policy lets some target reach ``u_max`` (research/LOG.md 3h, "Transfer"), a
 fixed ``B`` forced a third to two thirds of all moves. How tight a bound a site allows is a
-property of the site and the territories, not of a learned team, so it can be measured before
-deployment by the rule that patrols the same territories (:data:`CALIBRATION_RULES`):
-``territory_patrol`` on the fixed split, ``planned_patrol`` on planned territories (each agent's
-group of the plan for the episode's starts, which the bound then covers), ``planned_tour_patrol``
-on planned tours:
+property of the site and the split, not of a learned team, so it can be measured before
+deployment by the rule that follows the same split, ``territory_patrol``
+(:mod:`sb3_pm.baselines.territory_patrol`):
 
-* run that rule for ``episodes`` calibration episodes on the site, with the team's size (whose
-  territories the bound follows) and the deployment's environment settings, from seeds of its own
-  (apart from the sweeps' evaluation seeds);
-* ``P`` = the largest ``peak_uncertainty`` of those episodes: the worst uncertainty the rule let
-  any target reach;
-* if ``P`` reaches ``u_max`` the territories cannot be held (a plan may leave a target to nobody)
-  and no bound is deployed (``None``); otherwise ``B = max(1, ceil(margin · P))``, at most
-  ``u_max``.
+* run ``territory_patrol`` for ``episodes`` calibration episodes on the site, with the team's
+  size (whose split the bound follows) and the deployment's environment settings, from seeds of
+  its own (apart from the sweeps' evaluation seeds);
+* ``P`` = the largest ``peak_uncertainty`` of those episodes: the worst uncertainty the territory
+  rule let any target reach;
+* if ``P`` reaches ``u_max`` the territories cannot be held and no bound is deployed (``None``);
+  otherwise ``B = max(1, ceil(margin · P))``, at most ``u_max``.
 
 ``margin`` = 1, the bound at the rule's own worst peak, is the best of the margins measured with
 the transferable team (the measurements: research/LOG.md §3h, "Transfer", "The calibration
-margin"). A margin below 1 is refused: it would ask for a bound the rule itself did not keep. The
-rule needs the site's road network and target list (and, planned, the starts), which a team with
-a known map has anyway; it reads no learned team.
+margin"). A margin below 1 is refused: it would ask for a bound the territory rule itself did not
+keep. The rule needs the site's road network and target list, which a team with a known map has
+anyway; it reads no learned team.
 
 Rule 8's guarantee assumes targets start at ``u = 0`` (a target the map has not seen projects as
 its age), so a site with ``initial_uncertainty: random`` is refused rather than calibrated.
@@ -42,14 +39,7 @@ from sb3_pm.envs.core import DEFAULT_U_MAX
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.graphs import GraphLike, resolve_graph
-from sb3_pm.planning.conventions import check_convention
 
-#: The rule each territory convention (``env_kwargs.territories``) is calibrated on.
-CALIBRATION_RULES = {
-    "split": "territory_patrol",
-    "planned": "planned_patrol",
-    "planned_tours": "planned_tour_patrol",
-}
 #: ``B = ceil(MARGIN · P)``: the territory rule's worst peak itself (module docstring).
 MARGIN = 1.0
 #: Calibration episodes of the territory rule.
@@ -69,7 +59,6 @@ class CalibratedBound:
     :ivar u_max: the environment's cap.
     :ivar episodes: calibration episodes run; ``seed`` the env seed of the first.
     :ivar n_agents: the team size (and split) calibrated for; ``max_cycles`` the episode length.
-    :ivar calibrated_on: the rule calibrated on (:data:`CALIBRATION_RULES`).
     """
 
     bound: float | None
@@ -80,7 +69,6 @@ class CalibratedBound:
     margin: float
     n_agents: int
     max_cycles: int
-    calibrated_on: str = "territory_patrol"
 
     @property
     def capped(self) -> bool:
@@ -93,9 +81,7 @@ class CalibratedBound:
 
     def describe(self) -> str:
         """One line for the user: the bound and where it came from."""
-        source = (
-            f"{self.calibrated_on}'s worst peak over {self.episodes} calibration episodes was {self.peak:g}"
-        )
+        source = f"territory_patrol's worst peak over {self.episodes} calibration episodes was {self.peak:g}"
         if self.bound is None:
             return f"no neglect bound: {source}, at u_max {self.u_max:g}, so the territories cannot be held"
         cap = f", capped at u_max {self.u_max:g}" if self.capped else ""
@@ -134,9 +120,8 @@ def calibrate_neglect_bound(
             f"{kwargs['initial_uncertainty']!r}: rule 8's guarantee assumes targets start at u = 0"
         )
     u_max = int(kwargs.get("u_max", DEFAULT_U_MAX))
-    rule = CALIBRATION_RULES[check_convention(kwargs.get("territories", "split"))]
     result = evaluate(
-        make_team(rule),
+        make_team("territory_patrol"),
         spec,
         n_agents=n_agents,
         episodes=episodes,
@@ -155,7 +140,6 @@ def calibrate_neglect_bound(
         margin=margin,
         n_agents=n_agents,
         max_cycles=max_cycles,
-        calibrated_on=rule,
     )
 
 
@@ -206,7 +190,6 @@ def unsettle_site_bound(team: Any) -> None:
 
 __all__ = [
     "CALIBRATION_EPISODES",
-    "CALIBRATION_RULES",
     "CALIBRATION_SEED",
     "MARGIN",
     "CalibratedBound",
