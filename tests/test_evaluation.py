@@ -205,6 +205,26 @@ class TestStatistics:
         assert e.p_value_runs == pytest.approx(stats.ttest_rel([11, 21, 33], [10, 19, 30]).pvalue)
         assert e.p_value_runs > e.p_value  # 3 replicates say less than 6 episodes seem to
 
+    def test_runs_on_the_same_episodes_are_all_kept(self) -> None:
+        """Training seeds evaluated on one set of env seeds: every run's episodes count, and the
+        k-th run of one side pairs with the k-th of the other (none is overwritten by the last)."""
+
+        def run(policy: str, values: list[float]) -> EvaluationResult:
+            records = [
+                EpisodeRecord(i, 11 + i, 0, {"avg_uncertainty": v}, np.zeros(1)) for i, v in enumerate(values)
+            ]
+            return EvaluationResult(policy, "g", {"seed": 11}, records)
+
+        policy = [run("p", [11, 12]), run("p", [21, 23]), run("p", [33, 30])]
+        reference = [run("r", [10, 10]), run("r", [19, 20]), run("r", [30, 31])]
+        e = effect(policy, reference, "g", "avg_uncertainty")
+        assert e.paired and e.n == 6 and e.n_runs == 3
+        assert e.mean == pytest.approx(np.mean([11, 12, 21, 23, 33, 30]))
+        assert e.reference_mean == pytest.approx(np.mean([10, 10, 19, 20, 30, 31]))
+        pairs = ([11, 12, 21, 23, 33, 30], [10, 10, 19, 20, 30, 31])
+        assert e.p_value == pytest.approx(stats.ttest_rel(*pairs).pvalue)
+        assert e.p_value_runs == pytest.approx(stats.ttest_rel([11.5, 22, 31.5], [10, 19.5, 30.5]).pvalue)
+
     def test_unpaired_effect_uses_welch(self) -> None:
         policy = fake_result("p", [1, 2, 3])
         reference = EvaluationResult(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -149,23 +149,38 @@ class Effect:
     n_runs: int = 0
 
 
-def _run_means(results: Sequence[EvaluationResult], graph: str, metric: str) -> dict[Any, float]:
-    """``{evaluation seed of the run: mean of its episodes}`` for the runs of ``results`` on ``graph``."""
-    return {
-        result.config.get("seed", index): float(result.values(metric).mean())
+def _numbered(pairs: Iterable[tuple[Any, float]]) -> dict[tuple[Any, int], float]:
+    """``{(key, k): value}``: the ``k``-th value under each key, in order. Several runs may hold the
+    same episodes (training seeds evaluated on one set of env seeds); each is kept, and the
+    ``k``-th run of one side pairs with the ``k``-th of the other."""
+    seen: dict[Any, int] = {}
+    numbered: dict[tuple[Any, int], float] = {}
+    for key, value in pairs:
+        k = seen.get(key, 0)
+        seen[key] = k + 1
+        numbered[(key, k)] = value
+    return numbered
+
+
+def _run_means(results: Sequence[EvaluationResult], graph: str, metric: str) -> dict[tuple[Any, int], float]:
+    """``{(evaluation seed of the run, k): mean of its episodes}`` for the runs of ``results`` on
+    ``graph`` (``k`` numbers runs with the same evaluation seed)."""
+    return _numbered(
+        (result.config.get("seed", index), float(result.values(metric).mean()))
         for index, result in enumerate(results)
         if result.graph == graph and result.episodes
-    }
+    )
 
 
-def _by_episode(results: Sequence[EvaluationResult], graph: str, metric: str) -> dict[int, float]:
-    """``{env seed: value}`` of one metric over the episodes of ``results`` on ``graph``."""
-    return {
-        record.seed: float(record.metrics[metric])
+def _by_episode(results: Sequence[EvaluationResult], graph: str, metric: str) -> dict[tuple[int, int], float]:
+    """``{(env seed, k): value}`` of one metric over the episodes of ``results`` on ``graph``
+    (``k`` numbers the runs that hold the same episode)."""
+    return _numbered(
+        (record.seed, float(record.metrics[metric]))
         for result in results
         if result.graph == graph
         for record in result.episodes
-    }
+    )
 
 
 def effect(
