@@ -14,7 +14,8 @@ import torch as th
 from sb3_pm.agents.training.team import IndependentPPO
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.teams import load_trained_team
-from sb3_pm.ppo_dcbf.imitation import advised_actions, check_advice_imitation, imitation_pass
+from sb3_pm.policies.settings import check_advice_weight
+from sb3_pm.ppo_dcbf.imitation import advised_actions, imitation_pass
 
 th.set_num_threads(1)
 KNOWN = {"graph_knowledge": "known", "target_knowledge": "known"}
@@ -168,6 +169,6 @@ def test_a_weight_it_cannot_apply_is_refused_by_name(env_kwargs: dict, weight: f
 
 
 def test_the_weight_itself_is_checked() -> None:
-    assert check_advice_imitation(2) == 2.0
+    assert check_advice_weight("advice_imitation", 2) == 2.0
     with pytest.raises(InputError, match="got True"):
-        check_advice_imitation(True)
+        check_advice_weight("advice_imitation", True)

@@ -43,7 +43,7 @@ from sb3_pm.policies.estimator import StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.heads import ActorCriticHeads, masked_mode
 from sb3_pm.policies.sampling import check_temperature, tempered_logits
-from sb3_pm.policies.settings import FilterSettings, PolicySettings, check_advice_prior
+from sb3_pm.policies.settings import FilterSettings, PolicySettings, check_advice_weight
 
 #: The keys of a map observation in the env's dense layout (the edges layout's: ``EDGE_MAP_KEYS``).
 MAP_KEYS = DENSE_MAP_KEYS
@@ -117,7 +117,9 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         self.use_dcbf = self.settings.filter.use_dcbf
         self.use_estimator = self.settings.estimator.use_estimator
         self.avoid_collisions = self.settings.filter.avoid_collisions
-        self.advice_prior = check_advice_prior(self.settings.advice_prior, observation_space)
+        self.advice_prior = check_advice_weight(
+            "advice_prior", self.settings.advice_prior, observation_space, use="adds to"
+        )
         self.dcbf_config = self.settings.filter.dcbf_config()
         #: The filter as built from the constructor: a deployed team acts under it with its own
         #: settings on top (``DeploymentRule.set_filter``), and ``reset_filter`` restores it.

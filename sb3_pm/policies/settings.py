@@ -159,27 +159,35 @@ class PolicySettings:
         return {**flat, "advice_prior": self.advice_prior}
 
 
-def check_advice_prior(value: Any, observation_space: spaces.Dict) -> float:
-    """``advice_prior`` as a float: finite, ``>= 0``, and positive only with a node column after the
-    map's own (the env's ``advice_input``, which the team checks is on)."""
+def check_advice_weight(
+    key: str, value: Any, observation_space: spaces.Dict | None = None, use: str = "reads"
+) -> float:
+    """A weight on the env's advice (``advice_prior``, ``advice_imitation``) as a float: finite,
+    ``>= 0``, and, given the ``observation_space``, positive only with a node column after the
+    map's own (the env's ``advice_input``, which the team checks is on). ``use`` says in the error
+    what ``key`` does with the advised node."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-        raise InputError(f"advice_prior must be a finite number >= 0, got {value!r}")
-    columns = observation_space["nodes"].shape
-    if value > 0 and (columns is None or columns[-1] <= len(FEATURES)):
-        raise InputError(
-            "advice_prior adds to the node the env's advice_input flags: it needs advice_input: true"
-        )
+        raise InputError(f"{key} must be a finite number >= 0, got {value!r}")
+    if observation_space is not None and value > 0:
+        columns = observation_space["nodes"].shape
+        if columns is None or columns[-1] <= len(FEATURES):
+            raise InputError(
+                f"{key} {use} the node the env's advice_input flags: it needs advice_input: true"
+            )
     return float(value)
 
 
-def check_advice_source(owners: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
+def check_advice_source(learners: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
     """Refuse a policy's ``advice_prior`` or a learner's ``advice_imitation`` unless the env
     appends the advice column: both read the map's *last* column, which without ``advice_input``
-    is another feature (the territory's, with ``territory_input``). ``owners``: name -> policy or
-    learner (or anything else)."""
+    is another feature (the territory's, with ``territory_input``). ``learners``: name -> SB3
+    learner (any algorithm; a key it does not have counts as unset)."""
     if env_kwargs.get("advice_input") is True:
         return
     for key in ("advice_prior", "advice_imitation"):
+        owners = {
+            name: learner.policy if key == "advice_prior" else learner for name, learner in learners.items()
+        }
         with_key = [name for name, owner in owners.items() if getattr(owner, key, 0.0)]
         if with_key:
             raise InputError(
@@ -198,6 +206,6 @@ __all__ = [
     "EstimatorSettings",
     "FilterSettings",
     "PolicySettings",
-    "check_advice_prior",
+    "check_advice_weight",
     "check_advice_source",
 ]

@@ -19,25 +19,13 @@ minibatches in rollout order), so updates that run side by side stay the same bi
 
 from __future__ import annotations
 
-import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch as th
 
-from sb3_pm.errors import InputError
-
 if TYPE_CHECKING:
     from sb3_pm.ppo_dcbf.ppo_dcbf import DCBFPPO
-
-
-def check_advice_imitation(value: Any) -> float:
-    """``advice_imitation`` as a float: finite and ``>= 0`` (``0``: no imitation pass)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"advice_imitation must be a finite number >= 0, got {value!r}")
-    if not math.isfinite(value) or value < 0:
-        raise InputError(f"advice_imitation must be a finite number >= 0, got {value!r}")
-    return float(value)
 
 
 def advised_actions(nodes: th.Tensor, masks: th.Tensor) -> tuple[th.Tensor, th.Tensor]:

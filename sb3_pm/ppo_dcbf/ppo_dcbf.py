@@ -47,12 +47,12 @@ from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_pm.callbacks import EstimatorCallback
-from sb3_pm.envs.mental_map import FEATURES
 from sb3_pm.errors import InputError
 from sb3_pm.machine import release_freed_memory
 from sb3_pm.policies.policy import DCBFActorCriticPolicy
+from sb3_pm.policies.settings import check_advice_weight
 from sb3_pm.ppo_dcbf.buffers import OrderedRolloutBuffer
-from sb3_pm.ppo_dcbf.imitation import check_advice_imitation, imitation_pass
+from sb3_pm.ppo_dcbf.imitation import imitation_pass
 from sb3_pm.ppo_dcbf.policies import DCBFPolicy
 from sb3_pm.ppo_dcbf.update_device import check_update_device, on_update_device
 
@@ -97,7 +97,7 @@ class DCBFPPO(MaskablePPO):
         **kwargs: Any,
     ) -> None:
         self.update_device = check_update_device(update_device)
-        self.advice_imitation = check_advice_imitation(advice_imitation)
+        self.advice_imitation = check_advice_weight("advice_imitation", advice_imitation)
         #: where a rollout step's logits, values and masks come from instead of this learner's own
         #: forward pass (:meth:`collect_rollouts`): a callable given the learner's last observation
         #: that returns ``(logits, values, masks)`` equal to ``policy.rollout_heads`` on it (and
@@ -128,11 +128,8 @@ class DCBFPPO(MaskablePPO):
         super()._setup_model()
         if not isinstance(self.policy, DCBFActorCriticPolicy):
             raise InputError(f"DCBFPPO needs a DCBFActorCriticPolicy, got {type(self.policy).__name__}")
-        columns = self.observation_space["nodes"].shape  # type: ignore[index]
-        if self.advice_imitation > 0 and columns[-1] <= len(FEATURES):
-            raise InputError(
-                "advice_imitation teaches the node the env's advice_input flags: it needs advice_input: true"
-            )
+        space = self.observation_space  # a Dict of mental-map entries (DCBFActorCriticPolicy checked it)
+        check_advice_weight("advice_imitation", self.advice_imitation, space, use="teaches")  # type: ignore[arg-type]
 
     def _excluded_save_params(self) -> list[str]:
         # update_device is this machine's, as device is: a model saved beside a GPU loads without one

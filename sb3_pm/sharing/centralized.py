@@ -106,8 +106,7 @@ class CentralizedPPO(LearnedTeam):
                 **kwargs,
             )
             try:
-                check_advice_source({"shared policy": self.model.policy}, self.env_kwargs)
-                check_advice_source({"shared learner": self.model}, self.env_kwargs)
+                check_advice_source({"shared policy": self.model}, self.env_kwargs)
                 self._apply_deploy_temperature(self.deploy_temperature)
             except InputError:  # a prior without its column, or a sampling rule without the DCBF policy
                 self.close()

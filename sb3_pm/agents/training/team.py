@@ -170,8 +170,7 @@ class IndependentPPO(LearnedTeam):
             # Seed the env copies last: learner construction also asks for a seed (SB3 calls env.seed).
             self.hub.seed(self.seed)
             try:
-                check_advice_source({a: m.policy for a, m in self.models.items()}, self.env_kwargs)
-                check_advice_source(dict(self.models), self.env_kwargs)
+                check_advice_source(self.models, self.env_kwargs)
                 self._apply_deploy_temperature(self.deploy_temperature)
                 if self._deploy_filter is not None:
                     self._check_training_bound()
