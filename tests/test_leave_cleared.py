@@ -112,14 +112,20 @@ class TestDeployFilter:
         assert auto is not None and auto["leave_cleared"] is False
         assert "leave_cleared" not in (check_deploy_filter({"neglect_bound": 50}) or {})  # only where given
 
+    def test_its_checked_form_checks_again_as_itself(self) -> None:
+        """What a saved team's manifest holds is the checked form, read back through the same check."""
+        for value in ({"leave_cleared": True}, {"neglect_bound": 50, "leave_cleared": True}):
+            checked = check_deploy_filter(value)
+            assert check_deploy_filter(checked) == checked
+
     @pytest.mark.parametrize(
         ("value", "message"),
         [
             ({"leave_cleared": "yes"}, "leave_cleared must be true or false"),
-            ({"leave_cleared": True, "neglect_scope": "known"}, "neglect_scope needs a neglect_bound"),
+            ({"leave_cleared": True, "neglect_scope": "unserved"}, "scope 'unserved' needs a neglect_bound"),
             ({"leave_cleared": True, "bound": 3}, "unknown key 'bound'"),
             ({"leave_cleared": False}, "leave_cleared: false alone changes nothing; use null"),
-            ({"neglect_bound": None}, r"or auto \(or left out, with leave_cleared: true\)"),
+            ({"neglect_bound": None}, r"or auto \(or left out, with a switch on\)"),
         ],
     )
     def test_anything_else_is_refused_by_name(self, value, message) -> None:

@@ -92,6 +92,35 @@ def apply_leave_cleared(team: Any, choice: str | None) -> None:
     team.set_filter(leave_cleared=choice == "on")
 
 
+def apply_pass_held(team: Any, choice: str | None) -> None:
+    """``--pass-held on|off``: switch the filter's rule 10 on a trained DCBF team (an agent off
+    targets whose advised next node is held waits a step, then takes it); ``None``: as the team's
+    deploy_filter says."""
+    if choice is None:
+        return
+    require_filter(team, "--pass-held")
+    team.set_filter(pass_held=choice == "on")
+
+
+#: What each of the filter's switches does, said where a team's deploy_filter turns it on.
+_SWITCH_NOTICES = {
+    "leave_cleared": "rule 9, leave_cleared: an agent on a target it observes cleared moves on "
+    "(--leave-cleared off to let it stay)",
+    "pass_held": "rule 10, pass_held: an agent whose advised next node is held waits a step, then "
+    "takes it (--pass-held off to act without it)",
+}
+
+
+def switch_notices(team: Any, args: argparse.Namespace) -> list[str]:
+    """One line per filter switch the team acts under by its own deploy_filter (not by a flag)."""
+    record = team.acting_record(True)
+    return [
+        f"the team acts under the filter's {notice}"
+        for switch, notice in _SWITCH_NOTICES.items()
+        if getattr(args, switch) is None and record.get(switch)
+    ]
+
+
 def apply_temperature(team: Any, temperature: float | None, stochastic: bool = False) -> None:
     """``--temperature``: the sampling temperature of a trained DCBF team; a baseline has none.
     ``--stochastic`` samples from the trained distribution (temperature 1), also on a team whose
@@ -123,8 +152,10 @@ __all__ = [
     "acting_rule",
     "apply_leave_cleared",
     "apply_neglect_bound",
+    "apply_pass_held",
     "apply_temperature",
     "neglect_bound_option",
     "require_filter",
     "resolve_auto_bound",
+    "switch_notices",
 ]

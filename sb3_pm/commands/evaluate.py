@@ -14,9 +14,11 @@ from sb3_pm.commands.acting_options import (
     acting_rule,
     apply_leave_cleared,
     apply_neglect_bound,
+    apply_pass_held,
     apply_temperature,
     neglect_bound_option,
     resolve_auto_bound,
+    switch_notices,
 )
 from sb3_pm.commands.interrupts import sigterm_as_interrupt
 from sb3_pm.commands.options import add_compute_options, check_compute_options, check_seeds, check_writable
@@ -117,6 +119,14 @@ def register(subparsers: Any) -> None:
         default=None,
         help="the filter's rule 9 on a trained DCBF team: an agent on a target it observes cleared "
         "(u = 0) moves on instead of staying; default: as the team's deploy_filter says",
+    )
+    parser.add_argument(
+        "--pass-held",
+        choices=["on", "off"],
+        default=None,
+        help="the filter's rule 10 on a trained DCBF team with advice_input: an agent off targets whose "
+        "advised next node holds another agent waits a step, then takes it; default: as the team's "
+        "deploy_filter says",
     )
     parser.add_argument(
         "--settling",
@@ -339,6 +349,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_leave_cleared(team, args.leave_cleared)
+    apply_pass_held(team, args.pass_held)
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
     acting_filter = team.acting_filter()  # after the flags
@@ -373,12 +384,8 @@ def run(args: argparse.Namespace) -> int:
             f"{acting_filter['neglect_scope']} (--neglect-bound off to act without it)",
             file=sys.stderr,
         )
-    if args.leave_cleared is None and team.acting_record(True).get("leave_cleared"):
-        print(
-            "the team acts under the filter's rule 9, leave_cleared: an agent on a target it observes "
-            "cleared moves on (--leave-cleared off to let it stay)",
-            file=sys.stderr,
-        )
+    for notice in switch_notices(team, args):
+        print(notice, file=sys.stderr)
     own_temperature = team.deploy_temperature
     if deterministic is None and own_temperature is not None:
         print(
@@ -427,6 +434,7 @@ def run(args: argparse.Namespace) -> int:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device, layout=args.layout)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
         apply_leave_cleared(gif_team, args.leave_cleared)
+        apply_pass_held(gif_team, args.pass_held)
         apply_temperature(gif_team, args.temperature, args.stochastic)
         with sigterm_as_interrupt():  # a stopped GIF leaves the previous file, and no temporary one
             record_gif(

@@ -28,7 +28,13 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
    ``u = 0``, its own node is dropped from ``S`` after rule 6, unless that empties ``S``. Staying
    there lowers no uncertainty, while every other target's keeps growing; it is what a learner
    that has settled on one target of its group does. Gated by rule 7 like rules 2-6; rule 8
-   overrides it.
+   overrides it;
+10. ``pass_held`` (not in the paper; off unless set; needs the env's ``advice_input``, whose column
+    is the map's last): an agent off targets whose advised next node (the territory rule's move)
+    is observed this step to hold another agent stays one step, and on the next step, if that
+    node is still held, the mask is that node alone. It overrides rules 2-6 and 9 (rule 6 would
+    turn the agent away from the held node for good: on a tree a teammate on the only path
+    locks it out, research/LOG.md); rule 7 gates it and rule 8 overrides it.
 
 ``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
 among all reachable nodes but still dwells on a target until it is cleared. This is not in the
@@ -48,12 +54,14 @@ from dataclasses import dataclass
 
 import torch as th
 
-from sb3_pm.envs.mental_map import AGE, OCCUPIED, TARGET, U
+from sb3_pm.envs.mental_map import AGE, FEATURES, OCCUPIED, TARGET, U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.edges import is_edge_layout
 from sb3_pm.policies.neglect_bound import neglect_deadline
 
 NEGLECT_SCOPES = ("known", "unserved", "territory")
+#: The filter's on/off rules a deployment may switch: rule 9 and rule 10.
+FILTER_SWITCHES = ("leave_cleared", "pass_held")
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,7 @@ class DCBFConfig:
     :param territory: with ``neglect_scope="territory"``, the agent's own targets (node indices):
         its share of the site's targets under the split of :mod:`sb3_pm.graphs.territories`.
     :param leave_cleared: apply rule 9 (an agent on a target it observes cleared does not stay).
+    :param pass_held: apply rule 10 (an agent whose advised node is held waits a step, then passes).
     """
 
     eta: float = 0.1
@@ -84,6 +93,7 @@ class DCBFConfig:
     neglect_scope: str = "known"
     territory: tuple[int, ...] = ()
     leave_cleared: bool = False
+    pass_held: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
@@ -98,8 +108,9 @@ class DCBFConfig:
             raise InputError(f"neglect_scope must be one of {NEGLECT_SCOPES}, got {self.neglect_scope!r}")
         if any(isinstance(node, bool) or not isinstance(node, int) or node < 0 for node in self.territory):
             raise InputError(f"territory must list node indices (ints >= 0), got {self.territory!r}")
-        if not isinstance(self.leave_cleared, bool):
-            raise InputError(f"leave_cleared must be true or false, got {self.leave_cleared!r}")
+        for switch in FILTER_SWITCHES:
+            if not isinstance(getattr(self, switch), bool):
+                raise InputError(f"{switch} must be true or false, got {getattr(self, switch)!r}")
 
 
 def check_bound_below_cap(bound: float | None, u_max: float) -> None:
@@ -116,7 +127,7 @@ def check_bound_below_cap(bound: float | None, u_max: float) -> None:
 
 
 #: The DCBF settings a trained team may switch on for deployment (a config's ``deploy_filter``).
-DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope", "leave_cleared")
+DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope", *FILTER_SWITCHES)
 #: ``deploy_filter: {neglect_bound: auto}``: a territory bound measured on each site the team is
 #: deployed on, before it acts there (:mod:`sb3_pm.evaluation.neglect_calibration`).
 SITE_BOUND = "auto"
@@ -124,12 +135,14 @@ SITE_BOUND = "auto"
 
 def check_deploy_filter(value: object) -> dict[str, object] | None:
     """A team's deployment filter: ``None`` (act with the filter it trained under) or a mapping
-    ``{neglect_bound: B, neglect_scope: known | unserved | territory, leave_cleared: bool}``.
+    ``{neglect_bound: B, neglect_scope: known | unserved | territory, leave_cleared: bool,
+    pass_held: bool}``.
 
     The scope is optional (``known`` by default), checked as :class:`DCBFConfig` checks it;
     ``neglect_bound: auto`` is a territory bound calibrated on each deployment site (scope
-    ``territory``, the only one it takes). ``leave_cleared`` (rule 9) is optional and kept only
-    where given; with it the bound may be left out (``neglect_bound: null``: rule 9 alone).
+    ``territory``, the only one it takes). The switches ``leave_cleared`` (rule 9) and
+    ``pass_held`` (rule 10) are optional and kept only where given; with one of them on the bound
+    may be left out (``neglect_bound: null``: the switches alone).
 
     :raises InputError: anything else, naming the problem.
     """
@@ -140,18 +153,22 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
     unknown = sorted(set(value) - set(DEPLOY_FILTER_KEYS))
     if unknown:
         raise InputError(f"unknown key {unknown[0]!r} (known: {', '.join(DEPLOY_FILTER_KEYS)})")
-    rule_9: dict[str, object] = {}
-    if "leave_cleared" in value:
-        if not isinstance(value["leave_cleared"], bool):
-            raise InputError(f"leave_cleared must be true or false, got {value['leave_cleared']!r}")
-        rule_9 = {"leave_cleared": value["leave_cleared"]}
+    switches: dict[str, object] = {}
+    for switch in FILTER_SWITCHES:
+        if switch in value:
+            if not isinstance(value[switch], bool):
+                raise InputError(f"{switch} must be true or false, got {value[switch]!r}")
+            switches[switch] = value[switch]
     bound = value.get("neglect_bound")
-    if bound is None and rule_9:
-        if "neglect_scope" in value:
-            raise InputError("neglect_scope needs a neglect_bound (a number or auto)")
-        if not rule_9["leave_cleared"]:
-            raise InputError("a deploy_filter of leave_cleared: false alone changes nothing; use null")
-        return {"neglect_bound": None, "neglect_scope": "known", **rule_9}
+    if bound is None and switches:
+        # the checked form's scope is known (what a saved team's manifest holds): any other needs a bound
+        if value.get("neglect_scope", "known") != "known":
+            scope = value["neglect_scope"]
+            raise InputError(f"neglect_scope {scope!r} needs a neglect_bound (a number or auto)")
+        if not any(switches.values()):
+            named = ", ".join(switches)
+            raise InputError(f"a deploy_filter of {named}: false alone changes nothing; use null")
+        return {"neglect_bound": None, "neglect_scope": "known", **switches}
     if bound == SITE_BOUND:
         scope = value.get("neglect_scope", "territory")
         if scope != "territory":
@@ -159,17 +176,17 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
                 f"neglect_bound auto is a territory bound (calibrated on each agent's territory); "
                 f"neglect_scope {scope!r} cannot go with it"
             )
-        return {"neglect_bound": SITE_BOUND, "neglect_scope": "territory", **rule_9}
+        return {"neglect_bound": SITE_BOUND, "neglect_scope": "territory", **switches}
     if bound is None or isinstance(bound, bool) or not isinstance(bound, (int, float)):
         raise InputError(
-            f"neglect_bound must be a number (the bound B) or auto (or left out, with leave_cleared: true), "
+            f"neglect_bound must be a number (the bound B) or auto (or left out, with a switch on), "
             f"got {bound!r}"
         )
     if not math.isfinite(bound):
         raise InputError(f"neglect_bound must be finite, got {bound!r}")
     scope = value.get("neglect_scope", "known")
     DCBFConfig(neglect_bound=float(bound), neglect_scope=scope)  # the filter's own checks
-    return {"neglect_bound": float(bound), "neglect_scope": scope, **rule_9}
+    return {"neglect_bound": float(bound), "neglect_scope": scope, **switches}
 
 
 def territory_mask(territory: tuple[int, ...], batch: int, n_nodes: int, device: th.device) -> th.Tensor:
@@ -205,8 +222,9 @@ def dcbf_mask(
     occupied_now: th.Tensor,
     config: DCBFConfig = DCBFConfig(),
     deadline: tuple[th.Tensor, th.Tensor] | None = None,
+    advice: th.Tensor | None = None,
 ) -> th.Tensor:
-    """Apply rules 1-9 to a batch.
+    """Apply rules 1-10 to a batch.
 
     :param u_hat: predicted (or last observed) uncertainty per node.
     :param reachable: the reachable set ``R`` (bool).
@@ -218,12 +236,14 @@ def dcbf_mask(
     :param config: the filter's settings.
     :param deadline: rule 8's ``(forced, next_hops)`` from
         :func:`~sb3_pm.policies.neglect_bound.neglect_deadline` (``None``: rule 8 off).
+    :param advice: the advised next node, one-hot (bool); read by rule 10 only, which needs it.
     :return: the mask ``S`` (bool), never all-false.
 
     Shapes:
         - u_hat, reachable, occupied_now: ``(B, N)``
         - position, on_target, u_here, dwell: ``(B,)``
         - deadline: ``(B,)`` bool, ``(B, N)`` bool
+        - advice: ``(B, N)`` bool
         - output: ``(B, N)`` bool
     """
     reachable = reachable.bool()
@@ -244,6 +264,17 @@ def dcbf_mask(
     if config.leave_cleared:  # rule 9: not on a target observed cleared (frozen needs u > 0)
         cleared = on_target.bool() & (u_here <= 0)
         safe = th.where(cleared[:, None], _non_empty(safe & ~own, safe), safe)
+    if config.pass_held:  # rule 10: wait a step for a held advised node, then take it
+        if advice is None:
+            raise InputError(
+                "the filter's pass_held (rule 10) needs the advised node: env_kwargs advice_input"
+            )
+        advice = advice.bool()
+        held_ahead = (advice & occupied_now.bool()).any(-1) & ~(advice & own).any(-1)
+        blocked = ~on_target.bool() & held_ahead
+        waited = dwell >= 1
+        choice = th.where(waited[:, None], _non_empty(advice & reachable, own), own)
+        safe = th.where(blocked[:, None], choice, safe)
     # Rule 7: the filter is active only where max û >= γ.
     active = u_max_all >= config.gamma_threshold
     mask = th.where(active, safe, reachable)
@@ -327,6 +358,8 @@ def dcbf_filter_from_map(
         (nodes[..., OCCUPIED] > 0.5) & (nodes[..., AGE] == 0),
         config,
         deadline,
+        # the env's advice column is the map's last (sb3_pm.envs.mental_map); rule 10 reads it
+        nodes[..., -1] > 0.5 if config.pass_held and nodes.shape[-1] > len(FEATURES) else None,
     )
     forced = deadline[0] if deadline is not None else th.zeros_like(rows, dtype=th.bool)
     return mask, forced

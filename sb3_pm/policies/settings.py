@@ -10,7 +10,7 @@ gathers every other one into a :class:`PolicySettings`: the graph encoder
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -78,6 +78,7 @@ class FilterSettings:
     neglect_scope: str = "known"
     neglect_territory: Sequence[int] = ()
     leave_cleared: bool = False
+    pass_held: bool = False
 
     def __post_init__(self) -> None:
         if self.neglect_bound is not None and not self.use_dcbf:
@@ -95,6 +96,7 @@ class FilterSettings:
             neglect_scope=str(self.neglect_scope),
             territory=tuple(int(node) for node in self.neglect_territory),
             leave_cleared=self.leave_cleared,
+            pass_held=self.pass_held,
         )
 
     @classmethod
@@ -111,6 +113,7 @@ class FilterSettings:
             neglect_scope=config.neglect_scope,
             neglect_territory=list(config.territory),
             leave_cleared=config.leave_cleared,
+            pass_held=config.pass_held,
         )
 
 
@@ -178,17 +181,22 @@ def check_advice_weight(
 
 
 def check_advice_source(learners: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
-    """Refuse a policy's ``advice_prior`` or a learner's ``advice_imitation`` unless the env
-    appends the advice column: both read the map's *last* column, which without ``advice_input``
-    is another feature (the territory's, with ``territory_input``). ``learners``: name -> SB3
-    learner (any algorithm; a key it does not have counts as unset)."""
+    """Refuse a policy's ``advice_prior`` or ``pass_held`` filter rule, or a learner's
+    ``advice_imitation``, unless the env appends the advice column: each reads the map's *last*
+    column, which without ``advice_input`` is another feature (the territory's, with
+    ``territory_input``). ``learners``: name -> SB3 learner (any algorithm; a key it does not have
+    counts as unset)."""
     if env_kwargs.get("advice_input") is True:
         return
-    for key in ("advice_prior", "advice_imitation"):
-        owners = {
-            name: learner.policy if key == "advice_prior" else learner for name, learner in learners.items()
-        }
-        with_key = [name for name, owner in owners.items() if getattr(owner, key, 0.0)]
+    readers: dict[str, Callable[[Any], Any]] = {
+        "advice_prior": lambda learner: getattr(learner.policy, "advice_prior", 0.0),
+        "advice_imitation": lambda learner: getattr(learner, "advice_imitation", 0.0),
+        "pass_held": lambda learner: getattr(
+            getattr(learner.policy, "dcbf_config", None), "pass_held", False
+        ),
+    }
+    for key, read in readers.items():
+        with_key = [name for name, learner in learners.items() if read(learner)]
         if with_key:
             raise InputError(
                 f"{key} (set for {with_key}) needs env_kwargs advice_input: true, whose column it reads"

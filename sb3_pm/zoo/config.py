@@ -82,8 +82,8 @@ class TrainConfig:
     #: How the trained team acts by default: ``None`` by the argmax, a number by sampling at that
     #: temperature (saved with the team; training never reads it).
     deploy_temperature: float | None = None
-    #: The DCBF rules the trained team acts under (``{neglect_bound, neglect_scope, leave_cleared}``),
-    #: or ``None``: the filter it trained under (saved with the team; training never reads it).
+    #: The DCBF rules the trained team acts under (``{neglect_bound, neglect_scope, leave_cleared,
+    #: pass_held}``), or ``None``: the filter it trained under (saved with the team; training never reads it).
     deploy_filter: dict[str, Any] | None = None
     #: The fastest learner's learning rate over the slowest's (1: every learner the same); see
     #: :meth:`per_agent`.

@@ -97,9 +97,11 @@ class DeploymentRule(Team):
             if together is not None:
                 return {agent: int(action) for agent, action in zip(agents, together)}
         if not self.shares_one_network:
-            grouped = _grouped_actions([self.policy_for(agent) for agent in agents], [
-                observations[agent] for agent in agents
-            ], deterministic)
+            grouped = _grouped_actions(
+                [self.policy_for(agent) for agent in agents],
+                [observations[agent] for agent in agents],
+                deterministic,
+            )
             if grouped is not None:
                 return dict(zip(agents, grouped))
         groups = [agents] if self.shares_one_network else [[agent] for agent in agents]
@@ -120,16 +122,20 @@ class DeploymentRule(Team):
 
     def acting_record(self, deterministic: bool) -> dict[str, Any]:
         """The sampling temperature (when sampling), the neglect bound the team acts under, and
-        ``leave_cleared: True`` where its policies act under the filter's rule 9."""
+        ``leave_cleared: True`` / ``pass_held: True`` where its policies act under the filter's
+        rule 9 / rule 10."""
+        from sb3_pm.policies.dcbf import FILTER_SWITCHES
+
         record: dict[str, Any] = {}
         if not deterministic and self.sampling_temperature is not None:
             record["temperature"] = self.sampling_temperature
         bound = self.acting_filter()
         if bound is not None:
             record.update(bound)
-        configs = (getattr(policy, "dcbf_config", None) for policy in self.acting_policies().values())
-        if any(config is not None and config.leave_cleared for config in configs):
-            record["leave_cleared"] = True
+        configs = [getattr(policy, "dcbf_config", None) for policy in self.acting_policies().values()]
+        for switch in FILTER_SWITCHES:
+            if any(config is not None and getattr(config, switch) for config in configs):
+                record[switch] = True
         return record
 
     # ------------------------------------------------ the pending site bound
@@ -246,6 +252,11 @@ class DeploymentRule(Team):
             raise InputError(f"neglect_bound must be a number (or None), got {bound!r}")
         if "territory" in changes:
             raise InputError("territory is set by neglect_scope='territory', from the team's graph")
+        if changes.get("pass_held") and self.env_settings().get("advice_input") is not True:
+            raise InputError(
+                "pass_held (the filter's rule 10) reads the advised node: the team needs env_kwargs "
+                "advice_input: true, and this one was trained without it"
+            )
         policies = self.acting_policies()
         for name, policy in policies.items():  # every check before any policy changes
             if not getattr(policy, "use_dcbf", False):

@@ -35,7 +35,7 @@ from sb3_pm.agents.training.learner_record import plain_hyperparams
 from sb3_pm.agents.training.learners import resolve_learner
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphFamily, GraphLike, GraphSpec, resolve_graph_or_family
-from sb3_pm.policies.dcbf import SITE_BOUND
+from sb3_pm.policies.dcbf import FILTER_SWITCHES, SITE_BOUND
 
 
 class LearnedTeam(DeploymentRule):
@@ -167,7 +167,8 @@ class LearnedTeam(DeploymentRule):
         """The DCBF rules the trained team acts under beyond its training filter, or ``None``.
 
         The rules are ``{"neglect_bound": B, "neglect_scope": S}`` (rule 8; ``B`` ``None``: off),
-        with ``"leave_cleared": True`` where rule 9 is on (:mod:`sb3_pm.policies.dcbf`); with
+        with ``"leave_cleared"`` / ``"pass_held"`` where rule 9 / rule 10 is switched
+        (:mod:`sb3_pm.policies.dcbf`); with
         ``None`` the team acts under the filter it trained under.
 
         Set by the config's ``deploy_filter`` and saved with the team. Training never reads it:
@@ -234,8 +235,10 @@ class LearnedTeam(DeploymentRule):
         if self._deploy_filter is None:
             return
         if self._deploy_filter["neglect_bound"] == SITE_BOUND:
-            if "leave_cleared" in self._deploy_filter:  # kept when the bound is set (set_filter merges)
-                self.set_filter(leave_cleared=self._deploy_filter["leave_cleared"])
+            rules = self._deploy_filter
+            switches = {key: rules[key] for key in FILTER_SWITCHES if key in rules}
+            if switches:  # kept when the bound is set (set_filter merges)
+                self.set_filter(**switches)
             self.await_site_bound()
             return
         self.set_filter(**self._deploy_filter)
