@@ -782,7 +782,8 @@ TRANSFER_EXPERIMENTS = [
 
 
 def _built_on_ippo_transfer(config: object) -> bool:
-    return config is not None and Path(str(config)).name in ("ippo_transfer.yml", "ippo_transfer_split.yml")
+    names = ("ippo_transfer.yml", "ippo_transfer_prior4.yml", "ippo_transfer_split.yml")
+    return config is not None and Path(str(config)).name in names
 
 
 def test_every_experiment_built_on_ippo_transfer_is_checked_for_what_it_measured() -> None:

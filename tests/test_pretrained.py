@@ -13,7 +13,7 @@ from sb3_pm.pretrained import pretrained_names, pretrained_path, provenance
 
 
 def test_every_pretrained_team_says_how_it_was_made() -> None:
-    assert {"paper-50", "transfer", "transfer_split"} <= set(pretrained_names())
+    assert {"paper-50", "transfer", "transfer_prior4", "transfer_split"} <= set(pretrained_names())
     for name in pretrained_names():
         record = provenance(name)
         assert record["seed"] == 0 and "sb3-pm train" in record["command"] and "commit" in record["code"]
@@ -65,6 +65,7 @@ def test_the_command_line_evaluates_it_with_a_gif(tmp_path, capsys) -> None:
 
 def test_the_transfer_team_acts_legally_on_a_graph_it_never_saw() -> None:
     team = resolve_team("pretrained:transfer", graph="karate")
+    assert team.acting_record(True) == {"pass_held": True}  # its deploy_filter: the filter's rule 10
     env = team.make_env("karate")
     observations, _ = env.reset(seed=4)
     team.reset(env, seed=4)
@@ -75,6 +76,6 @@ def test_the_transfer_team_acts_legally_on_a_graph_it_never_saw() -> None:
 
 
 def test_an_unknown_pretrained_team_is_one_line() -> None:
-    names = "paper-50, transfer, transfer_split"
+    names = "paper-50, transfer, transfer_prior4, transfer_split"
     with pytest.raises(InputError, match=f"no pretrained team 'nope': use one of {names}"):
         pretrained_path("pretrained:nope")

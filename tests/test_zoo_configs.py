@@ -4,8 +4,8 @@
   by rl-zoo's own :class:`~rl_zoo3.exp_manager.ExperimentManager`, which builds the model exactly as
   ``rl_zoo3.train`` would (schedules, env_kwargs, policy_kwargs, n_envs).
 * ``zoo/ippo.yml``, ``zoo/ippo_split.yml``, ``zoo/ippo_paper.yml``, ``zoo/ippo_improved.yml``,
-  ``zoo/ippo_transfer.yml`` and ``zoo/ippo_transfer_split.yml`` (our team format): each entry
-  builds an :class:`IndependentPPO` team.
+  ``zoo/ippo_transfer.yml``, ``zoo/ippo_transfer_prior4.yml`` and ``zoo/ippo_transfer_split.yml``
+  (our team format): each entry builds an :class:`IndependentPPO` team.
 * ``python -m rl_zoo3.train --gym-packages sb3_pm ...`` (a subprocess) and our launcher
   ``python -m sb3_pm.zoo --algo dcbf_ppo ...`` run end to end and save a model.
 """
@@ -42,6 +42,7 @@ NOT_RL_ZOO = {
     "ippo_paper.yml",
     "ippo_improved.yml",
     "ippo_transfer.yml",
+    "ippo_transfer_prior4.yml",
     "ippo_transfer_split.yml",
 }
 RL_ZOO_FILES = sorted(p for p in ZOO.glob("*.yml") if p.name not in NOT_RL_ZOO)
@@ -214,10 +215,24 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
     assert model.num_timesteps == 128
 
 
-def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_territory_and_advice() -> None:
-    """zoo/ippo_transfer.yml against the default it was built from: paper-50's default before
-    planned territories, kept as zoo/ippo_split.yml."""
-    transfer, default = load_config("ippo_transfer", "paper-50"), load_config("ippo_split", "paper-50")
+def test_ippo_transfer_is_the_prior4_config_imitating_the_rule_and_passing_held_nodes() -> None:
+    """zoo/ippo_transfer.yml against zoo/ippo_transfer_prior4.yml, the config before it: taught
+    the rule's move after each update, and deployed with the filter's rule 10."""
+    transfer = load_config("ippo_transfer", "paper-50")
+    prior4 = load_config("ippo_transfer_prior4", "paper-50")
+    t_kwargs, p_kwargs = transfer.team_kwargs(), prior4.team_kwargs()
+    assert t_kwargs["hyperparams"].pop("advice_imitation") == 1.0
+    assert "advice_imitation" not in p_kwargs["hyperparams"]
+    rule_10 = {"neglect_bound": None, "neglect_scope": "known", "pass_held": True}
+    assert t_kwargs.pop("deploy_filter") == rule_10
+    assert p_kwargs.pop("deploy_filter") is None
+    assert t_kwargs == p_kwargs and (transfer.env, prior4.env) == ("family:er", "family:er")
+
+
+def test_ippo_transfer_prior4_is_the_default_without_rows_with_a_known_map_territory_and_advice() -> None:
+    """zoo/ippo_transfer_prior4.yml against the default it was built from: paper-50's default
+    before planned territories, kept as zoo/ippo_split.yml."""
+    transfer, default = load_config("ippo_transfer_prior4", "paper-50"), load_config("ippo_split", "paper-50")
     t_kwargs, d_kwargs = transfer.team_kwargs(), default.team_kwargs()
     t_policy = dict(t_kwargs["hyperparams"].pop("policy_kwargs"))
     d_policy = dict(d_kwargs["hyperparams"].pop("policy_kwargs"))
@@ -254,8 +269,9 @@ def test_ippo_transfer_is_the_default_without_rows_or_spread_with_a_known_map_te
 
 def test_ippo_transfer_split_is_the_transfer_config_before_planned_territories() -> None:
     """zoo/ippo_transfer_split.yml, the transfer config the earlier records measured: the same as
-    zoo/ippo_transfer.yml but on split territories, with a prior of 2 and the calibrated bound."""
-    transfer, split = load_config("ippo_transfer", "paper-50"), load_config("ippo_transfer_split", "paper-50")
+    zoo/ippo_transfer_prior4.yml but on split territories, with a prior of 2 and the calibrated bound."""
+    transfer = load_config("ippo_transfer_prior4", "paper-50")
+    split = load_config("ippo_transfer_split", "paper-50")
     t_kwargs, s_kwargs = transfer.team_kwargs(), split.team_kwargs()
     assert t_kwargs["hyperparams"]["policy_kwargs"].pop("advice_prior") == 4.0
     assert s_kwargs["hyperparams"]["policy_kwargs"].pop("advice_prior") == 2.0

@@ -57,7 +57,7 @@ def register(subparsers: Any) -> None:
         "--config",
         default=None,
         help="rl-zoo style YAML: a path, or the name of a shipped config (ippo, ippo_split, ippo_paper, "
-        "ippo_improved, ippo_transfer, ippo_transfer_split). "
+        "ippo_improved, ippo_transfer, ippo_transfer_prior4, ippo_transfer_split). "
         "Default: ippo, the package's copy of zoo/ippo.yml, the best configuration measured "
         "(docs/RESULTS.md); ippo_paper is the paper-faithful one",
     )

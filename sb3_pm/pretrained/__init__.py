@@ -5,18 +5,20 @@ unpickling) under ``sb3_pm/pretrained/<name>/``, as ``sb3-pm train`` saved it (o
 included, so it can train on), with ``provenance.json`` saying which command, code version and
 seed made it and what it scored.
 
-============== ==============================================================================
-name            team
-============== ==============================================================================
-paper-50        the default configuration (``zoo/ippo.yml``: planned territories) trained on the
-                paper's 50-node graph at the paper's budget, seed 0
-transfer        the transfer configuration (``zoo/ippo_transfer.yml``: planned territories, the
-                rule's move with a prior of 4) trained on random graphs of 20 to 60 nodes, seed 0:
-                deploy it on any graph (``--graph``; on large sites with ``--territories
-                planned_tours``)
-transfer_split  the transfer configuration before it (``zoo/ippo_transfer_split.yml``: split
-                territories, a prior of 2, a neglect bound calibrated on each site), seed 0
-============== ==============================================================================
+=============== ==============================================================================
+name             team
+=============== ==============================================================================
+paper-50         the default configuration (``zoo/ippo.yml``: planned territories) trained on the
+                 paper's 50-node graph at the paper's budget, seed 0
+transfer         the transfer configuration (``zoo/ippo_transfer.yml``: planned territories, the
+                 rule's move with a prior of 4 and taught after each update, the filter's rule
+                 10 at deployment) trained on random graphs of 20 to 60 nodes, seed 0: deploy it
+                 on any graph (``--graph``; on large sites with ``--territories planned_tours``)
+transfer_prior4  the transfer configuration before it (``zoo/ippo_transfer_prior4.yml``: the same
+                 without the teaching and rule 10), seed 0
+transfer_split   the one before that (``zoo/ippo_transfer_split.yml``: split territories, a prior
+                 of 2, a neglect bound calibrated on each site), seed 0
+=============== ==============================================================================
 """
 
 from __future__ import annotations

@@ -217,7 +217,8 @@ def load_config(
     checked against :mod:`sb3_pm.zoo.schema`.
 
     :param path: a config file, or the name of a shipped one (``ippo``, ``ippo_split``,
-        ``ippo_paper``, ``ippo_improved``, ``ippo_transfer``, ``ippo_transfer_split``).
+        ``ippo_paper``, ``ippo_improved``, ``ippo_transfer``, ``ippo_transfer_prior4``,
+        ``ippo_transfer_split``).
     :param overrides: entry keys to set on top of the file's (see :func:`apply_overrides`); they
         are validated like the file's own keys.
     :param origin: where the overrides come from, for error messages.
