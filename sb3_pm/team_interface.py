@@ -105,7 +105,8 @@ class Team(ABC):
 
     def acting_record(self, deterministic: bool) -> dict[str, Any]:
         """What the team acted under, for an evaluation's record (``temperature``,
-        ``neglect_bound``, ``neglect_scope``, ``leave_cleared``); ``{}`` for a baseline."""
+        ``neglect_bound``, ``neglect_scope``, ``leave_cleared``, ``pass_held``); ``{}`` for a
+        baseline."""
         return {}
 
     def acting_filter(self) -> dict[str, Any] | None:

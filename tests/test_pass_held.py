@@ -66,8 +66,22 @@ class TestRule:
         assert allowed([0, 1, 2], occupied=[1], on_target=True, pass_held=True) == [0, 1, 2]
         assert allowed([0, 1, 2], advice=0, occupied=[0], pass_held=True) == [0, 1, 2]  # advised to stay
 
-    def test_the_neglect_bound_overrides_it(self) -> None:
+    def test_the_neglect_bound_overrides_it_and_the_activation_threshold_gates_it(self) -> None:
         assert allowed([0, 1, 2], occupied=[1], deadline=[2], pass_held=True) == [2]
+        # max û = 0 < γ: the filter is off, the mask is the reachable set
+        assert allowed([0, 1, 2], occupied=[1], gamma_threshold=1.0, pass_held=True) == [0, 1, 2]
+
+    def test_an_agent_that_already_stood_a_step_takes_the_node_at_once(self) -> None:
+        """``dwell`` counts every step on the node, so an agent standing there before the block
+        does not wait again; an advised node out of reach keeps it where it is."""
+        assert allowed([0, 1, 2], occupied=[1], dwell=7.0, pass_held=True) == [1]
+        assert allowed([0, 2], advice=1, occupied=[1], dwell=1.0, pass_held=True) == [0]
+
+    def test_an_agent_on_a_target_is_left_to_the_other_rules(self) -> None:
+        """Rule 10 leaves agents on targets alone: on a cleared target whose only way on is held,
+        rule 6 keeps the agent there (the case the rule does not handle)."""
+        kept = allowed([0, 1], occupied=[1], on_target=True, dwell=5.0, avoid_collisions=True, pass_held=True)
+        assert kept == [0]
 
     def test_without_the_advised_node_it_is_refused_by_name(self) -> None:
         with pytest.raises(InputError, match=r"pass_held \(rule 10\) needs the advised node"):
@@ -152,6 +166,12 @@ class TestDeployFilter:
             "leave_cleared": False,
             "pass_held": True,
         }
+
+    def test_its_checked_form_checks_again_as_itself(self) -> None:
+        """What a saved team's manifest holds is the checked form, read back through the same check."""
+        for value in ({"pass_held": True}, {"neglect_bound": "auto", "pass_held": True}):
+            checked = check_deploy_filter(value)
+            assert check_deploy_filter(checked) == checked
 
     @pytest.mark.parametrize(
         ("value", "message"),

@@ -1,6 +1,6 @@
 """``sb3-pm evaluate``'s acting-rule options: ``--neglect-bound`` (a number, ``off`` or ``auto``),
-``--neglect-scope``, ``--leave-cleared``, ``--temperature``, ``--stochastic`` and
-``--deterministic``, checked against the team and applied to it."""
+``--neglect-scope``, ``--leave-cleared``, ``--pass-held``, ``--temperature``, ``--stochastic``
+and ``--deterministic``, checked against the team and applied to it."""
 
 from __future__ import annotations
 

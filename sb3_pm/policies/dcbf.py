@@ -31,8 +31,9 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
    overrides it;
 10. ``pass_held`` (not in the paper; off unless set; needs the env's ``advice_input``, whose column
     is the map's last): an agent off targets whose advised next node (the territory rule's move)
-    is observed this step to hold another agent stays one step, and on the next step, if that
-    node is still held, the mask is that node alone. It overrides rules 2-6 and 9 (rule 6 would
+    is observed this step to hold another agent stays while ``dwell`` is 0; once it has stayed a
+    step (``dwell >= 1``, any step on the node), if that node is still held, the mask is that node
+    alone (its own node if the advised one is not reachable). It overrides rules 2-6 and 9 (rule 6 would
     turn the agent away from the held node for good: on a tree a teammate on the only path
     locks it out, research/LOG.md); rule 7 gates it and rule 8 overrides it.
 

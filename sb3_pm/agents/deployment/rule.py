@@ -255,7 +255,7 @@ class DeploymentRule(Team):
         if changes.get("pass_held") and self.env_settings().get("advice_input") is not True:
             raise InputError(
                 "pass_held (the filter's rule 10) reads the advised node: the team needs env_kwargs "
-                "advice_input: true, and this one was trained without it"
+                "advice_input: true, which its env settings do not have"
             )
         policies = self.acting_policies()
         for name, policy in policies.items():  # every check before any policy changes

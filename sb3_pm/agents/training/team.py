@@ -85,8 +85,9 @@ class IndependentPPO(LearnedTeam):
         team; training never reads it.
     :param deploy_filter: the DCBF rules the trained team acts under
         (:attr:`~sb3_pm.agents.training.learned_team.LearnedTeam.deploy_filter`), ``{"neglect_bound": B,
-        "neglect_scope": S}`` with ``"leave_cleared": True`` for rule 9 (the bound may then be left
-        out), or ``None``. Saved with the team; :meth:`learn` trains without it.
+        "neglect_scope": S}`` with ``"leave_cleared": True`` for rule 9 and ``"pass_held": True``
+        for rule 10 (with either the bound may be left out), or ``None``. Saved with the team;
+        :meth:`learn` trains without it.
     :param wait_timeout: seconds a learner may wait for its teammates (their ``train()`` included)
         or for an update slot (:attr:`update_slots`), before training stops with
         :class:`~sb3_pm.agents.multiplexing.multiplexer.TeamTimeout`, naming it;
