@@ -1,7 +1,8 @@
-"""The DCBF filter's rule 10, ``pass_held``: an agent off targets whose advised next node (the
-env's ``advice_input``) holds another agent waits one step, then takes that node if it is still
-held. Off unless set, usually switched on after training by a team's ``deploy_filter`` or
-``sb3-pm evaluate --pass-held on``."""
+"""The DCBF filter's rules that read the advised node (the env's ``advice_input``): rule 10,
+``pass_held`` (an agent off targets whose advised next node holds another agent waits one step,
+then takes that node if it is still held), and rule 11, ``keep_moving`` (an agent off targets
+advised on to a free node does not stay). Off unless set, usually switched on after training by a
+team's ``deploy_filter`` or ``sb3-pm evaluate --pass-held on`` / ``--keep-moving on``."""
 
 from __future__ import annotations
 
@@ -84,7 +85,9 @@ class TestRule:
         assert kept == [0]
 
     def test_without_the_advised_node_it_is_refused_by_name(self) -> None:
-        with pytest.raises(InputError, match=r"pass_held \(rule 10\) needs the advised node"):
+        with pytest.raises(
+            InputError, match=r"\(rules 10, 11\) need the advised node"
+        ):
             allowed([0, 1], advice=None, pass_held=True)
         with pytest.raises(InputError, match="pass_held must be true or false"):
             DCBFConfig(pass_held="yes")  # type: ignore[arg-type]
@@ -114,6 +117,36 @@ class TestRule:
         expected[blocked] = th.where((dwell >= 1)[:, None], advice, own)[blocked]
         assert bool((blocked & (dwell == 0)).any()) and bool((blocked & (dwell >= 1)).any())
         assert th.equal(on, expected)
+
+
+class TestKeepMoving:
+    def test_off_by_default_the_agent_may_stay_off_targets(self) -> None:
+        assert allowed([0, 1, 2]) == [0, 1, 2]
+
+    def test_on_it_may_not_stay_where_the_advised_node_is_free(self) -> None:
+        assert allowed([0, 1, 2], keep_moving=True) == [1, 2]  # the actor still chooses among the rest
+        assert allowed([0, 1, 2], advice=0, keep_moving=True) == [0, 1, 2]  # advised to stay
+        assert allowed([0, 1, 2], on_target=True, keep_moving=True) == [0, 1, 2]  # on a target
+        assert allowed([0, 1, 2], occupied=[1], keep_moving=True) == [0, 1, 2]  # held: rule 10's case
+        assert allowed([0], keep_moving=True) == [0]  # nowhere else to go
+
+    def test_with_rule_10_a_held_node_is_waited_for_and_a_free_one_taken(self) -> None:
+        both = {"pass_held": True, "keep_moving": True}
+        assert allowed([0, 1, 2], occupied=[1], **both) == [0]
+        assert allowed([0, 1, 2], **both) == [1, 2]
+
+    def test_the_neglect_bound_overrides_it(self) -> None:
+        assert allowed([0, 1, 2], deadline=[0], keep_moving=True) == [0]
+
+    def test_a_team_without_the_advice_column_refuses_it(self) -> None:
+        team = small_team({"territory_input": True})
+        try:
+            with pytest.raises(InputError, match=r"keep_moving \(a filter rule\) reads the advised node"):
+                team.set_filter(keep_moving=True)
+        finally:
+            team.close()
+        with pytest.raises(InputError, match="keep_moving reads the node the env's advice_input flags"):
+            small_team({}, keep_moving=True)
 
 
 def test_the_filter_reads_the_advice_from_the_maps_last_column() -> None:
@@ -147,7 +180,7 @@ def test_the_filter_reads_the_advice_from_the_maps_last_column() -> None:
     assert th.equal(mask[moving], th.nn.functional.one_hot(positions, 8).bool()[moving])  # they wait
     waited, _ = dcbf_filter_from_map({**maps, "dwell": th.ones(3, 1)}, th.zeros(3, 8), config)
     assert th.equal(waited[moving], th.nn.functional.one_hot(advised, 8).bool()[moving])
-    with pytest.raises(InputError, match="needs the advised node"):
+    with pytest.raises(InputError, match="need the advised node"):
         dcbf_filter_from_map({**maps, "nodes": nodes[..., :-1]}, th.zeros(3, 8), config)
     env.close()
 
@@ -190,7 +223,7 @@ class TestTeam:
     def test_a_team_without_the_advice_column_refuses_it(self) -> None:
         team = small_team({"territory_input": True})  # its last column is the territory's
         try:
-            with pytest.raises(InputError, match=r"pass_held \(the filter's rule 10\) reads the advised"):
+            with pytest.raises(InputError, match=r"pass_held \(a filter rule\) reads the advised"):
                 team.set_filter(pass_held=True)
             assert not team.models["agent_0"].policy.dcbf_config.pass_held
         finally:

@@ -1,6 +1,6 @@
 """``sb3-pm evaluate``'s acting-rule options: ``--neglect-bound`` (a number, ``off`` or ``auto``),
-``--neglect-scope``, ``--leave-cleared``, ``--pass-held``, ``--temperature``, ``--stochastic``
-and ``--deterministic``, checked against the team and applied to it."""
+``--neglect-scope``, ``--leave-cleared``, ``--pass-held``, ``--keep-moving``, ``--temperature``,
+``--stochastic`` and ``--deterministic``, checked against the team and applied to it."""
 
 from __future__ import annotations
 
@@ -92,14 +92,14 @@ def apply_leave_cleared(team: Any, choice: str | None) -> None:
     team.set_filter(leave_cleared=choice == "on")
 
 
-def apply_pass_held(team: Any, choice: str | None) -> None:
-    """``--pass-held on|off``: switch the filter's rule 10 on a trained DCBF team (an agent off
-    targets whose advised next node is held waits a step, then takes it); ``None``: as the team's
-    deploy_filter says."""
+def apply_switch(team: Any, switch: str, choice: str | None) -> None:
+    """``--pass-held on|off`` or ``--keep-moving on|off``: switch the filter's rule 10 or 11
+    (``switch``: ``pass_held`` or ``keep_moving``) on a trained DCBF team; ``None``: as the
+    team's deploy_filter says."""
     if choice is None:
         return
-    require_filter(team, "--pass-held")
-    team.set_filter(pass_held=choice == "on")
+    require_filter(team, "--" + switch.replace("_", "-"))
+    team.set_filter(**{switch: choice == "on"})
 
 
 #: What each of the filter's switches does, said where a team's deploy_filter turns it on.
@@ -108,7 +108,32 @@ _SWITCH_NOTICES = {
     "(--leave-cleared off to let it stay)",
     "pass_held": "rule 10, pass_held: an agent whose advised next node is held waits a step, then "
     "takes it (--pass-held off to act without it)",
+    "keep_moving": "rule 11, keep_moving: an agent off targets advised on to a free node does not "
+    "stay (--keep-moving off to act without it)",
 }
+
+
+#: Each filter switch's flag and what it does, for ``sb3-pm evaluate``'s help.
+_SWITCH_HELP = {
+    "leave_cleared": "the filter's rule 9 on a trained DCBF team: an agent on a target it observes "
+    "cleared (u = 0) moves on instead of staying",
+    "pass_held": "the filter's rule 10 on a trained DCBF team with advice_input: an agent off targets "
+    "whose advised next node holds another agent waits a step, then takes it",
+    "keep_moving": "the filter's rule 11 on a trained DCBF team with advice_input: an agent off targets "
+    "advised on to a free node does not stay",
+}
+
+
+def add_switch_options(parser: argparse.ArgumentParser) -> None:
+    """``--leave-cleared``, ``--pass-held`` and ``--keep-moving``, each ``on|off`` (default: as the
+    team's deploy_filter says)."""
+    for switch, help_text in _SWITCH_HELP.items():
+        parser.add_argument(
+            "--" + switch.replace("_", "-"),
+            choices=["on", "off"],
+            default=None,
+            help=help_text + "; default: as the team's deploy_filter says",
+        )
 
 
 def switch_notices(team: Any, args: argparse.Namespace) -> list[str]:
@@ -150,9 +175,10 @@ __all__ = [
     "BOUND_AUTO",
     "BOUND_OFF",
     "acting_rule",
+    "add_switch_options",
     "apply_leave_cleared",
     "apply_neglect_bound",
-    "apply_pass_held",
+    "apply_switch",
     "apply_temperature",
     "neglect_bound_option",
     "require_filter",

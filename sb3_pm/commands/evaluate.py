@@ -12,9 +12,10 @@ from sb3_pm.commands.acting_options import (
     BOUND_AUTO,
     BOUND_OFF,
     acting_rule,
+    add_switch_options,
     apply_leave_cleared,
     apply_neglect_bound,
-    apply_pass_held,
+    apply_switch,
     apply_temperature,
     neglect_bound_option,
     resolve_auto_bound,
@@ -113,21 +114,7 @@ def register(subparsers: Any) -> None:
         "teammate on them (unserved), or the targets of each agent's own territory (territory); "
         "default: the scope of the team's own bound (its deploy_filter's), else known",
     )
-    parser.add_argument(
-        "--leave-cleared",
-        choices=["on", "off"],
-        default=None,
-        help="the filter's rule 9 on a trained DCBF team: an agent on a target it observes cleared "
-        "(u = 0) moves on instead of staying; default: as the team's deploy_filter says",
-    )
-    parser.add_argument(
-        "--pass-held",
-        choices=["on", "off"],
-        default=None,
-        help="the filter's rule 10 on a trained DCBF team with advice_input: an agent off targets whose "
-        "advised next node holds another agent waits a step, then takes it; default: as the team's "
-        "deploy_filter says",
-    )
+    add_switch_options(parser)
     parser.add_argument(
         "--settling",
         nargs="?",
@@ -349,7 +336,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
     apply_leave_cleared(team, args.leave_cleared)
-    apply_pass_held(team, args.pass_held)
+    for switch in ("pass_held", "keep_moving"):
+        apply_switch(team, switch, getattr(args, switch))
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
     acting_filter = team.acting_filter()  # after the flags
@@ -434,7 +422,8 @@ def run(args: argparse.Namespace) -> int:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device, layout=args.layout)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
         apply_leave_cleared(gif_team, args.leave_cleared)
-        apply_pass_held(gif_team, args.pass_held)
+        for switch in ("pass_held", "keep_moving"):
+            apply_switch(gif_team, switch, getattr(args, switch))
         apply_temperature(gif_team, args.temperature, args.stochastic)
         with sigterm_as_interrupt():  # a stopped GIF leaves the previous file, and no temporary one
             record_gif(

@@ -35,7 +35,12 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
     step (``dwell >= 1``, any step on the node), if that node is still held, the mask is that node
     alone (its own node if the advised one is not reachable). It overrides rules 2-6 and 9 (rule 6 would
     turn the agent away from the held node for good: on a tree a teammate on the only path
-    locks it out, research/LOG.md); rule 7 gates it and rule 8 overrides it.
+    locks it out, research/LOG.md); rule 7 gates it and rule 8 overrides it;
+11. ``keep_moving`` (not in the paper; off unless set; needs ``advice_input`` as rule 10 does): an
+    agent off targets whose advised next node is another node, not observed held, does not stay:
+    its own node is dropped from ``S`` after rule 10, unless that empties ``S``. A learner can
+    idle on a node it rarely met in training (a leaf of a tree) for a whole episode while the
+    rule says to move on (research/LOG.md). Gated by rule 7; rule 8 overrides it.
 
 ``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
 among all reachable nodes but still dwells on a target until it is cleared. This is not in the
@@ -61,8 +66,10 @@ from sb3_pm.policies.edges import is_edge_layout
 from sb3_pm.policies.neglect_bound import neglect_deadline
 
 NEGLECT_SCOPES = ("known", "unserved", "territory")
-#: The filter's on/off rules a deployment may switch: rule 9 and rule 10.
-FILTER_SWITCHES = ("leave_cleared", "pass_held")
+#: The filter's on/off rules a deployment may switch: rules 9, 10 and 11.
+FILTER_SWITCHES = ("leave_cleared", "pass_held", "keep_moving")
+#: The switches that read the env's advice column (``advice_input``).
+ADVICE_SWITCHES = ("pass_held", "keep_moving")
 
 
 @dataclass(frozen=True)
@@ -83,6 +90,7 @@ class DCBFConfig:
         its share of the site's targets under the split of :mod:`sb3_pm.graphs.territories`.
     :param leave_cleared: apply rule 9 (an agent on a target it observes cleared does not stay).
     :param pass_held: apply rule 10 (an agent whose advised node is held waits a step, then passes).
+    :param keep_moving: apply rule 11 (an agent off targets advised to a free node does not stay).
     """
 
     eta: float = 0.1
@@ -95,6 +103,7 @@ class DCBFConfig:
     territory: tuple[int, ...] = ()
     leave_cleared: bool = False
     pass_held: bool = False
+    keep_moving: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
@@ -225,7 +234,7 @@ def dcbf_mask(
     deadline: tuple[th.Tensor, th.Tensor] | None = None,
     advice: th.Tensor | None = None,
 ) -> th.Tensor:
-    """Apply rules 1-10 to a batch.
+    """Apply rules 1-11 to a batch.
 
     :param u_hat: predicted (or last observed) uncertainty per node.
     :param reachable: the reachable set ``R`` (bool).
@@ -237,7 +246,7 @@ def dcbf_mask(
     :param config: the filter's settings.
     :param deadline: rule 8's ``(forced, next_hops)`` from
         :func:`~sb3_pm.policies.neglect_bound.neglect_deadline` (``None``: rule 8 off).
-    :param advice: the advised next node, one-hot (bool); read by rule 10 only, which needs it.
+    :param advice: the advised next node, one-hot (bool); read by rules 10 and 11 only, which need it.
     :return: the mask ``S`` (bool), never all-false.
 
     Shapes:
@@ -265,17 +274,24 @@ def dcbf_mask(
     if config.leave_cleared:  # rule 9: not on a target observed cleared (frozen needs u > 0)
         cleared = on_target.bool() & (u_here <= 0)
         safe = th.where(cleared[:, None], _non_empty(safe & ~own, safe), safe)
-    if config.pass_held:  # rule 10: wait a step for a held advised node, then take it
+    if config.pass_held or config.keep_moving:  # rules 10 and 11 read the advised node
         if advice is None:
             raise InputError(
-                "the filter's pass_held (rule 10) needs the advised node: env_kwargs advice_input"
+                "the filter's pass_held and keep_moving (rules 10, 11) need the advised node: "
+                "env_kwargs advice_input"
             )
         advice = advice.bool()
-        held_ahead = (advice & occupied_now.bool()).any(-1) & ~(advice & own).any(-1)
-        blocked = ~on_target.bool() & held_ahead
-        waited = dwell >= 1
-        choice = th.where(waited[:, None], _non_empty(advice & reachable, own), own)
-        safe = th.where(blocked[:, None], choice, safe)
+        advised_elsewhere = advice.any(-1) & ~(advice & own).any(-1)
+        held_ahead = (advice & occupied_now.bool()).any(-1)
+        off_target = ~on_target.bool()
+        if config.pass_held:  # rule 10: wait a step for a held advised node, then take it
+            blocked = off_target & advised_elsewhere & held_ahead
+            waited = dwell >= 1
+            choice = th.where(waited[:, None], _non_empty(advice & reachable, own), own)
+            safe = th.where(blocked[:, None], choice, safe)
+        if config.keep_moving:  # rule 11: off targets, advised on to a free node: do not stay
+            idle = off_target & advised_elsewhere & ~held_ahead
+            safe = th.where(idle[:, None], _non_empty(safe & ~own, safe), safe)
     # Rule 7: the filter is active only where max û >= γ.
     active = u_max_all >= config.gamma_threshold
     mask = th.where(active, safe, reachable)
@@ -359,8 +375,10 @@ def dcbf_filter_from_map(
         (nodes[..., OCCUPIED] > 0.5) & (nodes[..., AGE] == 0),
         config,
         deadline,
-        # the env's advice column is the map's last (sb3_pm.envs.mental_map); rule 10 reads it
-        nodes[..., -1] > 0.5 if config.pass_held and nodes.shape[-1] > len(FEATURES) else None,
+        # the env's advice column is the map's last (sb3_pm.envs.mental_map); rules 10, 11 read it
+        nodes[..., -1] > 0.5
+        if (config.pass_held or config.keep_moving) and nodes.shape[-1] > len(FEATURES)
+        else None,
     )
     forced = deadline[0] if deadline is not None else th.zeros_like(rows, dtype=th.bool)
     return mask, forced

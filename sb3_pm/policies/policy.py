@@ -37,7 +37,7 @@ from torch import nn
 
 from sb3_pm.envs.mental_map import U
 from sb3_pm.errors import InputError
-from sb3_pm.policies.dcbf import check_bound_below_cap, dcbf_filter_from_map
+from sb3_pm.policies.dcbf import ADVICE_SWITCHES, check_bound_below_cap, dcbf_filter_from_map
 from sb3_pm.policies.edges import DENSE_MAP_KEYS, EDGE_MAP_KEYS, is_edge_layout
 from sb3_pm.policies.estimator import StateEstimator
 from sb3_pm.policies.extractor import GATFeaturesExtractor
@@ -77,7 +77,8 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         estimator's (``use_estimator``, ``estimator_hidden``, ``estimator_lr``,
         ``estimator_epochs``, ``estimator_batch_size``), the DCBF filter's (``use_dcbf``,
         ``avoid_collisions``, ``freeze_steps``, ``eta``, ``gamma_threshold``, ``dcbf_barrier``,
-        ``neglect_bound``, ``neglect_scope``, ``neglect_territory``, ``leave_cleared``, ``pass_held``;
+        ``neglect_bound``, ``neglect_scope``, ``neglect_territory``, ``leave_cleared``, ``pass_held``,
+        ``keep_moving``;
         :mod:`sb3_pm.policies.dcbf`)
         and ``advice_prior`` (a fixed number added to the logit of the territory rule's next move,
         the env's ``advice_input``). ``docs/CONFIG.md`` gives each its default and range.
@@ -121,8 +122,9 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
             "advice_prior", self.settings.advice_prior, observation_space, use="adds to"
         )
         self.dcbf_config = self.settings.filter.dcbf_config()
-        if self.dcbf_config.pass_held:  # rule 10 reads the advice column; the weight check says where
-            check_advice_weight("pass_held", 1.0, observation_space, use="reads")
+        for switch in ADVICE_SWITCHES:  # rules 10 and 11 read the advice column; the check says where
+            if getattr(self.dcbf_config, switch):
+                check_advice_weight(switch, 1.0, observation_space, use="reads")
         #: The filter as built from the constructor: a deployed team acts under it with its own
         #: settings on top (``DeploymentRule.set_filter``), and ``reset_filter`` restores it.
         self.trained_dcbf_config = self.dcbf_config

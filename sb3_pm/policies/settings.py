@@ -19,7 +19,7 @@ from gymnasium import spaces
 
 from sb3_pm.envs.mental_map import FEATURES
 from sb3_pm.errors import InputError
-from sb3_pm.policies.dcbf import DCBFConfig
+from sb3_pm.policies.dcbf import ADVICE_SWITCHES, DCBFConfig
 
 
 @dataclass(frozen=True)
@@ -79,6 +79,7 @@ class FilterSettings:
     neglect_territory: Sequence[int] = ()
     leave_cleared: bool = False
     pass_held: bool = False
+    keep_moving: bool = False
 
     def __post_init__(self) -> None:
         if self.neglect_bound is not None and not self.use_dcbf:
@@ -97,6 +98,7 @@ class FilterSettings:
             territory=tuple(int(node) for node in self.neglect_territory),
             leave_cleared=self.leave_cleared,
             pass_held=self.pass_held,
+            keep_moving=self.keep_moving,
         )
 
     @classmethod
@@ -114,6 +116,7 @@ class FilterSettings:
             neglect_territory=list(config.territory),
             leave_cleared=config.leave_cleared,
             pass_held=config.pass_held,
+            keep_moving=config.keep_moving,
         )
 
 
@@ -180,8 +183,14 @@ def check_advice_weight(
     return float(value)
 
 
+def _filter_switch(switch: str) -> Callable[[Any], Any]:
+    """Reads a learner's policy's filter switch ``switch`` (``False`` without a DCBF filter)."""
+    return lambda learner: getattr(getattr(learner.policy, "dcbf_config", None), switch, False)
+
+
 def check_advice_source(learners: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
-    """Refuse a policy's ``advice_prior`` or ``pass_held`` filter rule, or a learner's
+    """Refuse a policy's ``advice_prior`` or filter rule reading the advice (``pass_held``,
+    ``keep_moving``), or a learner's
     ``advice_imitation``, unless the env appends the advice column: each reads the map's *last*
     column, which without ``advice_input`` is another feature (the territory's, with
     ``territory_input``). ``learners``: name -> SB3 learner (any algorithm; a key it does not have
@@ -191,9 +200,7 @@ def check_advice_source(learners: Mapping[str, Any], env_kwargs: Mapping[str, An
     readers: dict[str, Callable[[Any], Any]] = {
         "advice_prior": lambda learner: getattr(learner.policy, "advice_prior", 0.0),
         "advice_imitation": lambda learner: getattr(learner, "advice_imitation", 0.0),
-        "pass_held": lambda learner: getattr(
-            getattr(learner.policy, "dcbf_config", None), "pass_held", False
-        ),
+        **{switch: _filter_switch(switch) for switch in ADVICE_SWITCHES},
     }
     for key, read in readers.items():
         with_key = [name for name, learner in learners.items() if read(learner)]

@@ -153,8 +153,8 @@ TEAM = Section('team', 'Team keys', 'entry', keys=(
         '`softmax(logits / T)`; see [Deployment rules](#deployment-rules)'),
     Key('deploy_filter', 'deploy_filter', None, nullable=True,
         help='the DCBF rules the trained team acts under, `{neglect_bound: B \\| auto, '
-        'neglect_scope: S, leave_cleared: true, pass_held: true}` (the scope is optional; the bound may be '
-        'left out where a switch is on); `null`: the filter it trained '
+        'neglect_scope: S, leave_cleared: true, pass_held: true, keep_moving: true}` (the scope is optional; '
+        'the bound may be left out where a switch is on); `null`: the filter it trained '
         'under; see [Deployment rules](#deployment-rules)'),
     Key('learning_rate_spread', 'float', 1.0, low=1.0,
         help="the fastest learner's learning rate over the slowest's; `1`: every learner the same; see "
@@ -286,6 +286,9 @@ DCBF = Section(
     Key('pass_held', 'bool', False,
         help="rule 10: an agent off targets whose advised next node holds another agent waits a step, "
         "then takes it; needs `advice_input`; usually set after training by `deploy_filter`"),
+    Key('keep_moving', 'bool', False,
+        help="rule 11: an agent off targets whose advised next node is another, free node does not "
+        "stay; needs `advice_input`; usually set after training by `deploy_filter`"),
 ))
 
 ENV = Section('env', 'Environment keys (`env_kwargs`)', 'env_kwargs', keys=(

@@ -122,8 +122,8 @@ class DeploymentRule(Team):
 
     def acting_record(self, deterministic: bool) -> dict[str, Any]:
         """The sampling temperature (when sampling), the neglect bound the team acts under, and
-        ``leave_cleared: True`` / ``pass_held: True`` where its policies act under the filter's
-        rule 9 / rule 10."""
+        ``leave_cleared`` / ``pass_held`` / ``keep_moving: True`` where its policies act under the
+        filter's rule 9 / 10 / 11."""
         from sb3_pm.policies.dcbf import FILTER_SWITCHES
 
         record: dict[str, Any] = {}
@@ -241,7 +241,7 @@ class DeploymentRule(Team):
         :raises InputError: a policy without the DCBF filter, or an unknown or invalid setting; no
             policy changes then.
         """
-        from sb3_pm.policies.dcbf import DCBFConfig, check_bound_below_cap
+        from sb3_pm.policies.dcbf import ADVICE_SWITCHES, DCBFConfig, check_bound_below_cap
 
         names = {f.name for f in fields(DCBFConfig)}
         unknown = sorted(set(changes) - names)
@@ -252,11 +252,12 @@ class DeploymentRule(Team):
             raise InputError(f"neglect_bound must be a number (or None), got {bound!r}")
         if "territory" in changes:
             raise InputError("territory is set by neglect_scope='territory', from the team's graph")
-        if changes.get("pass_held") and self.env_settings().get("advice_input") is not True:
-            raise InputError(
-                "pass_held (the filter's rule 10) reads the advised node: the team needs env_kwargs "
-                "advice_input: true, which its env settings do not have"
-            )
+        for switch in ADVICE_SWITCHES:
+            if changes.get(switch) and self.env_settings().get("advice_input") is not True:
+                raise InputError(
+                    f"{switch} (a filter rule) reads the advised node: the team needs env_kwargs "
+                    "advice_input: true, which its env settings do not have"
+                )
         policies = self.acting_policies()
         for name, policy in policies.items():  # every check before any policy changes
             if not getattr(policy, "use_dcbf", False):
