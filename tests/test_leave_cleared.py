@@ -23,9 +23,12 @@ def allowed(
     u_here: float = 0.0,
     occupied: list[int] | None = None,
     deadline: list[int] | None = None,
+    dwell: float = 5.0,
+    advice: int | None = None,
     **config: object,
 ) -> list[int]:
-    """The nodes :func:`dcbf_mask` allows an agent on node 0 (barrier off, so ``S = R`` first)."""
+    """The nodes :func:`dcbf_mask` allows an agent on node 0 (barrier off, so ``S = R`` first),
+    advised to go to node ``advice`` (``None``: no advice column)."""
     forced = None
     if deadline is not None:
         forced = (th.tensor([True]), th.tensor([[i in deadline for i in range(N)]]))
@@ -35,10 +38,11 @@ def allowed(
         th.tensor([0]),
         th.tensor([on_target]),
         th.tensor([u_here]),
-        th.tensor([5.0]),
+        th.tensor([dwell]),
         th.tensor([[i in (occupied or []) for i in range(N)]]),
         DCBFConfig(barrier=False, **config),  # type: ignore[arg-type]
         forced,
+        None if advice is None else th.tensor([[i == advice for i in range(N)]]),
     )
     return th.nonzero(mask[0]).flatten().tolist()
 

@@ -18,8 +18,8 @@ from sb3_pm.errors import InputError
 from sb3_pm.policies.dcbf import DCBFConfig, check_deploy_filter, dcbf_filter_from_map, dcbf_mask
 from tests.conftest import path_graph
 from tests.test_advice_input import KNOWN, small_team
-
-N = 5
+from tests.test_leave_cleared import N
+from tests.test_leave_cleared import allowed as rule_allowed
 
 
 def allowed(
@@ -31,23 +31,18 @@ def allowed(
     deadline: list[int] | None = None,
     **config: object,
 ) -> list[int]:
-    """The nodes :func:`dcbf_mask` allows an agent on node 0 (barrier off, so ``S = R`` first)."""
-    forced = None
-    if deadline is not None:
-        forced = (th.tensor([True]), th.tensor([[i in deadline for i in range(N)]]))
-    mask = dcbf_mask(
-        th.zeros(1, N),
-        th.tensor([[i in reachable for i in range(N)]]),
-        th.tensor([0]),
-        th.tensor([on_target]),
-        th.tensor([0.0]),
-        th.tensor([dwell]),
-        th.tensor([[i in (occupied or []) for i in range(N)]]),
-        DCBFConfig(barrier=False, **config),  # type: ignore[arg-type]
-        forced,
-        None if advice is None else th.tensor([[i == advice for i in range(N)]]),
+    """The nodes the filter allows an agent on node 0, off targets by default, just arrived and
+    advised to go to node 1 (:func:`tests.test_leave_cleared.allowed` with these defaults)."""
+    return rule_allowed(
+        reachable,
+        on_target=on_target,
+        u_here=0.0,
+        occupied=occupied,
+        deadline=deadline,
+        dwell=dwell,
+        advice=advice,
+        **config,
     )
-    return th.nonzero(mask[0]).flatten().tolist()
 
 
 class TestRule:
@@ -85,9 +80,7 @@ class TestRule:
         assert kept == [0]
 
     def test_without_the_advised_node_it_is_refused_by_name(self) -> None:
-        with pytest.raises(
-            InputError, match=r"\(rules 10, 11\) need the advised node"
-        ):
+        with pytest.raises(InputError, match=r"\(rules 10, 11\) need the advised node"):
             allowed([0, 1], advice=None, pass_held=True)
         with pytest.raises(InputError, match="pass_held must be true or false"):
             DCBFConfig(pass_held="yes")  # type: ignore[arg-type]

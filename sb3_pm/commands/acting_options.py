@@ -83,19 +83,10 @@ def apply_neglect_bound(team: Any, bound: float | str | None, scope: str | None 
     team.set_filter(neglect_bound=bound, neglect_scope=scope)
 
 
-def apply_leave_cleared(team: Any, choice: str | None) -> None:
-    """``--leave-cleared on|off``: switch the filter's rule 9 on a trained DCBF team (an agent on a
-    target it observes cleared does not stay there); ``None``: as the team's deploy_filter says."""
-    if choice is None:
-        return
-    require_filter(team, "--leave-cleared")
-    team.set_filter(leave_cleared=choice == "on")
-
-
 def apply_switch(team: Any, switch: str, choice: str | None) -> None:
-    """``--pass-held on|off`` or ``--keep-moving on|off``: switch the filter's rule 10 or 11
-    (``switch``: ``pass_held`` or ``keep_moving``) on a trained DCBF team; ``None``: as the
-    team's deploy_filter says."""
+    """``--leave-cleared``, ``--pass-held`` or ``--keep-moving on|off``: switch the filter's rule 9,
+    10 or 11 (``switch``: one of :data:`~sb3_pm.policies.dcbf.FILTER_SWITCHES`) on a trained DCBF
+    team; ``None``: as the team's deploy_filter says."""
     if choice is None:
         return
     require_filter(team, "--" + switch.replace("_", "-"))
@@ -134,6 +125,12 @@ def add_switch_options(parser: argparse.ArgumentParser) -> None:
             default=None,
             help=help_text + "; default: as the team's deploy_filter says",
         )
+
+
+def apply_switches(team: Any, args: argparse.Namespace) -> None:
+    """Every filter switch flag of ``args`` (:func:`add_switch_options`) on ``team``."""
+    for switch in _SWITCH_HELP:
+        apply_switch(team, switch, getattr(args, switch))
 
 
 def switch_notices(team: Any, args: argparse.Namespace) -> list[str]:
@@ -176,9 +173,9 @@ __all__ = [
     "BOUND_OFF",
     "acting_rule",
     "add_switch_options",
-    "apply_leave_cleared",
     "apply_neglect_bound",
     "apply_switch",
+    "apply_switches",
     "apply_temperature",
     "neglect_bound_option",
     "require_filter",

@@ -13,9 +13,8 @@ from sb3_pm.commands.acting_options import (
     BOUND_OFF,
     acting_rule,
     add_switch_options,
-    apply_leave_cleared,
     apply_neglect_bound,
-    apply_switch,
+    apply_switches,
     apply_temperature,
     neglect_bound_option,
     resolve_auto_bound,
@@ -335,9 +334,7 @@ def run(args: argparse.Namespace) -> int:
         calibration = resolve_auto_bound(args, team, graph, team.env_settings())
     else:
         apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
-    apply_leave_cleared(team, args.leave_cleared)
-    for switch in ("pass_held", "keep_moving"):
-        apply_switch(team, switch, getattr(args, switch))
+    apply_switches(team, args)
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
     acting_filter = team.acting_filter()  # after the flags
@@ -421,9 +418,7 @@ def run(args: argparse.Namespace) -> int:
     if args.gif is not None:
         gif_team = resolve_team(args.policy, graph=graph, device=args.device, layout=args.layout)
         apply_neglect_bound(gif_team, args.neglect_bound, args.neglect_scope)
-        apply_leave_cleared(gif_team, args.leave_cleared)
-        for switch in ("pass_held", "keep_moving"):
-            apply_switch(gif_team, switch, getattr(args, switch))
+        apply_switches(gif_team, args)
         apply_temperature(gif_team, args.temperature, args.stochastic)
         with sigterm_as_interrupt():  # a stopped GIF leaves the previous file, and no temporary one
             record_gif(

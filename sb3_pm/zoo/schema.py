@@ -12,8 +12,9 @@ these), only the team defaults of :data:`TEAM`. The module imports nothing heavy
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
+
+from sb3_pm.zoo.schema_key import KINDS, Key, Section
 
 #: The tag of the last release with the research switches below (docs/RESEARCH_SNAPSHOT.md).
 RESEARCH_TAG = "v0.1.0-research"
@@ -34,95 +35,6 @@ REMOVED_KEYS: dict[str, str] = {
     "reward: urgency": "env_kwargs",
     "reward: neglect": "env_kwargs",
 }
-
-#: Value kinds: ``int``, ``float``, ``bool``, ``str``, ``schedule`` (a number or ``lin_<number>``),
-#: ``mapping``, ``list``, ``reward`` (a preset name or ``{term: weight}``), ``any`` (not checked
-#: beyond ``null``), and the team's own ``deploy_temperature`` and ``deploy_filter``.
-KINDS = (
-    "int",
-    "float",
-    "bool",
-    "str",
-    "schedule",
-    "mapping",
-    "list",
-    "reward",
-    "any",
-    "deploy_temperature",
-    "deploy_filter",
-)
-
-
-@dataclass(frozen=True)
-class Key:
-    """One config key.
-
-    :param name: as a config writes it.
-    :param kind: one of :data:`KINDS`.
-    :param default: the value that applies when the key is left out (documentation, see the module
-        docstring), or a phrase in ``default_text``.
-    :param help: one line for the docs table.
-    :param choices: the allowed values of a ``str`` key (empty: any string).
-    :param low: the smallest allowed number (``low_open``: excluded); ``None``: no lower bound.
-    :param high: the largest allowed number (``high_open``: excluded); ``None``: no upper bound.
-    :param nullable: ``null`` is allowed.
-    :param algos: the algorithms that take it (empty: every one).
-    :param default_text: the default as the docs table writes it, where ``default`` cannot say it.
-    :param expects: what an error says a ``str`` key expected (empty: its choices, or a name).
-    """
-
-    name: str
-    kind: str
-    default: Any
-    help: str
-    choices: tuple[Any, ...] = ()
-    low: float | None = None
-    high: float | None = None
-    low_open: bool = False
-    high_open: bool = False
-    nullable: bool = False
-    algos: tuple[str, ...] = ()
-    default_text: str = ""
-    expects: str = ""
-
-    def __post_init__(self) -> None:
-        if self.kind not in KINDS:  # a typo in this file, caught on import
-            raise ValueError(f"key {self.name!r}: unknown kind {self.kind!r}")
-
-    def range_text(self) -> str:
-        """The allowed values, as the docs table and the errors write them (``>= 1``, ``(0, 1]``)."""
-        if self.choices:
-            text = ", ".join(f"{choice}" for choice in self.choices)
-        elif self.low is not None and self.high is not None:
-            left, right = "(" if self.low_open else "[", ")" if self.high_open else "]"
-            text = f"{left}{self.low:g}, {self.high:g}{right}"
-        elif self.low is not None:
-            text = f"{'>' if self.low_open else '>='} {self.low:g}"
-        elif self.high is not None:
-            text = f"{'<' if self.high_open else '<='} {self.high:g}"
-        else:
-            text = ""
-        if self.nullable:
-            text = f"{text} or null" if text else "null allowed"
-        return text
-
-
-@dataclass(frozen=True)
-class Section:
-    """A group of keys: where a config writes them and the docs table that lists them
-(:mod:`sb3_pm.zoo.schema_doc`)."""
-
-    name: str
-    title: str
-    #: ``entry`` (top level of an entry), ``policy_kwargs``, ``env_kwargs`` or ``reward``.
-    where: str
-    keys: tuple[Key, ...]
-    #: Only this policy takes the section's keys (empty: every policy).
-    policy: str = ""
-
-    def names(self) -> tuple[str, ...]:
-        return tuple(key.name for key in self.keys)
-
 
 _NUMBER = {"low": 0.0, "low_open": True}  # positive
 _UNIT = {"low": 0.0, "low_open": True, "high": 1.0}  # (0, 1]
@@ -257,6 +169,15 @@ ACTOR_CRITIC = Section('actor_critic', 'Actor and critic (every policy)', 'polic
         'flags; see [below](#advice-prior)'),
 ))
 
+#: The filter's on/off rules (9 to 11), each a bool key.
+_FILTER_SWITCHES = {
+    'leave_cleared': 'rule 9: an agent on a target it observes cleared (u = 0) does not stay there',
+    'pass_held': 'rule 10: an agent off targets whose advised next node holds another agent waits a '
+    'step, then takes it; needs `advice_input`',
+    'keep_moving': 'rule 11: an agent off targets whose advised next node is another, free node does '
+    'not stay; needs `advice_input`',
+}
+
 DCBF = Section(
     'dcbf', '`DCBFPolicy`: the DCBF filter (`sb3_pm.policies.dcbf.DCBFConfig`)', 'policy_kwargs',
     policy='DCBFPolicy', keys=(
@@ -280,15 +201,8 @@ DCBF = Section(
         help="the targets rule 8 covers (`territory`: the agent's own)"),
     Key('neglect_territory', 'list', [], default_text='`[]`',
         help="the agent's own targets, for `neglect_scope: territory` (filled in by `deploy_filter`)"),
-    Key('leave_cleared', 'bool', False,
-        help='rule 9: an agent on a target it observes cleared (u = 0) does not stay there; usually '
-        'set after training by `deploy_filter`'),
-    Key('pass_held', 'bool', False,
-        help="rule 10: an agent off targets whose advised next node holds another agent waits a step, "
-        "then takes it; needs `advice_input`; usually set after training by `deploy_filter`"),
-    Key('keep_moving', 'bool', False,
-        help="rule 11: an agent off targets whose advised next node is another, free node does not "
-        "stay; needs `advice_input`; usually set after training by `deploy_filter`"),
+    *(Key(switch, 'bool', False, help=f'{rule}; usually set after training by `deploy_filter`')
+      for switch, rule in _FILTER_SWITCHES.items()),
 ))
 
 ENV = Section('env', 'Environment keys (`env_kwargs`)', 'env_kwargs', keys=(
@@ -437,6 +351,7 @@ def algorithm_keys(algo: str) -> dict[str, Key]:
 
 __all__ = [
     "EXPERIMENT_SECTIONS",
+    "KINDS",
     "KEYS",
     "POLICY_KEYS",
     "RECORDED_TEAM_KEYS",

@@ -3,12 +3,17 @@ seeds, beside the same teams without it and the rule, per graph (summary.txt).
 
 Run from this folder: python summary.py. Reads heldout_G_sS.json here, and
 ../held_out_imitation/imit_G_sS.json and ../held_out_prior4/territory_patrol_G_sS.json and
-p4_plain_G_sS.json (the same episodes).
+p4_plain_G_sS.json (the same episodes). From ../transfer_keep_moving/ (rules 10 and 11 against
+rule 10 alone): python ../transfer_pass_held/summary.py ../transfer_pass_held/heldout "rules 10 and 11" "rule 10 alone"
 """
 
 import json
+import sys
 
 import numpy as np
+
+#: The runs compared, and the two columns' names: this folder's runs' and theirs.
+AGAINST, OURS, THEIRS = (sys.argv[1:4] if len(sys.argv) > 3 else ("../held_out_imitation/imit", "rule 10", "without rule 10"))
 
 GRAPHS = ["rgg-60", "rooms-4", "cliques-6x8", "karate", "small-world-60", "tree-50"]
 
@@ -27,12 +32,12 @@ def worst(runs):
 
 
 print(
-    "graph | rule 10 (x rule) | per seed | x lower bound | without rule 10 (x rule) | prior 4 (x rule) | rule"
-    " | worst max_neglect: rule 10 / without / rule"
+    f"graph | {OURS} (x rule) | per seed | x lower bound | {THEIRS} (x rule) | prior 4 (x rule) | rule"
+    f" | worst max_neglect: {OURS} / {THEIRS} / rule"
 )
 for graph in GRAPHS:
     shipped = [load(f"heldout_{graph}_s{s}.json") for s in range(3)]
-    without = [load(f"../held_out_imitation/imit_{graph}_s{s}.json") for s in range(3)]
+    without = [load(f"{AGAINST}_{graph}_s{s}.json") for s in range(3)]
     prior4 = [load(f"../held_out_prior4/p4_plain_{graph}_s{s}.json") for s in range(3)]
     rule = [load(f"../held_out_prior4/territory_patrol_{graph}_s{s}.json") for s in range(3)]
     r = mean(rule)
