@@ -1,6 +1,6 @@
 """``sb3-pm evaluate``'s acting-rule options: ``--neglect-bound`` (a number, ``off`` or ``auto``),
-``--neglect-scope``, ``--leave-cleared``, ``--pass-held``, ``--keep-moving``, ``--temperature``,
-``--stochastic`` and ``--deterministic``, checked against the team and applied to it."""
+``--neglect-scope``, ``--leave-cleared``, ``--pass-held``, ``--keep-moving``, ``--visit-deadline``,
+``--temperature``, ``--stochastic`` and ``--deterministic``, checked against the team and applied to it."""
 
 from __future__ import annotations
 
@@ -125,22 +125,73 @@ def add_switch_options(parser: argparse.ArgumentParser) -> None:
             default=None,
             help=help_text + "; default: as the team's deploy_filter says",
         )
+    parser.add_argument(
+        "--visit-deadline",
+        type=visit_deadline_option,
+        default=None,
+        metavar="D|auto|off",
+        help="the filter's rule 12 on a trained DCBF team: each agent stands on every target of its "
+        "territory, and on those no territory holds that it sweeps, at least every D steps; auto: "
+        "territory_patrol's worst max_neglect on 10 calibration episodes; default: as the team's "
+        "deploy_filter says",
+    )
 
 
-def apply_switches(team: Any, args: argparse.Namespace) -> None:
-    """Every filter switch flag of ``args`` (:func:`add_switch_options`) on ``team``."""
+def visit_deadline_option(text: str) -> int | str:
+    """``--visit-deadline``'s value: a whole number of steps, ``off`` or ``auto``."""
+    word = text.strip().lower()
+    if word in (BOUND_OFF, BOUND_AUTO):
+        return word
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number of steps, 'off' or 'auto', got {text!r}"
+        ) from None
+
+
+def apply_switches(
+    team: Any, args: argparse.Namespace, graph: Any = None, env_kwargs: dict[str, Any] | None = None
+) -> None:
+    """Every filter switch flag of ``args`` (:func:`add_switch_options`) on ``team``, and
+    ``--visit-deadline`` (``auto``: calibrated on ``graph`` with ``env_kwargs``, the team's
+    settings without failures)."""
     for switch in _SWITCH_HELP:
         apply_switch(team, switch, getattr(args, switch))
+    deadline = getattr(args, "visit_deadline", None)
+    if deadline is None:
+        return
+    require_filter(team, "--visit-deadline")
+    if deadline == BOUND_AUTO:
+        from sb3_pm.evaluation.neglect_calibration import CALIBRATION_EPISODES, calibrate_visit_deadline
+
+        deadline = calibrate_visit_deadline(graph, args.agents, env_kwargs, max_cycles=args.steps)
+        args.visit_deadline = deadline
+        print(
+            f"visit deadline {deadline} steps: territory_patrol's worst max_neglect over "
+            f"{CALIBRATION_EPISODES} calibration episodes",
+            file=sys.stderr,
+        )
+    team.set_filter(visit_deadline=None if deadline == BOUND_OFF else deadline)
 
 
 def switch_notices(team: Any, args: argparse.Namespace) -> list[str]:
     """One line per filter switch the team acts under by its own deploy_filter (not by a flag)."""
     record = team.acting_record(True)
-    return [
+    notices = [
         f"the team acts under the filter's {notice}"
         for switch, notice in _SWITCH_NOTICES.items()
         if getattr(args, switch) is None and record.get(switch)
     ]
+    deadline = team.filter_settings.get("visit_deadline") if team.learned else None
+    if getattr(args, "visit_deadline", None) is None and deadline is not None:
+        source = " (calibrated on territory_patrol for this site)" if deadline == BOUND_AUTO else ""
+        notices.append(
+            f"the team acts under the filter's rule 12, visit_deadline {deadline}{source}: each agent "
+            "stands on every target of its territory and sweep at least that often (--visit-deadline off "
+            "to act without it)"
+        )
+    return notices
 
 
 def apply_temperature(team: Any, temperature: float | None, stochastic: bool = False) -> None:
@@ -176,6 +227,7 @@ __all__ = [
     "apply_neglect_bound",
     "apply_switch",
     "apply_switches",
+    "visit_deadline_option",
     "apply_temperature",
     "neglect_bound_option",
     "require_filter",

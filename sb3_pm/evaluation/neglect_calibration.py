@@ -39,6 +39,7 @@ from sb3_pm.envs.core import DEFAULT_U_MAX
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.graphs import GraphLike, resolve_graph
+from sb3_pm.policies.dcbf import SITE_BOUND
 
 #: ``B = ceil(MARGIN · P)``: the territory rule's worst peak itself (module docstring).
 MARGIN = 1.0
@@ -143,6 +144,37 @@ def calibrate_neglect_bound(
     )
 
 
+def calibrate_visit_deadline(
+    graph: GraphLike,
+    n_agents: int,
+    env_kwargs: Mapping[str, Any] | None = None,
+    max_cycles: int = 500,
+    episodes: int = CALIBRATION_EPISODES,
+    seed: int = CALIBRATION_SEED,
+) -> int:
+    """The filter's rule 12 deadline for a site (``visit_deadline: auto``): the worst
+    ``max_neglect`` of ``territory_patrol`` over the calibration episodes, so that a team under it
+    lets no target wait longer than the rule let one (as long as no two of an agent's targets are
+    due together). At least 1.
+
+    :param graph: the deployment site; ``n_agents``: the team size (the rule's split follows it).
+    :param env_kwargs: the deployment's environment settings, without agent failures.
+    :raises InputError: for ``episodes < 1``.
+    """
+    if episodes < 1:
+        raise InputError(f"calibration episodes must be at least 1, got {episodes}")
+    result = evaluate(
+        make_team("territory_patrol"),
+        resolve_graph(graph),
+        n_agents=n_agents,
+        episodes=episodes,
+        seed=seed,
+        max_cycles=max_cycles,
+        env_kwargs=dict(env_kwargs or {}),
+    )
+    return max(1, math.ceil(max(float(record.metrics["max_neglect"]) for record in result.episodes)))
+
+
 #: Env settings of a deployment that a calibration leaves out: the bound is for the team as
 #: deployed, not as its agents fail.
 _NOT_CALIBRATED = ("failures", "failure_rate")
@@ -182,6 +214,27 @@ def settle_site_bound(
     return calibration
 
 
+def settle_visit_deadline(
+    team: Any, graph: GraphLike, n_agents: int, env_kwargs: Mapping[str, Any], max_cycles: int
+) -> int | None:
+    """Give a team whose filter has ``visit_deadline: auto`` its deadline for this site, team size
+    and episode length (:func:`calibrate_visit_deadline`, agent failures left out), once per site;
+    ``None`` (nothing done) for a team without it. Returns the deadline."""
+    if not team.learned or team.filter_settings.get("visit_deadline") != SITE_BOUND:
+        return None
+    from sb3_pm.agents.deployment.visit_memory import settle_deadline, site_key
+
+    spec = resolve_graph(graph)
+    key = site_key(spec, n_agents, max_cycles)
+    known = team.__dict__.get("_site_deadline")
+    if known is not None and known[0] == key:
+        return int(known[1])
+    kwargs = {key: value for key, value in env_kwargs.items() if key not in _NOT_CALIBRATED}
+    deadline = calibrate_visit_deadline(spec, n_agents, kwargs, max_cycles=max_cycles)
+    settle_deadline(team, key, deadline)
+    return deadline
+
+
 def unsettle_site_bound(team: Any) -> None:
     """Undo :func:`settle_site_bound` (the deployment it was for failed): no bound, and a site
     still to calibrate."""
@@ -194,6 +247,8 @@ __all__ = [
     "MARGIN",
     "CalibratedBound",
     "calibrate_neglect_bound",
+    "calibrate_visit_deadline",
     "settle_site_bound",
+    "settle_visit_deadline",
     "unsettle_site_bound",
 ]

@@ -47,6 +47,7 @@ __all__ = [
     "check_convention",
     "is_planned",
     "planned_territory",
+    "sweep_targets",
     "team_territory",
 ]
 
@@ -117,3 +118,32 @@ def team_territory(
         return planned_territory(graph, starts, max_cycles, u_max, tours=convention == "planned_tours")
     n_agents = int(np.asarray(starts).size)
     return TeamTerritories.stalest(site_territory_nodes(graph, n_agents))
+
+
+def sweep_targets(
+    territory: np.ndarray, target_indices: np.ndarray, to_targets: np.ndarray, starts: np.ndarray
+) -> np.ndarray:
+    """The targets no territory holds, each handed to one agent to sweep (the filter's rule 12,
+    :mod:`sb3_pm.policies.visit_deadline`): to the agent whose territory comes nearest to it in
+    hops, or whose start does where its territory is empty; ties to the lower agent index. Every
+    agent computes the same from the agreed territories and starts, so it needs no communication.
+
+    :param territory: ``(n_agents, N)`` bool, each agent's territory.
+    :param target_indices: ``(T,)`` the site's target nodes.
+    :param to_targets: ``(N, T)`` hop distances from every node to each target
+        (``graph.routes.to_targets``).
+    :param starts: ``(n_agents,)`` each agent's start node.
+    :return: ``(n_agents, N)`` bool, True on the targets agent ``i`` sweeps.
+    """
+    territory = np.asarray(territory, dtype=bool)
+    targets = np.asarray(target_indices, dtype=np.int64)
+    swept = np.zeros_like(territory)
+    dropped = np.flatnonzero(~territory[:, targets].any(0))  # columns of targets nobody holds
+    if dropped.size == 0:
+        return swept
+    table = np.asarray(to_targets)[:, dropped]  # (N, k)
+    reach = np.stack(
+        [table[row].min(0) if row.any() else table[int(start)] for row, start in zip(territory, starts)]
+    )  # (n_agents, k): hops from each agent's nearest territory node (or its start)
+    swept[reach.argmin(0), targets[dropped]] = True  # argmin: the first (lowest) agent on a tie
+    return swept

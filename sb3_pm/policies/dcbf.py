@@ -40,7 +40,13 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
     agent off targets whose advised next node is another node, not observed held, does not stay:
     its own node is dropped from ``S`` after rule 10, unless that empties ``S``. A learner can
     idle on a node it rarely met in training (a leaf of a tree) for a whole episode while the
-    rule says to move on (research/LOG.md). Gated by rule 7; rule 8 overrides it.
+    rule says to move on (research/LOG.md). Gated by rule 7; rule 8 overrides it;
+12. ``visit_deadline`` ``D`` (not in the paper; deployment only, off unless set): the agent stands
+    on each target of its visit set at least once every ``D`` steps. The set is its territory and
+    the targets that no territory holds which the convention hands it to sweep; the projection is
+    the agent's own memory of its visits (:mod:`sb3_pm.policies.visit_deadline`), which the
+    deployed team keeps. Where a target is due, the mask is the next hops towards it, as rule 8's;
+    it overrides rules 2-7 and 9-11 and yields to rule 8.
 
 ``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
 among all reachable nodes but still dwells on a target until it is cleared. This is not in the
@@ -64,6 +70,7 @@ from sb3_pm.envs.mental_map import AGE, FEATURES, OCCUPIED, TARGET, U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.edges import is_edge_layout
 from sb3_pm.policies.neglect_bound import neglect_deadline
+from sb3_pm.policies.visit_deadline import VISIT_AGE, VISIT_TARGETS, check_visit_deadline, visit_hops
 
 NEGLECT_SCOPES = ("known", "unserved", "territory")
 #: The filter's on/off rules a deployment may switch: rules 9, 10 and 11.
@@ -91,6 +98,8 @@ class DCBFConfig:
     :param leave_cleared: apply rule 9 (an agent on a target it observes cleared does not stay).
     :param pass_held: apply rule 10 (an agent whose advised node is held waits a step, then passes).
     :param keep_moving: apply rule 11 (an agent off targets advised to a free node does not stay).
+    :param visit_deadline: rule 12's deadline ``D`` in steps (``None``: rule 12 off); deployment
+        only, since it reads the team's memory of its visits.
     """
 
     eta: float = 0.1
@@ -104,6 +113,7 @@ class DCBFConfig:
     leave_cleared: bool = False
     pass_held: bool = False
     keep_moving: bool = False
+    visit_deadline: int | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.eta <= 1.0:
@@ -121,6 +131,8 @@ class DCBFConfig:
         for switch in FILTER_SWITCHES:
             if not isinstance(getattr(self, switch), bool):
                 raise InputError(f"{switch} must be true or false, got {getattr(self, switch)!r}")
+        if self.visit_deadline is not None:
+            check_visit_deadline(self.visit_deadline)
 
 
 def check_bound_below_cap(bound: float | None, u_max: float) -> None:
@@ -137,7 +149,7 @@ def check_bound_below_cap(bound: float | None, u_max: float) -> None:
 
 
 #: The DCBF settings a trained team may switch on for deployment (a config's ``deploy_filter``).
-DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope", *FILTER_SWITCHES)
+DEPLOY_FILTER_KEYS = ("neglect_bound", "neglect_scope", *FILTER_SWITCHES, "visit_deadline")
 #: ``deploy_filter: {neglect_bound: auto}``: a territory bound measured on each site the team is
 #: deployed on, before it acts there (:mod:`sb3_pm.evaluation.neglect_calibration`).
 SITE_BOUND = "auto"
@@ -146,13 +158,14 @@ SITE_BOUND = "auto"
 def check_deploy_filter(value: object) -> dict[str, object] | None:
     """A team's deployment filter: ``None`` (act with the filter it trained under) or a mapping
     ``{neglect_bound: B, neglect_scope: known | unserved | territory, leave_cleared: bool,
-    pass_held: bool}``.
+    pass_held: bool, keep_moving: bool, visit_deadline: D}``.
 
     The scope is optional (``known`` by default), checked as :class:`DCBFConfig` checks it;
     ``neglect_bound: auto`` is a territory bound calibrated on each deployment site (scope
     ``territory``, the only one it takes). The switches ``leave_cleared`` (rule 9) and
-    ``pass_held`` (rule 10) are optional and kept only where given; with one of them on the bound
-    may be left out (``neglect_bound: null``: the switches alone).
+    ``pass_held`` (rule 10), ``keep_moving`` (rule 11) and the deadline ``visit_deadline`` (rule
+    12, in steps) are optional and kept only where given; with one of them on the bound may be left
+    out (``neglect_bound: null``: those alone).
 
     :raises InputError: anything else, naming the problem.
     """
@@ -169,6 +182,9 @@ def check_deploy_filter(value: object) -> dict[str, object] | None:
             if not isinstance(value[switch], bool):
                 raise InputError(f"{switch} must be true or false, got {value[switch]!r}")
             switches[switch] = value[switch]
+    deadline = value.get("visit_deadline")
+    if deadline is not None:  # rule 12, kept where given, as the switches; auto: per site
+        switches["visit_deadline"] = SITE_BOUND if deadline == SITE_BOUND else check_visit_deadline(deadline)
     bound = value.get("neglect_bound")
     if bound is None and switches:
         # the checked form's scope is known (what a saved team's manifest holds): any other needs a bound
@@ -233,8 +249,9 @@ def dcbf_mask(
     config: DCBFConfig = DCBFConfig(),
     deadline: tuple[th.Tensor, th.Tensor] | None = None,
     advice: th.Tensor | None = None,
+    visit: tuple[th.Tensor, th.Tensor] | None = None,
 ) -> th.Tensor:
-    """Apply rules 1-11 to a batch.
+    """Apply rules 1-12 to a batch.
 
     :param u_hat: predicted (or last observed) uncertainty per node.
     :param reachable: the reachable set ``R`` (bool).
@@ -247,6 +264,8 @@ def dcbf_mask(
     :param deadline: rule 8's ``(forced, next_hops)`` from
         :func:`~sb3_pm.policies.neglect_bound.neglect_deadline` (``None``: rule 8 off).
     :param advice: the advised next node, one-hot (bool); read by rules 10 and 11 only, which need it.
+    :param visit: rule 12's ``(forced, next_hops)`` from
+        :func:`~sb3_pm.policies.visit_deadline.visit_hops` (``None``: rule 12 off).
     :return: the mask ``S`` (bool), never all-false.
 
     Shapes:
@@ -254,6 +273,7 @@ def dcbf_mask(
         - position, on_target, u_here, dwell: ``(B,)``
         - deadline: ``(B,)`` bool, ``(B, N)`` bool
         - advice: ``(B, N)`` bool
+        - visit: ``(B,)`` bool, ``(B, N)`` bool
         - output: ``(B, N)`` bool
     """
     reachable = reachable.bool()
@@ -295,12 +315,15 @@ def dcbf_mask(
     # Rule 7: the filter is active only where max û >= γ.
     active = u_max_all >= config.gamma_threshold
     mask = th.where(active, safe, reachable)
-    if deadline is not None:  # rule 8 overrides rules 2-7; rule 6 may thin, never empty, the hops
-        forced, hops = deadline
-        hops = hops & reachable
-        if config.avoid_collisions:
-            hops = _non_empty(hops & ~occupied_now.bool(), hops)
-        mask = th.where((forced & hops.any(-1)).unsqueeze(-1), hops, mask)
+    # Rule 12 first, so that rule 8, applied after it, overrides it; both override rules 2-11, and
+    # rule 6 may thin, never empty, their hops.
+    for rule in (visit, deadline):
+        if rule is not None:
+            forced, hops = rule
+            hops = hops & reachable
+            if config.avoid_collisions:
+                hops = _non_empty(hops & ~occupied_now.bool(), hops)
+            mask = th.where((forced & hops.any(-1)).unsqueeze(-1), hops, mask)
     return _non_empty(_non_empty(mask, reachable), th.ones_like(mask))
 
 
@@ -329,7 +352,9 @@ def dcbf_filter_from_map(
         - observations: ``nodes`` ``(B, N, 5)``, ``adjacency`` ``(B, N, N)``, ``position``
           ``(B, N)``, ``dwell`` ``(B, 1)``, ``action_mask`` ``(B, N)``, optionally
           ``neglect_territory`` ``(B, N)`` bool (each map's territory, in place of
-          ``config.territory``); u_hat: ``(B, N)``
+          ``config.territory``), and with rule 12 ``visit_targets`` ``(B, N)`` bool and
+          ``visit_age`` ``(B, N)`` float (the team's memory, :mod:`sb3_pm.policies.visit_deadline`);
+          u_hat: ``(B, N)``
         - output: the mask ``(B, N)`` bool and ``forced`` ``(B,)`` bool (rule 8 chose the mask;
           all false when rule 8 is off)
     """
@@ -365,6 +390,26 @@ def dcbf_filter_from_map(
             config.neglect_bound,
             u_max,
         )
+    visit = None
+    if config.visit_deadline is not None:
+        if VISIT_TARGETS not in observations or VISIT_AGE not in observations:
+            raise InputError(
+                "the filter's visit_deadline (rule 12) reads the team's memory of its visits: deploy "
+                "the team (team.predict, evaluate()), not a bare policy"
+            )
+        visit = visit_hops(
+            nodes[..., U],
+            nodes[..., AGE],
+            observations[VISIT_AGE],
+            observations[VISIT_TARGETS],
+            (observations["edge_index"], observations["edge_mask"])
+            if is_edge_layout(observations)
+            else observations["adjacency"],
+            position,
+            reachable,
+            config.visit_deadline,
+            u_max,
+        )
     mask = dcbf_mask(
         u_hat,
         reachable,
@@ -379,6 +424,7 @@ def dcbf_filter_from_map(
         nodes[..., -1] > 0.5
         if (config.pass_held or config.keep_moving) and nodes.shape[-1] > len(FEATURES)
         else None,
+        visit,
     )
     forced = deadline[0] if deadline is not None else th.zeros_like(rows, dtype=th.bool)
     return mask, forced

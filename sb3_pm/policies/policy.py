@@ -44,6 +44,7 @@ from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.heads import ActorCriticHeads, masked_mode
 from sb3_pm.policies.sampling import check_temperature, tempered_logits
 from sb3_pm.policies.settings import FilterSettings, PolicySettings, check_advice_weight
+from sb3_pm.policies.visit_deadline import VISIT_AGE, VISIT_TARGETS
 
 #: The keys of a map observation in the env's dense layout (the edges layout's: ``EDGE_MAP_KEYS``).
 MAP_KEYS = DENSE_MAP_KEYS
@@ -132,6 +133,9 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         #: diagnostic read by ``DeploymentRule.filter_activity()``, never saved. ``forced`` is summed
         #: as a tensor, so counting costs no device synchronisation per forward pass.
         self.filter_counts: dict[str, Any] = {"masks": 0, "forced": 0}
+        #: Rule 12's inputs for the maps of the next call, ``(visit set, steps since the agent's own
+        #: visit)``, each ``(B, N)``: set by the deployed team before each step, never saved.
+        self.visit_inputs: tuple[th.Tensor, th.Tensor] | None = None
         self._sampling_temperature = 1.0
         estimator = self.settings.estimator
         self.estimator_hidden = list(estimator.estimator_hidden)
@@ -276,6 +280,8 @@ class DCBFActorCriticPolicy(ActorCriticHeads, MaskableActorCriticPolicy):
         ``(B,)`` bool (``None`` when rule 8 is off)."""
         forced = None
         if self.use_dcbf:
+            if self.visit_inputs is not None and VISIT_TARGETS not in pre:
+                pre = {**pre, VISIT_TARGETS: self.visit_inputs[0], VISIT_AGE: self.visit_inputs[1]}
             mask, forced = dcbf_filter_from_map(pre, u_hat, self.dcbf_config, self.u_max)
             if self.dcbf_config.neglect_bound is None:
                 forced = None

@@ -65,8 +65,9 @@ TEAM = Section('team', 'Team keys', 'entry', keys=(
         '`softmax(logits / T)`; see [Deployment rules](#deployment-rules)'),
     Key('deploy_filter', 'deploy_filter', None, nullable=True,
         help='the DCBF rules the trained team acts under, `{neglect_bound: B \\| auto, '
-        'neglect_scope: S, leave_cleared: true, pass_held: true, keep_moving: true}` (the scope is optional; '
-        'the bound may be left out where a switch is on); `null`: the filter it trained '
+        'neglect_scope: S, leave_cleared: true, pass_held: true, keep_moving: true, '
+        'visit_deadline: D \\| auto}` (the scope is optional; the bound may be left out where a switch '
+        'or the deadline is on); `null`: the filter it trained '
         'under; see [Deployment rules](#deployment-rules)'),
     Key('learning_rate_spread', 'float', 1.0, low=1.0,
         help="the fastest learner's learning rate over the slowest's; `1`: every learner the same; see "

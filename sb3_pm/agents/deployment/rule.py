@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_pm.agents.deployment.visit_memory import group_visit_rows, start_visit_memory, step_visit_memory
 from sb3_pm.errors import InputError
 from sb3_pm.planning.conventions import is_planned
 from sb3_pm.team_interface import Observation, Team, without_caller_keys
@@ -89,6 +90,7 @@ class DeploymentRule(Team):
         the team's order.
         """
         deterministic = self.acts_deterministically(deterministic)
+        step_visit_memory(self, observations)  # rule 12's memory: this step's positions
         agents = list(observations)
         if self.stacked_inference and not self.shares_one_network:
             policies = [self.policy_for(agent) for agent in agents]
@@ -107,9 +109,16 @@ class DeploymentRule(Team):
         groups = [agents] if self.shares_one_network else [[agent] for agent in agents]
         actions: dict[str, int] = {}
         for group in groups:
+            group_visit_rows(self, group)
             batch = [observations[agent] for agent in group]
             actions.update(zip(group, _policy_actions(self.policy_for(group[0]), batch, deterministic)))
         return actions
+
+    def reset(self, env: Any, seed: int | None = None) -> None:
+        """Start an episode on ``env`` (already reset), and the memory of the filter's rule 12
+        where the team acts under it (:mod:`sb3_pm.agents.deployment.visit_memory`)."""
+        super().reset(env, seed)
+        self.__dict__["_visit_memory"] = start_visit_memory(self, env)
 
     def _forward_pass(self) -> Any:
         """The team's forward pass (:class:`~sb3_pm.agents.deployment.team_forward.TeamForward`),
@@ -121,9 +130,9 @@ class DeploymentRule(Team):
         return self._team_forward
 
     def acting_record(self, deterministic: bool) -> dict[str, Any]:
-        """The sampling temperature (when sampling), the neglect bound the team acts under, and
+        """The sampling temperature (when sampling), the neglect bound the team acts under,
         ``leave_cleared`` / ``pass_held`` / ``keep_moving: True`` where its policies act under the
-        filter's rule 9 / 10 / 11."""
+        filter's rule 9 / 10 / 11, and rule 12's ``visit_deadline``."""
         from sb3_pm.policies.dcbf import FILTER_SWITCHES
 
         record: dict[str, Any] = {}
@@ -136,6 +145,9 @@ class DeploymentRule(Team):
         for switch in FILTER_SWITCHES:
             if any(config is not None and getattr(config, switch) for config in configs):
                 record[switch] = True
+        deadlines = {config.visit_deadline for config in configs if config is not None} - {None}
+        if deadlines:
+            record["visit_deadline"] = max(deadlines)
         return record
 
     # ------------------------------------------------ the pending site bound
@@ -241,7 +253,7 @@ class DeploymentRule(Team):
         :raises InputError: a policy without the DCBF filter, or an unknown or invalid setting; no
             policy changes then.
         """
-        from sb3_pm.policies.dcbf import ADVICE_SWITCHES, DCBFConfig, check_bound_below_cap
+        from sb3_pm.policies.dcbf import ADVICE_SWITCHES, SITE_BOUND, DCBFConfig, check_bound_below_cap
 
         names = {f.name for f in fields(DCBFConfig)}
         unknown = sorted(set(changes) - names)
@@ -264,13 +276,17 @@ class DeploymentRule(Team):
                 raise InputError(f"{name} has no DCBF filter to change (algo {self.algo}, use_dcbf off)")
             check_bound_below_cap(bound, getattr(policy, "u_max", float("inf")))
         settings = {**self.filter_settings, **changes}
+        # visit_deadline auto is a number per site, given at calibration (visit_memory.settle_deadline)
+        acting = (
+            {**settings, "visit_deadline": None} if settings.get("visit_deadline") == SITE_BOUND else settings
+        )
         territories = self._bound_territories() if settings.get("neglect_scope") == "territory" else {}
         # Every new config first: DCBFConfig checks its fields as it is built, so a bad setting
         # raises here, before any policy has changed.
         configs = {
             name: replace(
                 policy.trained_dcbf_config,
-                **settings,
+                **acting,
                 **({"territory": territories[name]} if territories else {}),
             )
             for name, policy in policies.items()

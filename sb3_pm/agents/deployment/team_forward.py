@@ -53,6 +53,7 @@ from sb3_pm.policies.dcbf import territory_mask
 from sb3_pm.policies.extractor import GATFeaturesExtractor
 from sb3_pm.policies.heads import masked_mode
 from sb3_pm.policies.policy import MAP_KEYS, DCBFActorCriticPolicy
+from sb3_pm.policies.visit_deadline import VISIT_AGE, VISIT_TARGETS
 
 
 class _Pass(NamedTuple):
@@ -378,6 +379,14 @@ def _filtered_masks(
                 [territory_mask(p.dcbf_config.territory, size, n, u_hat.device) for p in policies]
             ),
         }
+    if config.visit_deadline is not None and all(p.visit_inputs is not None for p in policies):
+        # rule 12's memory: a policy holds its agents' rows in the team's order, and acts here
+        # once per agent in that order, so its j-th appearance reads its j-th block of rows
+        size, taken, parts = u_hat.shape[0] // len(policies), {}, []
+        for policy in policies:
+            j = taken[id(policy)] = taken.get(id(policy), -1) + 1
+            parts.append([inputs[j * size : (j + 1) * size] for inputs in policy.visit_inputs])
+        pre = {**pre, VISIT_TARGETS: th.cat([p[0] for p in parts]), VISIT_AGE: th.cat([p[1] for p in parts])}
     return first.filtered_masks(pre, u_hat, given)  # type: ignore[no-any-return]
 
 
