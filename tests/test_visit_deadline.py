@@ -90,6 +90,27 @@ class TestRule:
         assert self.allowed([0], leave_cleared=True) == [0]
         assert self.allowed([2], deadline=[3]) == [3]
 
+    def test_on_a_target_it_only_sweeps_the_agent_is_not_held(self) -> None:
+        def on_target(sweeping: bool) -> list[int]:
+            mask = dcbf_mask(
+                th.zeros(1, N),
+                _row(list(range(N))),
+                th.tensor([0]),
+                th.tensor([True]),
+                th.tensor([90.0]),  # u > 0: the freeze would hold it
+                th.tensor([0.0]),
+                _row([]),
+                DCBFConfig(barrier=False, freeze_steps=500),
+                None,
+                None,
+                (th.tensor([False]), _row([])),
+                th.tensor([sweeping]),
+            )
+            return th.nonzero(mask[0]).flatten().tolist()
+
+        assert on_target(False) == [0]
+        assert on_target(True) == list(range(1, N))
+
     def test_its_settings_are_checked(self) -> None:
         assert DCBFConfig(visit_deadline=418).visit_deadline == 418
         for bad in (0, -3, 1.5, True, "auto"):
@@ -130,7 +151,7 @@ class TestSweep:
 
 class TestMemory:
     def test_it_counts_steps_since_each_agent_stood_on_each_node(self) -> None:
-        memory = VisitMemory(["a", "b"], np.ones((2, 4), dtype=bool))
+        memory = VisitMemory(["a", "b"], np.ones((2, 4), dtype=np.int8))
         memory.observe({"a": 0, "b": 3})  # the reset's observation is step 0
         memory.observe({"a": 1, "b": 3})
         memory.observe({"a": 2, "b": 3})

@@ -46,7 +46,8 @@ parameters. Rules, in order (``R`` = reachable set, ``φ`` = own node):
     the targets that no territory holds which the convention hands it to sweep; the projection is
     the agent's own memory of its visits (:mod:`sb3_pm.policies.visit_deadline`), which the
     deployed team keeps. Where a target is due, the mask is the next hops towards it, as rule 8's;
-    it overrides rules 2-7 and 9-11 and yields to rule 8.
+    it overrides rules 2-7 and 9-11 and yields to rule 8. On a target it only sweeps the agent is
+    not frozen, and its own node is dropped from ``S`` after rule 9: the visit is made.
 
 ``barrier=False`` skips rules 2-4 (``S = R``) and keeps the freeze and rule 6: the actor chooses
 among all reachable nodes but still dwells on a target until it is cleared. This is not in the
@@ -70,7 +71,7 @@ from sb3_pm.envs.mental_map import AGE, FEATURES, OCCUPIED, TARGET, U
 from sb3_pm.errors import InputError
 from sb3_pm.policies.edges import is_edge_layout
 from sb3_pm.policies.neglect_bound import neglect_deadline
-from sb3_pm.policies.visit_deadline import VISIT_AGE, VISIT_TARGETS, check_visit_deadline, visit_hops
+from sb3_pm.policies.visit_deadline import SWEPT, VISIT_AGE, VISIT_TARGETS, check_visit_deadline, visit_hops
 
 NEGLECT_SCOPES = ("known", "unserved", "territory")
 #: The filter's on/off rules a deployment may switch: rules 9, 10 and 11.
@@ -250,6 +251,7 @@ def dcbf_mask(
     deadline: tuple[th.Tensor, th.Tensor] | None = None,
     advice: th.Tensor | None = None,
     visit: tuple[th.Tensor, th.Tensor] | None = None,
+    sweeping: th.Tensor | None = None,
 ) -> th.Tensor:
     """Apply rules 1-12 to a batch.
 
@@ -266,6 +268,8 @@ def dcbf_mask(
     :param advice: the advised next node, one-hot (bool); read by rules 10 and 11 only, which need it.
     :param visit: rule 12's ``(forced, next_hops)`` from
         :func:`~sb3_pm.policies.visit_deadline.visit_hops` (``None``: rule 12 off).
+    :param sweeping: rule 12: the agent stands on a target it only sweeps (bool); it is not frozen
+        there and its own node is dropped from ``S`` after rule 9, unless that empties ``S``.
     :return: the mask ``S`` (bool), never all-false.
 
     Shapes:
@@ -273,7 +277,7 @@ def dcbf_mask(
         - position, on_target, u_here, dwell: ``(B,)``
         - deadline: ``(B,)`` bool, ``(B, N)`` bool
         - advice: ``(B, N)`` bool
-        - visit: ``(B,)`` bool, ``(B, N)`` bool
+        - visit: ``(B,)`` bool, ``(B, N)`` bool; sweeping: ``(B,)`` bool
         - output: ``(B, N)`` bool
     """
     reachable = reachable.bool()
@@ -288,12 +292,16 @@ def dcbf_mask(
     # Rule 5: freeze on a target until dwell reaches freeze_steps or u is observed at 0.
     own = th.nn.functional.one_hot(position.long(), u_hat.shape[-1]).bool()
     frozen = on_target.bool() & (dwell < config.freeze_steps) & (u_here > 0)
+    if sweeping is not None:  # rule 12: a target the agent only sweeps does not hold it
+        frozen = frozen & ~sweeping.bool()
     safe = th.where(frozen[:, None], own, safe)
     if config.avoid_collisions:  # rule 6
         safe = _non_empty(safe & ~occupied_now.bool(), safe)
     if config.leave_cleared:  # rule 9: not on a target observed cleared (frozen needs u > 0)
         cleared = on_target.bool() & (u_here <= 0)
         safe = th.where(cleared[:, None], _non_empty(safe & ~own, safe), safe)
+    if sweeping is not None:  # rule 12: the visit is made; back to its own targets
+        safe = th.where(sweeping.bool()[:, None], _non_empty(safe & ~own, safe), safe)
     if config.pass_held or config.keep_moving:  # rules 10 and 11 read the advised node
         if advice is None:
             raise InputError(
@@ -390,7 +398,7 @@ def dcbf_filter_from_map(
             config.neglect_bound,
             u_max,
         )
-    visit = None
+    visit = sweeping = None
     if config.visit_deadline is not None:
         if VISIT_TARGETS not in observations or VISIT_AGE not in observations:
             raise InputError(
@@ -410,6 +418,7 @@ def dcbf_filter_from_map(
             config.visit_deadline,
             u_max,
         )
+        sweeping = observations[VISIT_TARGETS][rows, position] == SWEPT
     mask = dcbf_mask(
         u_hat,
         reachable,
@@ -425,6 +434,7 @@ def dcbf_filter_from_map(
         if (config.pass_held or config.keep_moving) and nodes.shape[-1] > len(FEATURES)
         else None,
         visit,
+        sweeping,
     )
     forced = deadline[0] if deadline is not None else th.zeros_like(rows, dtype=th.bool)
     return mask, forced

@@ -20,8 +20,10 @@ map's ``u_m`` last observed ``age_m`` steps ago bounds it too, as long as it was
 eq. (1) raises an unvisited target's ``u`` by exactly one per step, so a run of ``r`` steps leaves
 ``u >= min(r, u_max)``. With ``d_m`` the agent's hop distance to ``m`` over its known edges, ``m``
 is *due* when ``n_m + d_m >= D - 1``, and the mask is then the next hops along shortest known
-paths to the nearest due target: rule 8's test and walk (:func:`~sb3_pm.policies.neglect_bound.
-neglect_deadline`), on this projection and with no cap.
+paths to the nearest due target: rule 8's test and walk
+(:func:`~sb3_pm.policies.neglect_bound.neglect_deadline`), on this projection and with no cap. On
+a target it only sweeps the agent is not held: one step resets the run, and the plan left that
+target to nobody.
 
 **Guarantee**, by rule 8's argument: with a static graph and known edges, a target of the agent's
 visit set waits at most ``D`` steps between visits as long as no other target of the set is due
@@ -38,10 +40,14 @@ import torch as th
 from sb3_pm.errors import InputError
 from sb3_pm.policies.neglect_bound import EdgeMaps, neglect_deadline
 
-#: The observation keys the deployed team adds for rule 12: each map's visit set ``(B, N)`` bool
-#: and its memory ``since`` ``(B, N)`` float.
+#: The observation keys the deployed team adds for rule 12: each map's visit set ``(B, N)`` (0 off
+#: it, 1 on the agent's territory, :data:`SWEPT` on a target it sweeps) and its memory ``since``
+#: ``(B, N)`` float.
 VISIT_TARGETS = "visit_targets"
 VISIT_AGE = "visit_age"
+#: The value of ``visit_targets`` on a target the agent sweeps (1 on its territory's): one step
+#: there resets the target's run, so the agent is not held there (the freeze does not apply).
+SWEPT = 2
 #: A projection above any deadline (a target last observed at the cap, never remembered).
 _UNKNOWN = float(1 << 30)
 
@@ -102,4 +108,4 @@ def visit_hops(
     )
 
 
-__all__ = ["VISIT_AGE", "VISIT_TARGETS", "check_visit_deadline", "run_projection", "visit_hops"]
+__all__ = ["SWEPT", "VISIT_AGE", "VISIT_TARGETS", "check_visit_deadline", "run_projection", "visit_hops"]

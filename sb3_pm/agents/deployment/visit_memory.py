@@ -21,19 +21,20 @@ import torch as th
 from sb3_pm.errors import InputError
 from sb3_pm.planning.conventions import sweep_targets
 from sb3_pm.policies.dcbf import SITE_BOUND
+from sb3_pm.policies.visit_deadline import SWEPT
 
 
 class VisitMemory:
     """Each agent's visit set and steps since it last stood on each node.
 
     :param agents: the agents in the env's order.
-    :param visit_targets: ``(n_agents, N)`` bool, each agent's visit set (its territory and the
-        targets it sweeps).
+    :param visit_targets: ``(n_agents, N)`` int, each agent's visit set: 1 on its territory,
+        :data:`~sb3_pm.policies.visit_deadline.SWEPT` on the targets it sweeps, 0 elsewhere.
     """
 
     def __init__(self, agents: list[str], visit_targets: np.ndarray) -> None:
         self.rows = {agent: row for row, agent in enumerate(agents)}
-        self.visit_targets = th.as_tensor(np.asarray(visit_targets, dtype=bool))
+        self.visit_targets = th.as_tensor(np.asarray(visit_targets, dtype=np.int8))
         #: ``(n_agents, N)`` float: steps since the agent stood on each node (since the reset if never).
         self.since = th.zeros(self.visit_targets.shape, dtype=th.float32)
         self._steps = 0
@@ -93,7 +94,7 @@ def start_visit_memory(team: Any, env: Any) -> VisitMemory | None:
         territory = _split_by_policy(team, agents, graph.n_nodes)
     to_targets = graph.routes.to_targets(np.arange(graph.n_nodes))
     swept = sweep_targets(territory, graph.target_indices, to_targets, base.positions)
-    return VisitMemory(agents, np.asarray(territory, dtype=bool) | swept)
+    return VisitMemory(agents, np.where(swept, SWEPT, np.asarray(territory, dtype=bool)))
 
 
 def _split_by_policy(team: Any, agents: list[str], n_nodes: int) -> np.ndarray:
