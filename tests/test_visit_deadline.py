@@ -250,25 +250,34 @@ class TestTeam:
         assert "--visit-deadline needs a trained DCBF team" in capsys.readouterr().err
 
 
-def test_a_deploy_filter_of_auto_is_calibrated_per_site_by_evaluate() -> None:
+def test_a_deploy_filter_of_auto_takes_the_rules_worst_neglect_on_each_site_at_reset() -> None:
+    from sb3_pm.baselines.rule_neglect import rule_worst_neglect
     from sb3_pm.envs import persistent_monitoring_v0
-    from sb3_pm.evaluation.neglect_calibration import calibrate_visit_deadline
 
     team = small_team({})
     try:
         team.deploy_filter = {"visit_deadline": "auto"}
         assert team.acting_record(True) == {}  # no number before a site is calibrated
-        env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=2, max_cycles=30)
-        env.reset(seed=0)
-        with pytest.raises(InputError, match="visit_deadline auto is calibrated for each site by evaluate"):
+        for steps in (30, 60):
+            env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=2, max_cycles=steps)
+            env.reset(seed=0)
             team.reset(env)
-        env.close()
-        evaluate(team, "paper-50", n_agents=2, episodes=1, seed=0, max_cycles=30)
-        expected = calibrate_visit_deadline("paper-50", 2, team.env_settings(), max_cycles=30)
-        assert team.acting_record(True) == {"visit_deadline": expected}
+            env.close()
+            expected = rule_worst_neglect("paper-50", 2, team.env_settings(), max_cycles=steps)
+            assert team.acting_record(True) == {"visit_deadline": expected}
+        assert expected > 30  # the two episode lengths gave two deadlines
         assert team.filter_settings["visit_deadline"] == "auto"
     finally:
         team.close()
+
+
+def test_the_calibration_is_the_rules_worst_episode_as_evaluate_measures_it() -> None:
+    from sb3_pm.baselines import make_team
+    from sb3_pm.baselines.rule_neglect import rule_worst_neglect
+
+    measured = evaluate(make_team("territory_patrol"), "rooms-4", n_agents=4, episodes=3, seed=9_000_000)
+    worst = max(int(record.metrics["max_neglect"]) for record in measured.episodes)
+    assert rule_worst_neglect("rooms-4", 4, episodes=3) == worst
 
 
 class TestPasses:

@@ -163,9 +163,9 @@ def apply_switches(
         return
     require_filter(team, "--visit-deadline")
     if deadline == BOUND_AUTO:
-        from sb3_pm.evaluation.neglect_calibration import CALIBRATION_EPISODES, calibrate_visit_deadline
+        from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, rule_worst_neglect
 
-        deadline = calibrate_visit_deadline(graph, args.agents, env_kwargs, max_cycles=args.steps)
+        deadline = rule_worst_neglect(graph, args.agents, env_kwargs, max_cycles=args.steps)
         args.visit_deadline = deadline
         print(
             f"visit deadline {deadline} steps: territory_patrol's worst max_neglect over "

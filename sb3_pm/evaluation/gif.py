@@ -160,9 +160,6 @@ def record_gif(
         from sb3_pm.evaluation.neglect_calibration import settle_site_bound
 
         settle_site_bound(team, spec, n_agents, kwargs, max_cycles)
-    from sb3_pm.evaluation.neglect_calibration import settle_visit_deadline
-
-    settle_visit_deadline(team, spec, n_agents, kwargs, max_cycles)  # as evaluate() does
     env = team.make_env(spec, n_agents=n_agents, max_cycles=max_cycles, render_mode="rgb_array", **kwargs)
     try:
         with torch_threads(threads), gif_writer(path, fps=fps, palette_sample=episode_colors(env)) as writer:

@@ -258,9 +258,6 @@ def evaluate(
         from sb3_pm.evaluation.neglect_calibration import settle_site_bound
 
         calibration = settle_site_bound(team, spec, n_agents, kwargs, max_cycles)
-    from sb3_pm.evaluation.neglect_calibration import settle_visit_deadline
-
-    settle_visit_deadline(team, spec, n_agents, kwargs, max_cycles)  # a visit_deadline of auto
     env = team.make_env(spec, n_agents=n_agents, max_cycles=max_cycles, **kwargs)
     run = {
         "n_agents": n_agents,

@@ -35,20 +35,16 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from sb3_pm.baselines import make_team
+from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, CALIBRATION_SEED, NOT_CALIBRATED
 from sb3_pm.envs.core import DEFAULT_U_MAX
 from sb3_pm.errors import InputError
 from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.graphs import GraphLike, resolve_graph
-from sb3_pm.policies.dcbf import SITE_BOUND
 
 #: ``B = ceil(MARGIN · P)``: the territory rule's worst peak itself (module docstring).
 MARGIN = 1.0
-#: Calibration episodes of the territory rule.
-CALIBRATION_EPISODES = 10
-#: Episode ``e`` of the calibration runs from env seed ``CALIBRATION_SEED + e``: apart from the
-#: evaluation seeds of the sweeps (``1,000,000 + 1,000 · seed``), so a bound is never fitted to
-#: the episodes it is then measured on.
-CALIBRATION_SEED = 9_000_000
+# CALIBRATION_EPISODES and CALIBRATION_SEED: the territory rule's calibration episodes, shared
+# with the filter's rule 12 (sb3_pm.baselines.rule_neglect), apart from the sweeps' seeds.
 
 
 @dataclass(frozen=True)
@@ -144,42 +140,6 @@ def calibrate_neglect_bound(
     )
 
 
-def calibrate_visit_deadline(
-    graph: GraphLike,
-    n_agents: int,
-    env_kwargs: Mapping[str, Any] | None = None,
-    max_cycles: int = 500,
-    episodes: int = CALIBRATION_EPISODES,
-    seed: int = CALIBRATION_SEED,
-) -> int:
-    """The filter's rule 12 deadline for a site (``visit_deadline: auto``): the worst
-    ``max_neglect`` of ``territory_patrol`` over the calibration episodes, so that a team under it
-    lets no target wait longer than the rule let one (as long as no two of an agent's targets are
-    due together). At least 1.
-
-    :param graph: the deployment site; ``n_agents``: the team size (the rule's split follows it).
-    :param env_kwargs: the deployment's environment settings, without agent failures.
-    :raises InputError: for ``episodes < 1``.
-    """
-    if episodes < 1:
-        raise InputError(f"calibration episodes must be at least 1, got {episodes}")
-    result = evaluate(
-        make_team("territory_patrol"),
-        resolve_graph(graph),
-        n_agents=n_agents,
-        episodes=episodes,
-        seed=seed,
-        max_cycles=max_cycles,
-        env_kwargs=dict(env_kwargs or {}),
-    )
-    return max(1, math.ceil(max(float(record.metrics["max_neglect"]) for record in result.episodes)))
-
-
-#: Env settings of a deployment that a calibration leaves out: the bound is for the team as
-#: deployed, not as its agents fail.
-_NOT_CALIBRATED = ("failures", "failure_rate")
-
-
 def settle_site_bound(
     team: Any, graph: GraphLike, n_agents: int, env_kwargs: Mapping[str, Any], max_cycles: int
 ) -> CalibratedBound:
@@ -202,7 +162,7 @@ def settle_site_bound(
             f"the team's deploy_filter auto calibrates its {trained} agents' territories, and "
             f"{n_agents} agents were asked for: deploy it with {trained}, {way_out}"
         )
-    kwargs = {key: value for key, value in env_kwargs.items() if key not in _NOT_CALIBRATED}
+    kwargs = {key: value for key, value in env_kwargs.items() if key not in NOT_CALIBRATED}
     try:
         calibration = calibrate_neglect_bound(graph, n_agents, kwargs, max_cycles=max_cycles)
     except InputError as error:
@@ -212,27 +172,6 @@ def settle_site_bound(
     else:
         team.set_filter(neglect_bound=calibration.bound, neglect_scope="territory")
     return calibration
-
-
-def settle_visit_deadline(
-    team: Any, graph: GraphLike, n_agents: int, env_kwargs: Mapping[str, Any], max_cycles: int
-) -> int | None:
-    """Give a team whose filter has ``visit_deadline: auto`` its deadline for this site, team size
-    and episode length (:func:`calibrate_visit_deadline`, agent failures left out), once per site;
-    ``None`` (nothing done) for a team without it. Returns the deadline."""
-    if not team.learned or team.filter_settings.get("visit_deadline") != SITE_BOUND:
-        return None
-    from sb3_pm.agents.deployment.visit_memory import settle_deadline, site_key
-
-    spec = resolve_graph(graph)
-    key = site_key(spec, n_agents, max_cycles)
-    known = team.__dict__.get("_site_deadline")
-    if known is not None and known[0] == key:
-        return int(known[1])
-    kwargs = {key: value for key, value in env_kwargs.items() if key not in _NOT_CALIBRATED}
-    deadline = calibrate_visit_deadline(spec, n_agents, kwargs, max_cycles=max_cycles)
-    settle_deadline(team, key, deadline)
-    return deadline
 
 
 def unsettle_site_bound(team: Any) -> None:
@@ -247,8 +186,6 @@ __all__ = [
     "MARGIN",
     "CalibratedBound",
     "calibrate_neglect_bound",
-    "calibrate_visit_deadline",
     "settle_site_bound",
-    "settle_visit_deadline",
     "unsettle_site_bound",
 ]

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
+from sb3_pm.baselines.rule_neglect import rule_worst_neglect
 from sb3_pm.errors import InputError
 from sb3_pm.planning.conventions import sweep_targets
 from sb3_pm.policies.dcbf import SITE_BOUND
@@ -73,20 +74,20 @@ def start_visit_memory(team: Any, env: Any) -> VisitMemory | None:
     rule 12. The visit sets are the territories the team's neglect bound would guard (the split, or
     the episode's planned groups) with the swept targets added.
 
-    :raises InputError: ``auto`` not yet calibrated for this site, or no territory per agent.
+    ``visit_deadline: auto`` takes its number for the site, team size and episode length here, from
+    :func:`~sb3_pm.baselines.rule_neglect.rule_worst_neglect` (once per site).
+
+    :raises InputError: where no territory per agent can be found.
     """
     if team.filter_settings.get("visit_deadline") is None:
         return None
     base = getattr(env, "unwrapped", env)
     agents = list(base.possible_agents)
-    if team.filter_settings["visit_deadline"] == SITE_BOUND:
+    if team.filter_settings["visit_deadline"] == SITE_BOUND:  # calibrated once per site
+        key = site_key(base.graph, len(agents), base.max_cycles)
         known = team.__dict__.get("_site_deadline")
-        if known is None or known[0] != site_key(base.graph, len(agents), base.max_cycles):
-            raise InputError(
-                "visit_deadline auto is calibrated for each site by evaluate(); outside it call "
-                "sb3_pm.evaluation.neglect_calibration.settle_visit_deadline(team, graph, n_agents, "
-                "env_kwargs, max_cycles) first, or set a number (team.set_filter(visit_deadline=D))"
-            )
+        if known is None or known[0] != key:
+            known = (key, rule_worst_neglect(base.graph, len(agents), team.env_settings(), base.max_cycles))
         settle_deadline(team, *known)
     graph = base.graph
     territory = team._planned_groups()  # the env's own rows, one per agent, where it keeps them
