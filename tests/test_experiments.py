@@ -1115,7 +1115,8 @@ def test_only_the_headline_trains_todays_planned_defaults(path: Path, tmp_path: 
 def test_the_family_defaults_are_the_families_planned_prior_teams(tmp_path: Path) -> None:
     """zoo/ippo.yml's entries for rgg-60, rooms-4 and cliques-6x8 are families.yml's
     ``planned_prior`` team, written out there on top of the split default it was measured on;
-    cliques-6x8 deploys it with paper-50's neglect bound, as it was measured there."""
+    cliques-6x8 deploys it with paper-50's neglect bound, and rgg-60 under the filter's rule 12,
+    as each was measured there."""
     experiment = load_experiment(experiment_file("families"))
     checked = set()
     for cell in plan_cells(experiment, tmp_path):
@@ -1125,6 +1126,13 @@ def test_the_family_defaults_are_the_families_planned_prior_teams(tmp_path: Path
         default = load_config("ippo", str(cell.graph)).team_kwargs()
         if cell.graph == "cliques-6x8":
             assert default.pop("deploy_filter") == load_config("ippo", "paper-50").deploy_filter
+            assert measured.pop("deploy_filter") is None
+        if cell.graph == "rgg-60":
+            assert default.pop("deploy_filter") == {
+                "neglect_bound": None,
+                "neglect_scope": "known",
+                "visit_deadline": "auto",
+            }
             assert measured.pop("deploy_filter") is None
         assert measured == default, cell.graph
         checked.add(str(cell.graph))

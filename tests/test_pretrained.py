@@ -69,6 +69,8 @@ def test_the_transfer_team_acts_legally_on_a_graph_it_never_saw() -> None:
     env = team.make_env("karate")
     observations, _ = env.reset(seed=4)
     team.reset(env, seed=4)
+    # rule 12's deadline, taken from the territory rule on karate at the reset
+    assert team.acting_record(True) == {"pass_held": True, "keep_moving": True, "visit_deadline": 4}
     for _ in range(40):
         actions = team.predict_dict(observations)
         assert all(observations[agent]["action_mask"][node] == 1 for agent, node in actions.items())

@@ -271,6 +271,25 @@ def test_a_deploy_filter_of_auto_takes_the_rules_worst_neglect_on_each_site_at_r
         team.close()
 
 
+def test_no_deadline_where_the_rule_left_a_target_unvisited_all_episode() -> None:
+    from sb3_pm.baselines.rule_neglect import rule_worst_neglect, site_deadline
+    from sb3_pm.envs import persistent_monitoring_v0
+
+    assert rule_worst_neglect("paper-50", 2, max_cycles=8) == 8
+    assert site_deadline("paper-50", 2, max_cycles=8) is None
+    team = small_team({})
+    try:
+        team.deploy_filter = {"visit_deadline": "auto"}
+        env = persistent_monitoring_v0.parallel_env(graph="paper-50", n_agents=2, max_cycles=8)
+        observations, _ = env.reset(seed=0)
+        team.reset(env)
+        assert team.acting_record(True) == {}
+        assert set(team.predict_dict(observations)) == {"agent_0", "agent_1"}
+        env.close()
+    finally:
+        team.close()
+
+
 def test_the_calibration_is_the_rules_worst_episode_as_evaluate_measures_it() -> None:
     from sb3_pm.baselines import make_team
     from sb3_pm.baselines.rule_neglect import rule_worst_neglect

@@ -217,13 +217,19 @@ def test_launcher_trains_dcbf_ppo_through_rl_zoo(tmp_path: Path) -> None:
 
 def test_ippo_transfer_is_the_prior4_config_imitating_the_rule_and_passing_held_nodes() -> None:
     """zoo/ippo_transfer.yml against zoo/ippo_transfer_prior4.yml, the config before it: taught
-    the rule's move after each update, and deployed with the filter's rules 10 and 11."""
+    the rule's move after each update, and deployed with the filter's rules 10 to 12."""
     transfer = load_config("ippo_transfer", "paper-50")
     prior4 = load_config("ippo_transfer_prior4", "paper-50")
     t_kwargs, p_kwargs = transfer.team_kwargs(), prior4.team_kwargs()
     assert t_kwargs["hyperparams"].pop("advice_imitation") == 1.0
     assert "advice_imitation" not in p_kwargs["hyperparams"]
-    rules = {"neglect_bound": None, "neglect_scope": "known", "pass_held": True, "keep_moving": True}
+    rules = {
+        "neglect_bound": None,
+        "neglect_scope": "known",
+        "pass_held": True,
+        "keep_moving": True,
+        "visit_deadline": "auto",
+    }
     assert t_kwargs.pop("deploy_filter") == rules
     assert p_kwargs.pop("deploy_filter") is None
     assert t_kwargs == p_kwargs and (transfer.env, prior4.env) == ("family:er", "family:er")

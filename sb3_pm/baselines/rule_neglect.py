@@ -4,7 +4,8 @@ deadline (:mod:`sb3_pm.policies.visit_deadline`).
 ``territory_patrol`` (:mod:`sb3_pm.baselines.territory_patrol`) plays ``episodes`` calibration
 episodes on the site with the team's size and environment settings, from env seeds of their own
 (apart from the sweeps' evaluation seeds, ``1,000,000 + 1,000 · seed``), and the deadline is the
-worst ``max_neglect`` among them. A team under it then lets no target wait longer than the rule let
+worst ``max_neglect`` among them; none where that is the episode's length
+(:func:`site_deadline`). A team under it then lets no target wait longer than the rule let
 one, unless two targets of one agent fall due together. The rule reads the site's road network and
 target list and its own map, as a team with a known map does; it reads no learned team.
 """
@@ -62,4 +63,21 @@ def rule_worst_neglect(
     return worst
 
 
-__all__ = ["CALIBRATION_EPISODES", "CALIBRATION_SEED", "NOT_CALIBRATED", "rule_worst_neglect"]
+def site_deadline(
+    graph: GraphLike, n_agents: int, env_kwargs: Mapping[str, Any] | None = None, max_cycles: int = 500
+) -> int | None:
+    """``visit_deadline: auto`` on a site: :func:`rule_worst_neglect`, or ``None`` (no deadline)
+    where the rule left some target unvisited for a whole calibration episode: a deadline of the
+    episode's length asks for nothing, as the neglect bound's ``auto`` deploys no bound where the
+    rule let a target reach ``u_max``."""
+    worst = rule_worst_neglect(graph, n_agents, env_kwargs, max_cycles)
+    return None if worst >= max_cycles else worst
+
+
+__all__ = [
+    "CALIBRATION_EPISODES",
+    "CALIBRATION_SEED",
+    "NOT_CALIBRATED",
+    "rule_worst_neglect",
+    "site_deadline",
+]

@@ -163,15 +163,16 @@ def apply_switches(
         return
     require_filter(team, "--visit-deadline")
     if deadline == BOUND_AUTO:
-        from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, rule_worst_neglect
+        from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, site_deadline
 
-        deadline = rule_worst_neglect(graph, args.agents, env_kwargs, max_cycles=args.steps)
+        deadline = site_deadline(graph, args.agents, env_kwargs, max_cycles=args.steps)
+        source = f"territory_patrol's worst max_neglect over {CALIBRATION_EPISODES} calibration episodes"
+        if deadline is None:
+            deadline = BOUND_OFF
+            print(f"no visit deadline: {source} was the whole episode", file=sys.stderr)
+        else:
+            print(f"visit deadline {deadline} steps: {source}", file=sys.stderr)
         args.visit_deadline = deadline
-        print(
-            f"visit deadline {deadline} steps: territory_patrol's worst max_neglect over "
-            f"{CALIBRATION_EPISODES} calibration episodes",
-            file=sys.stderr,
-        )
     team.set_filter(visit_deadline=None if deadline == BOUND_OFF else deadline)
 
 

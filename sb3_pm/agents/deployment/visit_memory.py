@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_pm.baselines.rule_neglect import rule_worst_neglect
+from sb3_pm.baselines.rule_neglect import site_deadline
 from sb3_pm.errors import InputError
 from sb3_pm.planning.conventions import sweep_targets
 from sb3_pm.policies.dcbf import SITE_BOUND
@@ -75,7 +75,8 @@ def start_visit_memory(team: Any, env: Any) -> VisitMemory | None:
     the episode's planned groups) with the swept targets added.
 
     ``visit_deadline: auto`` takes its number for the site, team size and episode length here, from
-    :func:`~sb3_pm.baselines.rule_neglect.rule_worst_neglect` (once per site).
+    :func:`~sb3_pm.baselines.rule_neglect.site_deadline` (once per site; none where the rule
+    itself left a target unvisited for a whole episode).
 
     :raises InputError: where no territory per agent can be found.
     """
@@ -87,8 +88,10 @@ def start_visit_memory(team: Any, env: Any) -> VisitMemory | None:
         key = site_key(base.graph, len(agents), base.max_cycles)
         known = team.__dict__.get("_site_deadline")
         if known is None or known[0] != key:
-            known = (key, rule_worst_neglect(base.graph, len(agents), team.env_settings(), base.max_cycles))
+            known = (key, site_deadline(base.graph, len(agents), team.env_settings(), base.max_cycles))
         settle_deadline(team, *known)
+        if known[1] is None:  # the rule itself left a target unvisited all episode: no deadline here
+            return None
     graph = base.graph
     territory = team._planned_groups()  # the env's own rows, one per agent, where it keeps them
     if territory is None or len(territory) != len(agents):
@@ -124,12 +127,12 @@ def site_key(graph: Any, n_agents: int, max_cycles: int) -> tuple[str, int, int]
     return (str(graph.fingerprint), int(n_agents), int(max_cycles))
 
 
-def settle_deadline(team: Any, key: tuple[str, int, int], deadline: int) -> None:
+def settle_deadline(team: Any, key: tuple[str, int, int], deadline: int | None) -> None:
     """Give every acting policy of a team with ``visit_deadline: auto`` the deadline calibrated
-    for site ``key`` (its :attr:`filter_settings` keep ``auto``, for the next site)."""
-    team.__dict__["_site_deadline"] = (key, int(deadline))
+    for site ``key``, or none (its :attr:`filter_settings` keep ``auto``, for the next site)."""
+    team.__dict__["_site_deadline"] = (key, deadline)
     for policy in team.acting_policies().values():
-        policy.dcbf_config = replace(policy.dcbf_config, visit_deadline=int(deadline))
+        policy.dcbf_config = replace(policy.dcbf_config, visit_deadline=deadline)
 
 
 def step_visit_memory(team: Any, observations: Mapping[str, Mapping[str, Any]]) -> None:
@@ -139,7 +142,8 @@ def step_visit_memory(team: Any, observations: Mapping[str, Mapping[str, Any]]) 
     :raises InputError: rule 12 set after the episode began (its counts start at the reset).
     """
     memory = team.__dict__.get("_visit_memory")
-    if memory is None and team.filter_settings.get("visit_deadline") is not None:
+    acting = (getattr(p, "dcbf_config", None) for p in team.acting_policies().values())
+    if memory is None and any(c is not None and c.visit_deadline is not None for c in acting):
         raise InputError(
             "the filter's visit_deadline (rule 12) counts steps from the episode's start: reset the "
             "team on the env (team.reset(env)) after setting it"
