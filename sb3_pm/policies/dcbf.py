@@ -374,6 +374,12 @@ def dcbf_filter_from_map(
     rows = th.arange(nodes.shape[0], device=nodes.device)
     here = nodes[rows, position]  # (B, 5): the own node's features
     reachable = observations["action_mask"] > 0.5
+    # rules 8 and 12 search the edges layout's known edges as they are, never as (B, N, N)
+    known_edges = (
+        (observations["edge_index"], observations["edge_mask"])
+        if is_edge_layout(observations)
+        else observations.get("adjacency")
+    )
     deadline = None
     if config.neglect_bound is not None:
         if config.neglect_scope == "territory":
@@ -389,10 +395,7 @@ def dcbf_filter_from_map(
             nodes[..., U],
             nodes[..., AGE],
             bounded,
-            # the edges layout's known edges are searched as they are, never as (B, N, N)
-            (observations["edge_index"], observations["edge_mask"])
-            if is_edge_layout(observations)
-            else observations["adjacency"],
+            known_edges,
             position,
             reachable,
             config.neglect_bound,
@@ -410,9 +413,7 @@ def dcbf_filter_from_map(
             nodes[..., AGE],
             observations[VISIT_AGE],
             observations[VISIT_TARGETS],
-            (observations["edge_index"], observations["edge_mask"])
-            if is_edge_layout(observations)
-            else observations["adjacency"],
+            known_edges,
             position,
             reachable,
             config.visit_deadline,
