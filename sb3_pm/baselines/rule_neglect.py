@@ -58,6 +58,8 @@ def rule_worst_neglect(
             while env.agents:
                 observations, *_ = env.step(rule.predict_dict(observations))
             worst = max(worst, int(env.unwrapped.episode_metrics()["max_neglect"]))
+            if worst >= max_cycles:  # a target never visited: no later episode can be worse
+                break
     finally:
         env.close()
     return worst
