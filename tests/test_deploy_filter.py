@@ -90,8 +90,11 @@ class TestConfig:
         assert paper.deploy_filter == rule
         assert paper.team_kwargs()["deploy_filter"] == paper.deploy_filter
         assert paper.to_dict()["deploy_filter"] == paper.deploy_filter
-        for graph in ("paper-100", "rgg-60", "karate"):
+        for graph in ("paper-100", "rooms-4", "karate"):
             assert load_config("ippo", graph).deploy_filter is None
+        # rgg-60 deploys the filter's rule 12 alone (no bound), as measured there
+        rgg = load_config("ippo", "rgg-60").deploy_filter
+        assert rgg == {"neglect_bound": None, "neglect_scope": "known", "visit_deadline": "auto"}
         assert load_config("ippo_paper", "paper-50").deploy_filter is None
 
     def test_an_override_can_switch_it_off(self) -> None:

@@ -220,13 +220,19 @@ PLANNED_POLICY = {"advice_prior": 2.0}
 
 
 #: paper-50's deploy filter: the neglect bound and rule 9 (the families' planned entries deploy
-#: without one).
+#: without one, but rgg-60's rule 12).
 PAPER_50_BOUND = {"neglect_bound": 50.0, "neglect_scope": "territory", "leave_cleared": True}
+RGG_60_DEADLINE = {"neglect_bound": None, "neglect_scope": "known", "visit_deadline": "auto"}
 
 
 @pytest.mark.parametrize(
     ("graph", "deploy_filter"),
-    [("paper-50", PAPER_50_BOUND), ("paper_50n_8t", PAPER_50_BOUND), ("rgg-60", None), ("rooms-4", None)],
+    [
+        ("paper-50", PAPER_50_BOUND),
+        ("paper_50n_8t", PAPER_50_BOUND),
+        ("rgg-60", RGG_60_DEADLINE),
+        ("rooms-4", None),
+    ],
 )
 def test_a_planned_default_is_the_split_default_with_planned_territories(graph: str, deploy_filter) -> None:
     default, split = load_config("ippo", graph).team_kwargs(), load_config("ippo_split", graph).team_kwargs()
@@ -237,8 +243,10 @@ def test_a_planned_default_is_the_split_default_with_planned_territories(graph: 
     assert policy == {**split_policy, **PLANNED_POLICY} and "advice_prior" not in split_policy
     default.pop("env_kwargs"), split.pop("env_kwargs")
     assert default.pop("deploy_filter") == deploy_filter
-    # the split default's filter: the same neglect bound, without rule 9
-    bound_only = {key: value for key, value in (deploy_filter or {}).items() if key != "leave_cleared"}
+    # the split default's filter: the same neglect bound, without rules 9 and 12
+    extra = ("leave_cleared", "visit_deadline")
+    bound = {key: value for key, value in (deploy_filter or {}).items() if key not in extra}
+    bound_only = bound if bound.get("neglect_bound") is not None else {}
     assert split.pop("deploy_filter") == (bound_only or None)
     assert default == split  # the rest
 
