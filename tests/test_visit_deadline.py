@@ -118,17 +118,13 @@ class TestRule:
                 DCBFConfig(visit_deadline=bad)  # type: ignore[arg-type]
 
 
-def _to_targets(graph) -> np.ndarray:
-    return graph.routes.to_targets(np.arange(graph.n_nodes))
-
-
 class TestSweep:
     def test_a_target_no_territory_holds_goes_to_the_nearest_territory(self) -> None:
         graph = path_graph(10, [0, 2, 5, 9])
         territory = np.zeros((2, 10), dtype=bool)
         territory[0, [0, 2]] = True
         territory[1, 9] = True
-        swept = sweep_targets(territory, graph.target_indices, _to_targets(graph), np.array([0, 9]))
+        swept = sweep_targets(territory, graph.target_indices, graph.routes, np.array([0, 9]))
         # target 5: 3 hops from agent 0's node 2, 4 from agent 1's node 9
         assert [np.flatnonzero(row).tolist() for row in swept] == [[5], []]
 
@@ -137,16 +133,16 @@ class TestSweep:
         territory = np.zeros((3, 9), dtype=bool)
         territory[0, 0] = True
         territory[1, 8] = True
-        swept = sweep_targets(territory, graph.target_indices, _to_targets(graph), np.array([0, 8, 5]))
+        swept = sweep_targets(territory, graph.target_indices, graph.routes, np.array([0, 8, 5]))
         assert [np.flatnonzero(row).tolist() for row in swept] == [[], [], [4]]
         territory[2] = False
-        swept = sweep_targets(territory, graph.target_indices, _to_targets(graph), np.array([0, 8, 0]))
+        swept = sweep_targets(territory, graph.target_indices, graph.routes, np.array([0, 8, 0]))
         assert [np.flatnonzero(row).tolist() for row in swept] == [[4], [], []]
 
     def test_nothing_to_sweep_where_every_target_has_a_territory(self) -> None:
         graph = path_graph(4, [0, 3])
         territory = np.array([[True, False, False, False], [False, False, False, True]])
-        assert not sweep_targets(territory, graph.target_indices, _to_targets(graph), np.array([0, 3])).any()
+        assert not sweep_targets(territory, graph.target_indices, graph.routes, np.array([0, 3])).any()
 
 
 class TestMemory:

@@ -37,6 +37,7 @@ import numpy as np
 
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphSpec
+from sb3_pm.graphs.routes import Routes
 from sb3_pm.graphs.territories import site_territory_nodes
 from sb3_pm.planning.planner import plan_both_ways, plan_patrol
 
@@ -121,7 +122,7 @@ def team_territory(
 
 
 def sweep_targets(
-    territory: np.ndarray, target_indices: np.ndarray, to_targets: np.ndarray, starts: np.ndarray
+    territory: np.ndarray, target_indices: np.ndarray, routes: Routes, starts: np.ndarray
 ) -> np.ndarray:
     """The targets no territory holds, each handed to one agent to sweep (the filter's rule 12,
     :mod:`sb3_pm.policies.visit_deadline`): to the agent whose territory comes nearest to it in
@@ -130,8 +131,8 @@ def sweep_targets(
 
     :param territory: ``(n_agents, N)`` bool, each agent's territory.
     :param target_indices: ``(T,)`` the site's target nodes.
-    :param to_targets: ``(N, T)`` hop distances from every node to each target
-        (``graph.routes.to_targets``).
+    :param routes: the site's distances to its targets (``graph.routes``), read only where some
+        target has no territory.
     :param starts: ``(n_agents,)`` each agent's start node.
     :return: ``(n_agents, N)`` bool, True on the targets agent ``i`` sweeps.
     """
@@ -141,9 +142,12 @@ def sweep_targets(
     dropped = np.flatnonzero(~territory[:, targets].any(0))  # columns of targets nobody holds
     if dropped.size == 0:
         return swept
-    table = np.asarray(to_targets)[:, dropped]  # (N, k)
+    # (n_agents, k): hops from each agent's nearest territory node (or its start) to each dropped target
     reach = np.stack(
-        [table[row].min(0) if row.any() else table[int(start)] for row, start in zip(territory, starts)]
-    )  # (n_agents, k): hops from each agent's nearest territory node (or its start)
+        [
+            routes.to_targets(np.flatnonzero(row) if row.any() else np.asarray([start]))[:, dropped].min(0)
+            for row, start in zip(territory, np.asarray(starts, dtype=np.int64))
+        ]
+    )
     swept[reach.argmin(0), targets[dropped]] = True  # argmin: the first (lowest) agent on a tie
     return swept

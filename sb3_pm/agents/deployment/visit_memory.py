@@ -46,8 +46,8 @@ class VisitMemory:
         if self._steps:
             self.since += 1
         self._steps += 1
-        for agent, node in positions.items():
-            self.since[self.rows[agent], node] = 0
+        rows = [self.rows[agent] for agent in positions]
+        self.since[rows, list(positions.values())] = 0
 
     def give(self, team: Any, observations: Mapping[str, Mapping[str, Any]]) -> None:
         """Observe the agents' positions in ``observations`` and give each policy the rows of the
@@ -96,8 +96,7 @@ def start_visit_memory(team: Any, env: Any) -> VisitMemory | None:
     territory = team._planned_groups()  # the env's own rows, one per agent, where it keeps them
     if territory is None or len(territory) != len(agents):
         territory = _split_by_policy(team, agents, graph.n_nodes)
-    to_targets = graph.routes.to_targets(np.arange(graph.n_nodes))
-    swept = sweep_targets(territory, graph.target_indices, to_targets, base.positions)
+    swept = sweep_targets(territory, graph.target_indices, graph.routes, base.positions)
     return VisitMemory(agents, np.where(swept, SWEPT, np.asarray(territory, dtype=bool)))
 
 
@@ -142,14 +141,17 @@ def step_visit_memory(team: Any, observations: Mapping[str, Mapping[str, Any]]) 
     :raises InputError: rule 12 set after the episode began (its counts start at the reset).
     """
     memory = team.__dict__.get("_visit_memory")
+    if memory is not None:
+        memory.give(team, observations)
+        return
+    if team.filter_settings.get("visit_deadline") is None:  # every team without rule 12, every step
+        return
     acting = (getattr(p, "dcbf_config", None) for p in team.acting_policies().values())
-    if memory is None and any(c is not None and c.visit_deadline is not None for c in acting):
+    if any(c is not None and c.visit_deadline is not None for c in acting):
         raise InputError(
             "the filter's visit_deadline (rule 12) counts steps from the episode's start: reset the "
             "team on the env (team.reset(env)) after setting it"
         )
-    if memory is not None:
-        memory.give(team, observations)
 
 
 def group_visit_rows(team: Any, group: list[str]) -> None:
