@@ -64,13 +64,18 @@ def test_the_command_line_evaluates_it_with_a_gif(tmp_path, capsys) -> None:
 
 
 def test_the_transfer_team_acts_legally_on_a_graph_it_never_saw() -> None:
+    from sb3_pm.baselines.rule_neglect import site_deadline
+
     team = resolve_team("pretrained:transfer", graph="karate")
     assert team.acting_record(True) == {"pass_held": True, "keep_moving": True}  # its deploy_filter
     env = team.make_env("karate")
     observations, _ = env.reset(seed=4)
     team.reset(env, seed=4)
-    # rule 12's deadline, taken from the territory rule on karate at the reset
-    assert team.acting_record(True) == {"pass_held": True, "keep_moving": True, "visit_deadline": 4}
+    # rule 12's deadline, taken from the territory rule on karate at the reset (the split's or the
+    # planned groups', whichever is lower)
+    expected = site_deadline("karate", 4, team.env_settings(), env.unwrapped.max_cycles)
+    assert expected is not None
+    assert team.acting_record(True) == {"pass_held": True, "keep_moving": True, "visit_deadline": expected}
     for _ in range(40):
         actions = team.predict_dict(observations)
         assert all(observations[agent]["action_mask"][node] == 1 for agent, node in actions.items())

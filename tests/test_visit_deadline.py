@@ -57,9 +57,9 @@ class TestHops:
         return bool(forced[0]), th.nonzero(hops[0]).flatten().tolist()
 
     def test_due_once_the_memory_and_the_walk_reach_the_deadline(self) -> None:
-        # 5 hops away: due when since + 5 >= D - 1
-        assert self.hops(since=193, deadline=200) == (False, [])
-        forced, hops = self.hops(since=194, deadline=200)
+        # 5 hops away: due when since + 5 >= D (walking then, the run ends at since + 5 - 1 < D)
+        assert self.hops(since=194, deadline=200) == (False, [])
+        forced, hops = self.hops(since=195, deadline=200)
         assert forced and hops == [1]
 
     def test_a_deadline_above_the_cap_binds_which_rule_8_cannot(self) -> None:
@@ -195,6 +195,18 @@ class TestTeam:
         assert max(without) > 25
         assert max(within) <= 25
 
+    def test_a_deadline_of_one_step_alternates_between_two_adjacent_targets(self) -> None:
+        """With ``D = 1`` the target underfoot is not due (its run has not begun), so each agent
+        goes back and forth between its two adjacent targets; were it due, the agent would stay on
+        the first and leave the other unvisited all episode."""
+        graph = path_graph(8, [0, 1, 6, 7], name="pairs8")
+        team = small_team({}, graph=graph, freeze_steps=0)
+        try:
+            within = _episodes_max_neglect(team, graph, 1)
+        finally:
+            team.close()
+        assert max(within) <= 8  # the walk to the first target; then each run is one step
+
     def test_a_bare_policy_refuses_it_and_a_team_needs_a_reset_after_setting_it(self) -> None:
         from dataclasses import replace
 
@@ -284,6 +296,27 @@ def test_no_deadline_where_the_rule_left_a_target_unvisited_all_episode() -> Non
         env.close()
     finally:
         team.close()
+
+
+def test_auto_calibrates_on_the_teams_own_planned_groups_too_and_takes_the_lower() -> None:
+    from sb3_pm.baselines.rule_neglect import calibration_rules, rule_worst_neglect, site_deadline
+    from sb3_pm.baselines.territory_patrol import (
+        PlannedPatrolTeam,
+        PlannedTourPatrolTeam,
+        TerritoryPatrolTeam,
+    )
+
+    assert calibration_rules({}) == [TerritoryPatrolTeam]
+    assert calibration_rules({"territories": "split"}) == [TerritoryPatrolTeam]
+    assert calibration_rules({"territories": "planned"}) == [TerritoryPatrolTeam, PlannedPatrolTeam]
+    assert calibration_rules({"territories": "planned_tours"})[1] is PlannedTourPatrolTeam
+    known = {"territory_input": True, "graph_knowledge": "known", "target_knowledge": "known"}
+    planned = {**known, "territories": "planned"}
+    split = rule_worst_neglect("rooms-4", 4, planned)
+    own = rule_worst_neglect("rooms-4", 4, planned, rule=PlannedPatrolTeam)
+    assert own < split  # on rooms-4 the planned groups keep every target closer
+    assert site_deadline("rooms-4", 4, planned) == own
+    assert site_deadline("rooms-4", 4, known) == split  # no planned groups told
 
 
 def test_the_calibration_is_the_rules_worst_episode_as_evaluate_measures_it() -> None:

@@ -1,13 +1,16 @@
 """How long the territory rule lets a target wait on a site: the filter's rule 12 ``auto``
 deadline (:mod:`sb3_pm.policies.visit_deadline`).
 
-``territory_patrol`` (:mod:`sb3_pm.baselines.territory_patrol`) plays ``episodes`` calibration
+The territory rule (:mod:`sb3_pm.baselines.territory_patrol`) plays ``episodes`` calibration
 episodes on the site with the team's size and environment settings, from env seeds of their own
-(apart from the sweeps' evaluation seeds, ``1,000,000 + 1,000 · seed``), and the deadline is the
-worst ``max_neglect`` among them; none where that is the episode's length
-(:func:`site_deadline`). A team under it then lets no target wait longer than the rule let
-one, unless two targets of one agent fall due together. The rule reads the site's road network and
-target list and its own map, as a team with a known map does; it reads no learned team.
+(apart from the sweeps' evaluation seeds, ``1,000,000 + 1,000 · seed``), and a rule's figure is
+the worst ``max_neglect`` among them. It plays on the split (``territory_patrol``) and, for a
+team told planned territories, on the team's own groups too (``planned_patrol`` or
+``planned_tour_patrol``); the deadline is the lower figure below the episode's length, none where
+both are that length (:func:`site_deadline`). A team under it then lets no target wait longer than
+the better rule let one, unless two targets of one agent fall due together. The rules read the
+site's road network and target list and their own maps, as a team with a known map does; they
+read no learned team.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from sb3_pm.baselines.territory_patrol import TerritoryPatrolTeam
+from sb3_pm.baselines.territory_patrol import PlannedPatrolTeam, PlannedTourPatrolTeam, TerritoryPatrolTeam
 from sb3_pm.errors import InputError
 from sb3_pm.graphs import GraphLike, resolve_graph
 
@@ -35,11 +38,13 @@ def rule_worst_neglect(
     max_cycles: int = 500,
     episodes: int = CALIBRATION_EPISODES,
     seed: int = CALIBRATION_SEED,
+    rule: type[TerritoryPatrolTeam] = TerritoryPatrolTeam,
 ) -> int:
-    """The worst ``max_neglect`` of ``territory_patrol`` over ``episodes`` episodes (at least 1).
+    """The worst ``max_neglect`` of ``rule`` over ``episodes`` episodes (at least 1).
 
-    :param graph: the site; ``n_agents``: the team size (the rule's split follows it).
+    :param graph: the site; ``n_agents``: the team size (the rule's groups follow it).
     :param env_kwargs: the deployment's environment settings; agent failures are left out.
+    :param rule: ``territory_patrol`` (the default) or one of its planned variants.
     :raises InputError: for ``episodes < 1``.
     """
     from sb3_pm.envs import persistent_monitoring_v0
@@ -50,13 +55,13 @@ def rule_worst_neglect(
     env = persistent_monitoring_v0.parallel_env(
         graph=resolve_graph(graph), n_agents=n_agents, max_cycles=max_cycles, **kwargs
     )
-    rule, worst = TerritoryPatrolTeam(), 1
+    team, worst = rule(), 1
     try:
         for episode in range(episodes):
             observations, _ = env.reset(seed=seed + episode)
-            rule.reset(env, seed=seed + episode)
+            team.reset(env, seed=seed + episode)
             while env.agents:
-                observations, *_ = env.step(rule.predict_dict(observations))
+                observations, *_ = env.step(team.predict_dict(observations))
             worst = max(worst, int(env.unwrapped.episode_metrics()["max_neglect"]))
             if worst >= max_cycles:  # a target never visited: no later episode can be worse
                 break
@@ -65,21 +70,36 @@ def rule_worst_neglect(
     return worst
 
 
+def calibration_rules(env_kwargs: Mapping[str, Any] | None = None) -> list[type[TerritoryPatrolTeam]]:
+    """The rules ``auto`` calibrates on: ``territory_patrol``, and the same rule on the team's own
+    groups where its env is told planned territories (``territories: planned`` or
+    ``planned_tours``)."""
+    own = (env_kwargs or {}).get("territories", TerritoryPatrolTeam.convention)
+    planned = {rule.convention: rule for rule in (PlannedPatrolTeam, PlannedTourPatrolTeam)}
+    return [TerritoryPatrolTeam] + ([planned[own]] if own in planned else [])
+
+
 def site_deadline(
     graph: GraphLike, n_agents: int, env_kwargs: Mapping[str, Any] | None = None, max_cycles: int = 500
 ) -> int | None:
-    """``visit_deadline: auto`` on a site: :func:`rule_worst_neglect`, or ``None`` (no deadline)
-    where the rule left some target unvisited for a whole calibration episode: a deadline of the
-    episode's length asks for nothing, as the neglect bound's ``auto`` deploys no bound where the
-    rule let a target reach ``u_max``."""
-    worst = rule_worst_neglect(graph, n_agents, env_kwargs, max_cycles)
-    return None if worst >= max_cycles else worst
+    """``visit_deadline: auto`` on a site: the lowest :func:`rule_worst_neglect` of the
+    :func:`calibration_rules` below the episode's length, or ``None`` (no deadline) where each rule
+    left some target unvisited for a whole calibration episode: a deadline of the episode's length
+    asks for nothing, as the neglect bound's ``auto`` deploys no bound where the rule let a target
+    reach ``u_max``."""
+    worst = [
+        rule_worst_neglect(graph, n_agents, env_kwargs, max_cycles, rule=rule)
+        for rule in calibration_rules(env_kwargs)
+    ]
+    below = [value for value in worst if value < max_cycles]
+    return min(below) if below else None
 
 
 __all__ = [
     "CALIBRATION_EPISODES",
     "CALIBRATION_SEED",
     "NOT_CALIBRATED",
+    "calibration_rules",
     "rule_worst_neglect",
     "site_deadline",
 ]

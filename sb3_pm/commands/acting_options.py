@@ -132,7 +132,8 @@ def add_switch_options(parser: argparse.ArgumentParser) -> None:
         metavar="D|auto|off",
         help="the filter's rule 12 on a trained DCBF team: each agent stands on every target of its "
         "territory, and on those no territory holds that it sweeps, at least every D steps; auto: "
-        "territory_patrol's worst max_neglect on 10 calibration episodes; default: as the team's "
+        "the territory rule's worst max_neglect on 10 calibration episodes (the lower of the split's "
+        "and the team's planned groups'); default: as the team's "
         "deploy_filter says",
     )
 
@@ -163,10 +164,16 @@ def apply_switches(
         return
     require_filter(team, "--visit-deadline")
     if deadline == BOUND_AUTO:
-        from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, site_deadline
+        from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, calibration_rules, site_deadline
 
         deadline = site_deadline(graph, args.agents, env_kwargs, max_cycles=args.steps)
-        source = f"territory_patrol's worst max_neglect over {CALIBRATION_EPISODES} calibration episodes"
+        names = [rule.name for rule in calibration_rules(env_kwargs)]
+        worst = (
+            f"the lower worst max_neglect of {' and '.join(names)}"
+            if len(names) > 1
+            else f"{names[0]}'s worst max_neglect"
+        )
+        source = f"{worst} over {CALIBRATION_EPISODES} calibration episodes"
         if deadline is None:
             deadline = BOUND_OFF
             print(f"no visit deadline: {source} was the whole episode", file=sys.stderr)
@@ -186,7 +193,7 @@ def switch_notices(team: Any, args: argparse.Namespace) -> list[str]:
     ]
     deadline = team.filter_settings.get("visit_deadline") if team.learned else None
     if getattr(args, "visit_deadline", None) is None and deadline is not None:
-        source = " (calibrated on territory_patrol for this site)" if deadline == BOUND_AUTO else ""
+        source = " (calibrated on the territory rule for this site)" if deadline == BOUND_AUTO else ""
         notices.append(
             f"the team acts under the filter's rule 12, visit_deadline {deadline}{source}: each agent "
             "stands on every target of its territory and sweep at least that often (--visit-deadline off "

@@ -19,16 +19,19 @@ began, if never). A teammate's visit only shortens the true run, so ``since_m`` 
 map's ``u_m`` last observed ``age_m`` steps ago bounds it too, as long as it was below the cap:
 eq. (1) raises an unvisited target's ``u`` by exactly one per step, so a run of ``r`` steps leaves
 ``u >= min(r, u_max)``. With ``d_m`` the agent's hop distance to ``m`` over its known edges, ``m``
-is *due* when ``n_m + d_m >= D - 1``, and the mask is then the next hops along shortest known
-paths to the nearest due target: rule 8's test and walk
+is *due* when ``n_m + d_m >= D``, and the mask is then the next hops along shortest known paths
+to the nearest due target: rule 8's walk
 (:func:`~sb3_pm.policies.neglect_bound.neglect_deadline`), on this projection and with no cap. On
 a target it only sweeps the agent is not held: one step resets the run, and the plan left that
 target to nobody.
 
 **Guarantee**, by rule 8's argument: with a static graph and known edges, a target of the agent's
 visit set waits at most ``D`` steps between visits as long as no other target of the set is due
-while it is due (each step while it is due moves the agent one hop closer, so ``n_m + d_m`` does
-not grow); when two are due together one of them can wait longer. The memory lives in the deployed
+while it is due. A walk begun now ends the run at ``n_m + d_m - 1`` steps; one step raises
+``n_m + d_m`` by at most 2, so it is at most ``D + 1`` when the target falls due, and each step of
+the walk keeps it so. When two are due together one of them can wait longer. The target underfoot
+(``n = d = 0``) is never due, so ``D = 1`` sends an agent back and forth between two adjacent
+targets. The memory lives in the deployed
 team (:class:`~sb3_pm.agents.deployment.visit_memory.VisitMemory`), one row per agent, so the rule
 is for deployment: a policy filtered without it refuses to act.
 """
@@ -95,7 +98,8 @@ def visit_hops(
         - u_last, age, since, visit_targets, reachable: ``(B, N)``; position: ``(B,)`` long
     """
     projected = run_projection(u_last, age, since, u_max)
-    # neglect_deadline adds age to its first argument and caps it: the run needs neither
+    # neglect_deadline adds age to its first argument and caps it: the run needs neither. Its test
+    # is arrival >= bound - 1, one step ahead for u; the run's is n + d >= D (module docstring).
     return neglect_deadline(
         projected,
         th.zeros_like(projected),
@@ -103,7 +107,7 @@ def visit_hops(
         adjacency,
         position,
         reachable,
-        float(deadline),
+        float(deadline) + 1.0,
         float("inf"),
     )
 
