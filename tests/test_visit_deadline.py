@@ -319,6 +319,35 @@ def test_auto_calibrates_on_the_teams_own_planned_groups_too_and_takes_the_lower
     assert site_deadline("rooms-4", 4, known) == split  # no planned groups told
 
 
+def test_auto_calibrates_on_the_envs_convention_not_the_one_the_team_trained_on() -> None:
+    """A team trained on the split deployed in an env of planned territories (what
+    ``--territories planned`` builds) calibrates on the planned groups too, and caches per convention."""
+    from sb3_pm.baselines.rule_neglect import rule_worst_neglect
+    from sb3_pm.baselines.territory_patrol import PlannedPatrolTeam
+    from sb3_pm.envs import persistent_monitoring_v0
+
+    team = small_team({"territory_input": True}, graph="rooms-4", n_agents=4)
+    try:
+        team.deploy_filter = {"visit_deadline": "auto"}
+        deployed = {}
+        for territories in ("planned", "split"):
+            settings = {**team.env_settings(), "territories": territories}
+            env = persistent_monitoring_v0.parallel_env(
+                graph="rooms-4", n_agents=4, **{**settings, "max_cycles": 150}
+            )
+            env.reset(seed=0)
+            team.reset(env)
+            env.close()
+            deployed[territories] = team.acting_record(True)["visit_deadline"]
+        planned = {**team.env_settings(), "territories": "planned"}
+        split = rule_worst_neglect("rooms-4", 4, planned, max_cycles=150)
+        own = rule_worst_neglect("rooms-4", 4, planned, max_cycles=150, rule=PlannedPatrolTeam)
+        assert own < split  # so the two conventions give two deadlines
+        assert deployed == {"planned": own, "split": split}
+    finally:
+        team.close()
+
+
 def test_the_calibration_is_the_rules_worst_episode_as_evaluate_measures_it() -> None:
     from sb3_pm.baselines import make_team
     from sb3_pm.baselines.rule_neglect import rule_worst_neglect

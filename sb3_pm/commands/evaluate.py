@@ -334,7 +334,7 @@ def run(args: argparse.Namespace) -> int:
         calibration = resolve_auto_bound(args, team, graph, team.env_settings())
     else:
         apply_neglect_bound(team, args.neglect_bound, args.neglect_scope)
-    apply_switches(team, args, graph, team.env_settings())
+    apply_switches(team, args, graph, {**team.env_settings(), **env_overrides(args)})  # as deployed
     apply_temperature(team, args.temperature, args.stochastic)
     label = policy_label(args.policy, team)
     acting_filter = team.acting_filter()  # after the flags

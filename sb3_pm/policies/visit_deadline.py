@@ -27,13 +27,14 @@ target to nobody.
 
 **Guarantee**, by rule 8's argument: with a static graph and known edges, a target of the agent's
 visit set waits at most ``D`` steps between visits as long as no other target of the set is due
-while it is due. A walk begun now ends the run at ``n_m + d_m - 1`` steps; one step raises
-``n_m + d_m`` by at most 2, so it is at most ``D + 1`` when the target falls due, and each step of
-the walk keeps it so. When two are due together one of them can wait longer. The target underfoot
-(``n = d = 0``) is never due, so ``D = 1`` sends an agent back and forth between two adjacent
-targets. The memory lives in the deployed
-team (:class:`~sb3_pm.agents.deployment.visit_memory.VisitMemory`), one row per agent, so the rule
-is for deployment: a policy filtered without it refuses to act.
+while it is due. A walk begun now ends the target's true run ``r_m <= n_m`` at ``r_m + d_m - 1``
+steps; one step raises ``r_m + d_m`` by at most 2, so it is at most ``D + 1`` when the target falls
+due, and each step of the walk keeps it so. The bound counts from the first visit: a target more
+than ``D + 1`` hops from the agent's start waits the walk there. When two are due together one of
+them can wait longer. The target underfoot (``n = d = 0``) is never due, so ``D = 1`` sends an
+agent back and forth between two adjacent targets. The memory lives in the deployed team
+(:class:`~sb3_pm.agents.deployment.visit_memory.VisitMemory`), one row per agent, so the rule is
+for deployment: a policy filtered without it refuses to act.
 """
 
 from __future__ import annotations

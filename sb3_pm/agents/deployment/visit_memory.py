@@ -74,9 +74,10 @@ def start_visit_memory(team: Any, env: Any) -> VisitMemory | None:
     rule 12. The visit sets are the territories the team's neglect bound would guard (the split, or
     the episode's planned groups) with the swept targets added.
 
-    ``visit_deadline: auto`` takes its number for the site, team size and episode length here, from
-    :func:`~sb3_pm.baselines.rule_neglect.site_deadline` (once per site; none where the rule
-    itself left a target unvisited for a whole episode).
+    ``visit_deadline: auto`` takes its number for the site, team size, episode length and
+    territory convention here, from :func:`~sb3_pm.baselines.rule_neglect.site_deadline`, with the
+    team's env settings and the env's own convention (which ``--territories`` may have set; once
+    per site; none where every calibrated rule left a target unvisited for a whole episode).
 
     :raises InputError: where no territory per agent can be found.
     """
@@ -85,12 +86,13 @@ def start_visit_memory(team: Any, env: Any) -> VisitMemory | None:
     base = getattr(env, "unwrapped", env)
     agents = list(base.possible_agents)
     if team.filter_settings["visit_deadline"] == SITE_BOUND:  # calibrated once per site
-        key = site_key(base.graph, len(agents), base.max_cycles)
+        key = site_key(base.graph, len(agents), base.max_cycles, base.territories)
         known = team.__dict__.get("_site_deadline")
         if known is None or known[0] != key:
-            known = (key, site_deadline(base.graph, len(agents), team.env_settings(), base.max_cycles))
+            settings = {**team.env_settings(), "territories": base.territories}  # the env's, not training's
+            known = (key, site_deadline(base.graph, len(agents), settings, base.max_cycles))
         settle_deadline(team, *known)
-        if known[1] is None:  # the rule itself left a target unvisited all episode: no deadline here
+        if known[1] is None:  # every rule left a target unvisited all episode: no deadline here
             return None
     graph = base.graph
     territory = team._planned_groups()  # the env's own rows, one per agent, where it keeps them
@@ -120,13 +122,13 @@ def _split_by_policy(team: Any, agents: list[str], n_nodes: int) -> np.ndarray:
     return territory
 
 
-def site_key(graph: Any, n_agents: int, max_cycles: int) -> tuple[str, int, int]:
-    """What a calibrated ``visit_deadline: auto`` was calibrated for: the site, team size and
-    episode length."""
-    return (str(graph.fingerprint), int(n_agents), int(max_cycles))
+def site_key(graph: Any, n_agents: int, max_cycles: int, territories: str) -> tuple[str, int, int, str]:
+    """What a calibrated ``visit_deadline: auto`` was calibrated for: the site, team size, episode
+    length and territory convention (which rules calibrate it)."""
+    return (str(graph.fingerprint), int(n_agents), int(max_cycles), str(territories))
 
 
-def settle_deadline(team: Any, key: tuple[str, int, int], deadline: int | None) -> None:
+def settle_deadline(team: Any, key: tuple[str, int, int, str], deadline: int | None) -> None:
     """Give every acting policy of a team with ``visit_deadline: auto`` the deadline calibrated
     for site ``key``, or none (its :attr:`filter_settings` keep ``auto``, for the next site)."""
     team.__dict__["_site_deadline"] = (key, deadline)
