@@ -31,6 +31,49 @@ CALIBRATION_SEED = 9_000_000
 NOT_CALIBRATED = ("failures", "failure_rate")
 
 
+def rule_worst(
+    metric: str,
+    graph: GraphLike,
+    n_agents: int,
+    env_kwargs: Mapping[str, Any] | None = None,
+    max_cycles: int = 500,
+    episodes: int = CALIBRATION_EPISODES,
+    seed: int = CALIBRATION_SEED,
+    rule: type[TerritoryPatrolTeam] = TerritoryPatrolTeam,
+    ceiling: float = float("inf"),
+) -> float:
+    """The largest episode ``metric`` of ``rule`` over ``episodes`` calibration episodes (at
+    least 1), episode ``e`` from env seed ``seed + e``: the loop both calibrations share (rule 12's
+    deadline here, rule 8's bound in :mod:`sb3_pm.evaluation.neglect_calibration`).
+
+    :param metric: an episode metric, e.g. ``max_neglect`` or ``peak_uncertainty``.
+    :param env_kwargs: the environment settings, passed as they are.
+    :param ceiling: the metric's largest possible value: reaching it ends the calibration, since no
+        later episode can be worse.
+    :raises InputError: for ``episodes < 1``.
+    """
+    from sb3_pm.envs import persistent_monitoring_v0
+
+    if episodes < 1:
+        raise InputError(f"calibration episodes must be at least 1, got {episodes}")
+    env = persistent_monitoring_v0.parallel_env(
+        graph=resolve_graph(graph), n_agents=n_agents, max_cycles=max_cycles, **dict(env_kwargs or {})
+    )
+    team, worst = rule(), float("-inf")
+    try:
+        for episode in range(episodes):
+            observations, _ = env.reset(seed=seed + episode)
+            team.reset(env, seed=seed + episode)
+            while env.agents:
+                observations, *_ = env.step(team.predict_dict(observations))
+            worst = max(worst, float(env.unwrapped.episode_metrics()[metric]))
+            if worst >= ceiling:
+                break
+    finally:
+        env.close()
+    return worst
+
+
 def rule_worst_neglect(
     graph: GraphLike,
     n_agents: int,
@@ -40,34 +83,17 @@ def rule_worst_neglect(
     seed: int = CALIBRATION_SEED,
     rule: type[TerritoryPatrolTeam] = TerritoryPatrolTeam,
 ) -> int:
-    """The worst ``max_neglect`` of ``rule`` over ``episodes`` episodes (at least 1).
+    """The worst ``max_neglect`` of ``rule`` over ``episodes`` episodes (:func:`rule_worst`; at
+    least 1).
 
     :param graph: the site; ``n_agents``: the team size (the rule's groups follow it).
     :param env_kwargs: the deployment's environment settings; agent failures are left out.
     :param rule: ``territory_patrol`` (the default) or one of its planned variants.
     :raises InputError: for ``episodes < 1``.
     """
-    from sb3_pm.envs import persistent_monitoring_v0
-
-    if episodes < 1:
-        raise InputError(f"calibration episodes must be at least 1, got {episodes}")
     kwargs = {key: value for key, value in (env_kwargs or {}).items() if key not in NOT_CALIBRATED}
-    env = persistent_monitoring_v0.parallel_env(
-        graph=resolve_graph(graph), n_agents=n_agents, max_cycles=max_cycles, **kwargs
-    )
-    team, worst = rule(), 1
-    try:
-        for episode in range(episodes):
-            observations, _ = env.reset(seed=seed + episode)
-            team.reset(env, seed=seed + episode)
-            while env.agents:
-                observations, *_ = env.step(team.predict_dict(observations))
-            worst = max(worst, int(env.unwrapped.episode_metrics()["max_neglect"]))
-            if worst >= max_cycles:  # a target never visited: no later episode can be worse
-                break
-    finally:
-        env.close()
-    return worst
+    worst = rule_worst("max_neglect", graph, n_agents, kwargs, max_cycles, episodes, seed, rule, max_cycles)
+    return max(1, int(worst))
 
 
 def calibration_rules(env_kwargs: Mapping[str, Any] | None = None) -> list[type[TerritoryPatrolTeam]]:
@@ -100,6 +126,7 @@ __all__ = [
     "CALIBRATION_SEED",
     "NOT_CALIBRATED",
     "calibration_rules",
+    "rule_worst",
     "rule_worst_neglect",
     "site_deadline",
 ]

@@ -34,11 +34,9 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from sb3_pm.baselines import make_team
-from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, CALIBRATION_SEED, NOT_CALIBRATED
+from sb3_pm.baselines.rule_neglect import CALIBRATION_EPISODES, CALIBRATION_SEED, NOT_CALIBRATED, rule_worst
 from sb3_pm.envs.core import DEFAULT_U_MAX
 from sb3_pm.errors import InputError
-from sb3_pm.evaluation.harness import evaluate
 from sb3_pm.graphs import GraphLike, resolve_graph
 
 #: ``B = ceil(MARGIN · P)``: the territory rule's worst peak itself (module docstring).
@@ -117,16 +115,8 @@ def calibrate_neglect_bound(
             f"{kwargs['initial_uncertainty']!r}: rule 8's guarantee assumes targets start at u = 0"
         )
     u_max = int(kwargs.get("u_max", DEFAULT_U_MAX))
-    result = evaluate(
-        make_team("territory_patrol"),
-        spec,
-        n_agents=n_agents,
-        episodes=episodes,
-        seed=seed,
-        max_cycles=max_cycles,
-        env_kwargs=kwargs,
-    )
-    peak = max(float(record.metrics["peak_uncertainty"]) for record in result.episodes)
+    # the episodes evaluate() would play; a peak at u_max ends them (no bound can follow)
+    peak = rule_worst("peak_uncertainty", spec, n_agents, kwargs, max_cycles, episodes, seed, ceiling=u_max)
     bound = None if peak >= u_max else float(min(u_max, max(1, math.ceil(margin * peak))))
     return CalibratedBound(
         bound=bound,
