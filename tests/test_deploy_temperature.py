@@ -113,7 +113,7 @@ def test_a_bad_deploy_temperature_is_refused_in_a_config_a_team_and_an_experimen
 def test_a_config_sets_it_and_a_run_folder_records_it() -> None:
     config = load_config("ippo_transfer", "paper-50")
     assert config.deploy_temperature == 0.25 and config.to_dict()["deploy_temperature"] == 0.25
-    assert "deploy_temperature" not in load_config("ippo", "paper-50").to_dict()
+    assert "deploy_temperature" not in load_config("ippo", "paper-100").to_dict()
     assert load_config("ippo_transfer", "paper-50", {"deploy_temperature": None}).deploy_temperature is None
 
 
@@ -239,9 +239,10 @@ def test_a_rule_for_learners_without_the_dcbf_policy_is_refused_and_leaves_the_t
 
 
 def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> None:
-    """Only known_map_family, transfer_territory's and transfer_advice's variants, the regimes'
-    transfer rows and held_out's planned transfer team (zoo/ippo_transfer.yml's own rule) sample;
-    the other transfer files pin the argmax their tables measured.
+    """Only the headline's default (zoo/ippo.yml's paper-50 entry), known_map_family,
+    transfer_territory's and transfer_advice's variants, the regimes' transfer rows and held_out's
+    planned transfer team (zoo/ippo_transfer.yml's own rule) sample; the other transfer files pin
+    the argmax their tables measured.
     Removing a pin (or a config gaining a rule) shows here, and in the record a folder resumes by."""
     from sb3_pm.experiments.record import experiment_record, team_rules
 
@@ -250,6 +251,7 @@ def test_every_shipped_experiment_declares_how_its_learned_variants_act() -> Non
         for path in every_experiment_file()
     }
     assert {name: rule for name, rule in rules.items() if rule} == {
+        "headline": {"default": 0.25},
         "transfer_known_map": {"known_map_family": 0.25},
         "transfer_territory": {"known_map_territory": 0.25, "known_map_territory_family": 0.25},
         "transfer_advice": {"advice_prior": 0.25, "advice_prior_family": 0.25, "advice": 0.25},

@@ -1033,9 +1033,9 @@ def _learned_cells(tmp_path: Path, name: str, key: str) -> dict[int, tuple[Any, 
 
 def test_the_headline_default_trains_the_planned_prior_teams(tmp_path: Path) -> None:
     """paper-50's default is planned_territories.yml's ``planned_prior`` team: the headline's
-    ``default`` cells train it on the same graph, seeds and episodes, and differ only in their
-    deploy filter, the default's (paper-50's neglect bound), where planned_prior was measured
-    without one."""
+    ``default`` cells train it on the same graph, seeds and episodes, and differ only in how the
+    trained team acts: the default's deploy filter (paper-50's neglect bound) and temperature,
+    where planned_prior was measured without a filter, by its most likely actions."""
     headline = _learned_cells(tmp_path, HEADLINE, "default")
     planned = _learned_cells(tmp_path, "planned_territories", "planned_prior")
     assert planned.keys() <= headline.keys()
@@ -1045,6 +1045,8 @@ def test_the_headline_default_trains_the_planned_prior_teams(tmp_path: Path) -> 
         assert where == headline_where, seed
         assert team.pop("deploy_filter") is None
         assert headline_team.pop("deploy_filter") == load_config("ippo", "paper-50").deploy_filter
+        assert team.pop("deploy_temperature") is None
+        assert headline_team.pop("deploy_temperature") == load_config("ippo", "paper-50").deploy_temperature
         assert team == headline_team, seed  # every other key, the learners' own included
 
 

@@ -28,6 +28,23 @@ def test_the_pretrained_default_deploys_as_the_default_config_says() -> None:
     team = resolve_team("pretrained:paper-50")
     assert team.deploy_filter == manifest["deploy_filter"]
     assert team.acting_record(True) == {**manifest["deploy_filter"]}
+    assert manifest["deploy_temperature"] == load_config("ippo", "paper-50").deploy_temperature
+    assert team.deploy_temperature == manifest["deploy_temperature"]
+
+
+def test_the_pretrained_default_leaves_the_loop_that_its_most_likely_actions_fall_into() -> None:
+    """On env seed 13 the shipped team's most likely actions send two agents back and forth
+    together for 48 steps, and the two targets left behind never come back down (each step an
+    agent is off a target adds to the total for good). Its deployment temperature breaks the loop."""
+    from sb3_pm.baselines import make_team
+    from sb3_pm.evaluation import evaluate
+
+    team = resolve_team("pretrained:paper-50")
+    sampled = evaluate(team, episodes=1, seed=13).episodes[0].metrics
+    argmax = evaluate(team, episodes=1, seed=13, deterministic=True).episodes[0].metrics
+    rule = evaluate(make_team("planned_patrol"), "paper-50", episodes=1, seed=13).episodes[0].metrics
+    assert argmax["avg_uncertainty"] > 2 * rule["avg_uncertainty"] and argmax["collisions"] > 0
+    assert sampled["avg_uncertainty"] <= 1.05 * rule["avg_uncertainty"] and sampled["collisions"] == 0
 
 
 def test_the_pretrained_team_acts_legally() -> None:

@@ -248,6 +248,10 @@ def test_a_planned_default_is_the_split_default_with_planned_territories(graph: 
     bound = {key: value for key, value in (deploy_filter or {}).items() if key not in extra}
     bound_only = bound if bound.get("neglect_bound") is not None else {}
     assert split.pop("deploy_filter") == (bound_only or None)
+    # paper-50's planned default samples at a temperature; the split default and the families act
+    # by their most likely actions
+    assert split.pop("deploy_temperature") is None
+    assert default.pop("deploy_temperature") == (0.25 if graph in ("paper-50", "paper_50n_8t") else None)
     assert default == split  # the rest
 
 
