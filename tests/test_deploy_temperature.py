@@ -114,6 +114,10 @@ def test_a_config_sets_it_and_a_run_folder_records_it() -> None:
     config = load_config("ippo_transfer", "paper-50")
     assert config.deploy_temperature == 0.25 and config.to_dict()["deploy_temperature"] == 0.25
     assert "deploy_temperature" not in load_config("ippo", "paper-100").to_dict()
+    # the default on paper-50 samples; the families that merge its entry pin the most likely action
+    assert load_config("ippo", "paper-50").to_dict()["deploy_temperature"] == 0.25
+    for family in ("rgg-60", "rooms-4", "cliques-6x8"):
+        assert load_config("ippo", family).deploy_temperature is None, family
     assert load_config("ippo_transfer", "paper-50", {"deploy_temperature": None}).deploy_temperature is None
 
 
